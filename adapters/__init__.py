@@ -1,0 +1,1 @@
+"""Backbone adapters: ONNX and torch stereo models behind one callable contract."""

@@ -1,0 +1,172 @@
+"""Input checks shared by the public entry points.
+
+Each ``check_*`` function validates one argument and returns it normalised, raising an
+:class:`~srde_fusion.errors.SRDEError` subclass whose message names the argument and says
+what was expected and what was given. Checks run once, at the public boundary; internal
+functions trust their inputs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .errors import DisparityError, ImageError, MaskError
+
+__all__ = [
+    "check_image",
+    "check_views",
+    "check_mask",
+    "check_disparity",
+    "check_point3",
+]
+
+
+def _describe(array: Any) -> str:
+    if isinstance(array, np.ndarray):
+        return f"array of shape {array.shape} and dtype {array.dtype}"
+    return f"{type(array).__name__}"
+
+
+def check_image(image: Any, name: str = "image") -> np.ndarray:
+    """Validate one camera image and return it as a numpy array.
+
+    Parameters
+    ----------
+    image : array_like, (H, W) or (H, W, 3), uint8 or float in [0, 1]
+        A grey or RGB image.
+    name : str
+        How the argument is named in error messages.
+
+    Returns
+    -------
+    numpy.ndarray
+        The same image, as a numpy array (uint8 kept, floats as float32).
+
+    Raises
+    ------
+    ImageError
+        Wrong type, dtype, shape, non-finite or out-of-range float values.
+    """
+    if not isinstance(image, np.ndarray):
+        raise ImageError(f"{name}: expected a numpy array (H, W) or (H, W, 3), got {_describe(image)}")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+        raise ImageError(f"{name}: expected shape (H, W) or (H, W, 3), got {image.shape}")
+    if image.shape[0] < 2 or image.shape[1] < 2:
+        raise ImageError(f"{name}: expected at least 2x2 pixels, got {image.shape[:2]}")
+    if image.dtype == np.uint8:
+        return image
+    if np.issubdtype(image.dtype, np.floating):
+        image = image.astype(np.float32, copy=False)
+        if not np.all(np.isfinite(image)):
+            raise ImageError(f"{name}: expected finite float values in [0, 1], got NaN or inf")
+        lo, hi = float(image.min()), float(image.max())
+        if lo < 0.0 or hi > 1.0:
+            raise ImageError(
+                f"{name}: expected float values in [0, 1], got range [{lo:.4g}, {hi:.4g}]"
+            )
+        return image
+    raise ImageError(f"{name}: expected dtype uint8 or float in [0, 1], got {image.dtype}")
+
+
+def check_views(views: Any, n_cameras: int | None = None, image_size: tuple[int, int] | None = None
+                ) -> list[np.ndarray]:
+    """Validate the list of views of a rig.
+
+    Parameters
+    ----------
+    views : sequence of arrays
+        One image per camera, in the rig's camera order.
+    n_cameras : int, optional
+        Number of cameras the rig has.
+    image_size : (int, int), optional
+        Expected ``(width, height)``.
+
+    Returns
+    -------
+    list of numpy.ndarray
+        The validated images.
+    """
+    if isinstance(views, np.ndarray) and views.ndim in (3, 4) and views.shape[0] != 0:
+        views = list(views)
+    if not isinstance(views, Sequence) or isinstance(views, (str, bytes)):
+        raise ImageError(f"views: expected a sequence of images, got {_describe(views)}")
+    if n_cameras is not None and len(views) != n_cameras:
+        raise ImageError(f"views: expected {n_cameras} images (one per rig camera), got {len(views)}")
+    if len(views) == 0:
+        raise ImageError("views: expected at least one image, got none")
+    checked = [check_image(v, f"views[{i}]") for i, v in enumerate(views)]
+    shape0 = checked[0].shape[:2]
+    for i, v in enumerate(checked):
+        if v.shape[:2] != shape0:
+            raise ImageError(
+                f"views[{i}]: expected the same size as views[0] ({shape0[1]}x{shape0[0]}), "
+                f"got {v.shape[1]}x{v.shape[0]}"
+            )
+    if image_size is not None and (shape0[1], shape0[0]) != tuple(image_size):
+        raise ImageError(
+            f"views: expected images of the rig's size {image_size[0]}x{image_size[1]}, "
+            f"got {shape0[1]}x{shape0[0]}"
+        )
+    return checked
+
+
+def check_mask(mask: Any, shape: tuple[int, int], name: str = "mask", *, allow_empty: bool = False
+               ) -> np.ndarray:
+    """Validate a binary mask of the reference view and return it as bool.
+
+    Parameters
+    ----------
+    mask : array_like, (H, W), bool or integer (non-zero = inside)
+    shape : (int, int)
+        Expected ``(H, W)``.
+    """
+    if not isinstance(mask, np.ndarray):
+        raise MaskError(f"{name}: expected a numpy array of shape {shape}, got {_describe(mask)}")
+    if mask.shape != tuple(shape):
+        raise MaskError(f"{name}: expected shape {tuple(shape)}, got {mask.shape}")
+    if mask.dtype != bool:
+        if not (np.issubdtype(mask.dtype, np.integer) or np.issubdtype(mask.dtype, np.floating)):
+            raise MaskError(f"{name}: expected a bool or integer mask, got dtype {mask.dtype}")
+        mask = np.nan_to_num(mask) != 0
+    if not allow_empty and not mask.any():
+        raise MaskError(f"{name}: expected at least one pixel inside the mask, got an empty mask")
+    return mask
+
+
+def check_disparity(disparity: Any, shape: tuple[int, int] | None = None, name: str = "disparity"
+                    ) -> np.ndarray:
+    """Validate a disparity map and return it as float32 (NaN = invalid).
+
+    Non-finite and negative values are allowed in the input and mean *invalid*;
+    they are turned into NaN in the returned copy.
+    """
+    if not isinstance(disparity, np.ndarray):
+        raise DisparityError(f"{name}: expected a numpy array (H, W), got {_describe(disparity)}")
+    if disparity.ndim == 3 and disparity.shape[0] == 1:
+        disparity = disparity[0]
+    if disparity.ndim != 2:
+        raise DisparityError(f"{name}: expected shape (H, W), got {disparity.shape}")
+    if not (np.issubdtype(disparity.dtype, np.floating) or np.issubdtype(disparity.dtype, np.integer)):
+        raise DisparityError(f"{name}: expected a float array, got dtype {disparity.dtype}")
+    if shape is not None and disparity.shape != tuple(shape):
+        raise DisparityError(f"{name}: expected shape {tuple(shape)}, got {disparity.shape}")
+    out = disparity.astype(np.float32, copy=True)
+    with np.errstate(invalid="ignore"):
+        out[~np.isfinite(out) | (out < 0)] = np.nan
+    return out
+
+
+def check_point3(point: Any, name: str) -> np.ndarray:
+    """Validate a 3D point in metres and return it as float64 ``(3,)``."""
+    try:
+        arr = np.asarray(point, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ImageError(f"{name}: expected 3 numbers (x, y, z) in metres, got {point!r}") from None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ImageError(f"{name}: expected 3 finite numbers (x, y, z) in metres, got {point!r}")
+    return arr

@@ -1,0 +1,64 @@
+"""The ``srde-fusion`` command.
+
+Each subcommand maps its flags to keyword arguments of a library function; the logic
+lives in the library. Bad input exits with code 2 and one line on stderr, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import SRDEError
+
+__all__ = ["main", "build_parser"]
+
+# Modules that contribute subcommands through a ``register_cli(subparsers)`` function.
+# Adapters live outside the core; the CLI is the one place allowed to import them.
+_COMMAND_MODULES = (
+    "srde_fusion.scenes",
+    "srde_fusion.commands",
+    "srde_fusion.light",
+    "srde_fusion.adapters.training",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every available subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="srde-fusion",
+        description="Disparity of flat glossy objects from their specular highlight (SRDE), "
+        "fused into a neural stereo pipeline.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # not written yet / not installed: skip its commands
+                continue
+            raise
+        register = getattr(module, "register_cli", None)
+        if register is not None:
+            register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command; returns the exit code (0 ok, 2 bad input)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        result = args.func(args)
+    except SRDEError as exc:
+        print(f"srde-fusion {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return int(result or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

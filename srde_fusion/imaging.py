@@ -1,0 +1,92 @@
+"""Photometry of 8-bit camera images: sRGB decoding, luminance, saturation.
+
+Camera images are gamma-encoded; anything photometric (weighted centroids, lobe fits,
+thresholds meant as brightness) works on linear intensity (DESIGN §2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "srgb_to_linear",
+    "linear_to_srgb",
+    "to_float",
+    "luminance",
+    "saturation_mask",
+    "REC709_LUMA",
+]
+
+#: Rec. 709 / sRGB luminance weights for linear RGB.
+REC709_LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+
+#: A uint8 value at or above this is treated as clipped (saturated).
+SATURATION_LEVEL_U8 = 254
+
+
+def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
+    """Decode sRGB values in [0, 1] to linear intensity in [0, 1] (IEC 61966-2-1)."""
+    encoded = np.asarray(encoded, dtype=np.float32)
+    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4).astype(
+        np.float32
+    )
+
+
+def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
+    """Encode linear intensity in [0, 1] to sRGB values in [0, 1]."""
+    linear = np.clip(np.asarray(linear, dtype=np.float32), 0.0, 1.0)
+    return np.where(
+        linear <= 0.0031308, linear * 12.92, 1.055 * np.power(linear, 1.0 / 2.4) - 0.055
+    ).astype(np.float32)
+
+
+# A 256-entry table makes decoding uint8 images a single gather.
+_SRGB_LUT = srgb_to_linear(np.arange(256, dtype=np.float32) / 255.0)
+
+
+def to_float(image: np.ndarray) -> np.ndarray:
+    """Image as float32 in [0, 1], still in its own encoding."""
+    if image.dtype == np.uint8:
+        return image.astype(np.float32) / 255.0
+    return image.astype(np.float32, copy=False)
+
+
+def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
+    """Linear luminance of a grey or RGB image.
+
+    Parameters
+    ----------
+    image : numpy.ndarray, (H, W) or (H, W, 3), uint8 or float32 in [0, 1]
+    encoding : {"srgb", "linear"}
+        How the image values encode intensity.
+
+    Returns
+    -------
+    numpy.ndarray, (H, W), float32
+        Linear luminance in [0, 1].
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> float(luminance(np.full((2, 2, 3), 255, np.uint8))[0, 0])
+    1.0
+    """
+    if encoding == "srgb":
+        if image.dtype == np.uint8:
+            lin = _SRGB_LUT[image]
+        else:
+            lin = srgb_to_linear(image)
+    else:
+        lin = to_float(image)
+    if lin.ndim == 3:
+        lin = lin @ REC709_LUMA
+    return lin.astype(np.float32, copy=False)
+
+
+def saturation_mask(image: np.ndarray) -> np.ndarray:
+    """Pixels where any channel is clipped at the top of the range, (H, W) bool."""
+    if image.dtype == np.uint8:
+        sat = image >= SATURATION_LEVEL_U8
+    else:
+        sat = image >= SATURATION_LEVEL_U8 / 255.0
+    return sat.any(axis=2) if sat.ndim == 3 else sat
