@@ -20,6 +20,7 @@ _COMMAND_MODULES = (
     "srde_fusion.scenes",
     "srde_fusion.commands",
     "srde_fusion.light",
+    "srde_fusion.board",
     "srde_fusion.adapters.training",
 )
 
