@@ -48,7 +48,8 @@ class Plane:
         x = np.asarray(point_m, dtype=np.float64)
         if np.dot(n, np.asarray(towards_m, dtype=np.float64) - x) < 0:
             n = -n
-        return cls(tuple(float(v) for v in n), float(np.dot(n, x)))
+        # "+ 0.0" turns -0.0 into 0.0 so printed normals read cleanly.
+        return cls(tuple(float(v) + 0.0 for v in n), float(np.dot(n, x)))
 
     @property
     def n(self) -> np.ndarray:
