@@ -793,6 +793,13 @@ def read_middlebury_calib(
 
 
 # ---------------------------------------------------------------------- OpenCV YAML
+def _cv_error_text(exc: BaseException) -> str:
+    # OpenCV's own error may be wrapped (SystemError from a constructor): report the cause.
+    inner = exc.__cause__ or exc.__context__ or exc
+    lines = str(inner).strip().splitlines()
+    return lines[-1] if lines else type(inner).__name__
+
+
 def _fs_matrix(
     fs: Any,
     names: Sequence[str],
@@ -882,10 +889,11 @@ def read_opencv_stereo_yaml(
     try:
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
         opened = fs.isOpened()
-    except cv2.error as exc:
+    # A parse error surfaces as cv2.error or, from the constructor, as SystemError.
+    except (cv2.error, SystemError) as exc:
         raise FileFormatError(
             f"{p}: expected an OpenCV FileStorage YAML/XML file, got a parse error: "
-            f"{str(exc).strip().splitlines()[-1]}"
+            f"{_cv_error_text(exc)}"
         ) from None
     if not opened:
         raise FileFormatError(
@@ -902,7 +910,7 @@ def read_opencv_stereo_yaml(
     except cv2.error as exc:
         raise FileFormatError(
             f"{p}: expected OpenCV matrices K1, D1, K2, D2, R, T, got an error: "
-            f"{str(exc).strip().splitlines()[-1]}"
+            f"{_cv_error_text(exc)}"
         ) from None
     finally:
         fs.release()
