@@ -1,0 +1,551 @@
+"""Fusion of a backbone disparity map with SRDE on flat glossy objects.
+
+Inside each object's mask the disparity comes from SRDE (the plane found from the
+specular highlight); everywhere else it is the backbone's, untouched. Each object falls
+back to the backbone on its own, with the reason recorded, when SRDE fails or when its
+plane grossly contradicts the backbone where the backbone can be trusted: on the
+object's border, where the object's silhouette against the background gives the
+backbone something to match even though the object's interior is textureless.
+
+The fused map never loses a valid backbone pixel: a pixel is either the backbone's value,
+bit for bit, or a finite SRDE value.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ._checks import check_disparity, check_mask, check_views
+from .errors import LightError, MaskError
+from .imaging import REC709_LUMA, saturation_mask, to_float
+from .rig import CameraRig
+
+__all__ = [
+    "BorderCheck",
+    "ObjectReport",
+    "FusionResult",
+    "fuse",
+    "postprocess",
+    "HybridStereo",
+    "SOURCE_BACKBONE",
+]
+
+#: Value of :attr:`FusionResult.source` where the backbone's disparity is kept.
+SOURCE_BACKBONE = 0
+
+Backbone = Callable[[np.ndarray, np.ndarray], np.ndarray]
+Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
+
+
+@dataclass(frozen=True)
+class BorderCheck:
+    """How SRDE is checked against the backbone on an object's border.
+
+    The check compares the two maps on the *border band*: mask pixels within
+    ``width_px`` of the mask's edge whose reference image shows texture (Sobel gradient
+    of the encoded grey image above ``min_gradient``) and no clipped highlight. There
+    the backbone sees the silhouette of the object and matches it, while the interior
+    gives it nothing to match.
+
+    Parameters
+    ----------
+    width_px : int
+        Width of the band inside the mask's edge, pixels.
+    min_gradient : float
+        Gradient magnitude (Sobel 3x3 on grey values in [0, 1]) above which a band pixel
+        counts as textured.
+    max_diff_px : float
+        Absolute part of the tolerance on the median ``|srde - backbone|`` over the band,
+        pixels.
+    max_diff_rel : float
+        Relative part of the tolerance, as a fraction of the median backbone disparity
+        on the band. SRDE is rejected when the median difference exceeds
+        ``max(max_diff_px, max_diff_rel * median backbone disparity)``.
+    min_px : int
+        Fewest reliable band pixels for the check to run; with fewer, SRDE is accepted
+        unchecked and the report says so.
+    """
+
+    width_px: int = 4
+    min_gradient: float = 0.08
+    max_diff_px: float = 3.0
+    max_diff_rel: float = 0.15
+    min_px: int = 30
+
+    def __post_init__(self) -> None:
+        if int(self.width_px) != self.width_px or self.width_px < 1:
+            raise ValueError(f"width_px: expected a positive integer, got {self.width_px!r}")
+        for name in ("min_gradient", "max_diff_px", "max_diff_rel"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
+        if int(self.min_px) != self.min_px or self.min_px < 1:
+            raise ValueError(f"min_px: expected a positive integer, got {self.min_px!r}")
+
+
+@dataclass(frozen=True)
+class ObjectReport:
+    """What happened to one object during fusion.
+
+    Attributes
+    ----------
+    index : int
+        The object's number k (1-based); its pixels carry ``k`` in the source map when
+        SRDE was used.
+    status : {"srde", "fallback"}
+        Whether SRDE's disparity replaced the backbone's inside the mask.
+    reason : str
+        Why, in words with the numbers behind the decision.
+    srde : SRDEResult
+        SRDE's full result for this object (plane, virtual light, highlight centres).
+    pixel_count : int
+        Pixels in the object's mask.
+    replaced_px : int
+        Pixels whose disparity now comes from SRDE (0 on fallback).
+    border_px : int
+        Reliable border-band pixels the check used (0 when it did not run).
+    border_median_diff_px : float
+        Median of ``srde - backbone`` on the band, pixels (NaN when the check did not run).
+    border_median_abs_diff_px : float
+        Median of ``|srde - backbone|`` on the band, pixels (NaN when it did not run).
+    border_tolerance_px : float
+        The tolerance the median absolute difference was held to (NaN when not run).
+    """
+
+    index: int
+    status: str
+    reason: str
+    srde: Any
+    pixel_count: int
+    replaced_px: int
+    border_px: int = 0
+    border_median_diff_px: float = math.nan
+    border_median_abs_diff_px: float = math.nan
+    border_tolerance_px: float = math.nan
+
+    @property
+    def used_srde(self) -> bool:
+        """True when SRDE's disparity was used for this object."""
+        return self.status == "srde"
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return a JSON-serialisable summary (NaN becomes None)."""
+        return {
+            "index": self.index,
+            "status": self.status,
+            "reason": self.reason,
+            "pixel_count": self.pixel_count,
+            "replaced_px": self.replaced_px,
+            "border": {
+                "px": self.border_px,
+                "median_diff_px": _json_float(self.border_median_diff_px),
+                "median_abs_diff_px": _json_float(self.border_median_abs_diff_px),
+                "tolerance_px": _json_float(self.border_tolerance_px),
+            },
+            "srde": _srde_to_dict(self.srde),
+        }
+
+
+@dataclass(frozen=True)
+class FusionResult:
+    """The fused disparity map and where each pixel came from.
+
+    Attributes
+    ----------
+    disparity : numpy.ndarray, (H, W), float32, pixels
+        Fused stereo-pair disparity; NaN where neither source is valid.
+    source : numpy.ndarray, (H, W), int32
+        0 where the backbone's value is kept, ``k`` where object ``k``'s SRDE plane is used.
+    objects : tuple of ObjectReport
+        One report per object, in mask order.
+    backbone_disparity : numpy.ndarray, (H, W), float32, pixels
+        The backbone's map as fused (non-finite and negative values turned into NaN).
+    """
+
+    disparity: np.ndarray
+    source: np.ndarray
+    objects: tuple[ObjectReport, ...]
+    backbone_disparity: np.ndarray = field(repr=False)
+
+    @property
+    def srde_disparity(self) -> np.ndarray:
+        """SRDE alone: every object's SRDE disparity, fallbacks included, NaN elsewhere.
+
+        Returns
+        -------
+        numpy.ndarray, (H, W), float32, pixels
+        """
+        out = np.full(self.disparity.shape, np.nan, dtype=np.float32)
+        for obj in self.objects:
+            srde_disp = getattr(obj.srde, "disparity", None)
+            if srde_disp is None:
+                continue
+            fill = np.isfinite(srde_disp) & np.isnan(out)
+            out[fill] = srde_disp[fill]
+        return out
+
+    def report(self) -> dict[str, Any]:
+        """Return a JSON-serialisable summary of the fusion."""
+        valid = np.isfinite(self.disparity)
+        return {
+            "image_size": [int(self.disparity.shape[1]), int(self.disparity.shape[0])],
+            "n_objects": len(self.objects),
+            "n_srde": sum(o.status == "srde" for o in self.objects),
+            "n_fallback": sum(o.status == "fallback" for o in self.objects),
+            "pixels_from_srde": int(np.count_nonzero(self.source != SOURCE_BACKBONE)),
+            "pixels_from_backbone": int(np.count_nonzero(valid & (self.source == SOURCE_BACKBONE))),
+            "invalid_px": int(np.count_nonzero(~valid)),
+            "objects": [o.to_dict() for o in self.objects],
+        }
+
+
+def _json_float(value: Any) -> float | None:
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _json_array(value: Any) -> Any:
+    if value is None:
+        return None
+    arr = np.asarray(value, dtype=np.float64)
+    return [_json_array(v) for v in arr] if arr.ndim else _json_float(arr)
+
+
+def _srde_to_dict(result: Any) -> dict[str, Any]:
+    """JSON view of an SRDE result, tolerant of missing fields."""
+    plane = getattr(result, "plane", None)
+    used = getattr(result, "used_views", None)
+    return {
+        "status": str(getattr(result, "status", "unknown")),
+        "reason": str(getattr(result, "reason", "")),
+        "method": getattr(result, "method", None),
+        "plane": None if plane is None else {
+            "normal": _json_array(plane.normal),
+            "offset_m": _json_float(plane.offset_m),
+        },
+        "virtual_light_m": _json_array(getattr(result, "virtual_light_m", None)),
+        "highlight_centers_px": _json_array(getattr(result, "highlight_centers", None)),
+        "used_views": None if used is None else [bool(u) for u in np.asarray(used).ravel()],
+        "residual_px": _json_float(getattr(result, "residual_px", None)),
+    }
+
+
+def _srde_ok(result: Any) -> bool:
+    ok = getattr(result, "ok", None)
+    return bool(ok) if ok is not None else getattr(result, "status", None) == "ok"
+
+
+def _as_mask_list(masks: Any, shape: tuple[int, int]) -> list[np.ndarray]:
+    """Validate ``masks`` (list of bool masks, (K, H, W) stack or (H, W) labels)."""
+    if isinstance(masks, np.ndarray):
+        if masks.ndim == 2:
+            if not np.issubdtype(masks.dtype, np.integer):
+                masks = [masks]
+            else:  # instance labels: 0 = background, k = object k
+                values = np.unique(masks)
+                masks = [masks == v for v in values[values > 0]]
+        elif masks.ndim == 3:
+            masks = list(masks)
+        else:
+            raise MaskError(f"masks: expected a list of (H, W) masks, a (K, H, W) stack or (H, W) "
+                            f"labels, got an array of shape {masks.shape}")
+    if not isinstance(masks, Sequence) or isinstance(masks, (str, bytes)):
+        raise MaskError(f"masks: expected a list of (H, W) bool masks, got {type(masks).__name__}")
+    return [check_mask(m, shape, f"masks[{i}]") for i, m in enumerate(masks)]
+
+
+def _gradient_magnitude(gray: np.ndarray) -> np.ndarray:
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.magnitude(gx, gy)
+
+
+def _textured(reference: np.ndarray, min_gradient: float) -> np.ndarray:
+    """Pixels of the reference view that carry texture a matcher can lock onto."""
+    # Texture is judged on the encoded values (luma), as a network trained on 8-bit
+    # images sees them; linear luminance would squash texture in dark regions.
+    gray = to_float(reference)
+    if gray.ndim == 3:
+        gray = gray @ REC709_LUMA
+    textured = _gradient_magnitude(gray) > min_gradient
+    # Clipped highlights have strong, view-dependent edges that the backbone mismatches.
+    clipped = cv2.dilate(saturation_mask(reference).astype(np.uint8), np.ones((5, 5), np.uint8))
+    return textured & (clipped == 0)
+
+
+def _border_band(mask: np.ndarray, width_px: int) -> np.ndarray:
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * width_px + 1, 2 * width_px + 1))
+    inner = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
+    return mask & ~inner
+
+
+@dataclass(frozen=True)
+class _BorderStats:
+    n_px: int
+    median_diff_px: float
+    median_abs_diff_px: float
+    tolerance_px: float
+
+
+def _border_stats(srde_disp: np.ndarray, backbone: np.ndarray, mask: np.ndarray,
+                  textured: np.ndarray, check: BorderCheck) -> _BorderStats:
+    band = _border_band(mask, check.width_px) & textured
+    band &= np.isfinite(backbone) & np.isfinite(srde_disp)
+    n = int(np.count_nonzero(band))
+    if n == 0:
+        return _BorderStats(0, math.nan, math.nan, math.nan)
+    diff = srde_disp[band].astype(np.float64) - backbone[band]
+    median_bb = float(np.median(backbone[band]))
+    tol = max(check.max_diff_px, check.max_diff_rel * median_bb)
+    return _BorderStats(n, float(np.median(diff)), float(np.median(np.abs(diff))), tol)
+
+
+def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
+         masks: Any, srde: Any = None, *, border_check: BorderCheck | None = BorderCheck()
+         ) -> FusionResult:
+    """Fuse a backbone disparity map with SRDE inside the object masks.
+
+    Each object is handled on its own: SRDE estimates its plane; if SRDE fails, or its
+    disparity contradicts the backbone on the object's textured border (see
+    :class:`BorderCheck`), the object keeps the backbone's disparity and its report says
+    why. Otherwise every mask pixel where SRDE's disparity is finite takes that value.
+    Where masks overlap, the earlier object keeps the pixel.
+
+    Parameters
+    ----------
+    backbone_disparity : numpy.ndarray, (H, W), float, pixels
+        The backbone's stereo-pair disparity for the reference view. NaN, inf and
+        negative values mean *invalid* and stay NaN unless SRDE fills them.
+    views : sequence of numpy.ndarray, (H, W, 3) uint8
+        One image per rig camera, in the rig's order.
+    rig : CameraRig
+        The rig, with its light position unless ``srde`` carries one.
+    masks : list of (H, W) bool, (K, H, W) bool or (H, W) int labels
+        One mask per object, in the reference view.
+    srde : SRDE, optional
+        The estimator (anything with ``estimate(views, mask) -> SRDEResult``);
+        ``SRDE(rig)`` by default.
+    border_check : BorderCheck or None
+        How SRDE is checked against the backbone; None trusts SRDE whenever it succeeds.
+
+    Returns
+    -------
+    FusionResult
+
+    Raises
+    ------
+    DisparityError
+        ``backbone_disparity`` is not an (H, W) numeric array of the rig's image size.
+    ImageError
+        Wrong number, size or type of views.
+    MaskError
+        A mask of the wrong shape or dtype, or an empty one.
+
+    Notes
+    -----
+    Inputs are never modified. Outside the objects that use SRDE, the output equals
+    ``backbone_disparity`` cast to float32, bit for bit, for every finite non-negative
+    value.
+    """
+    w, h = rig.image_size
+    backbone = check_disparity(backbone_disparity, (h, w), "backbone_disparity")
+    views = check_views(views, rig.n_cameras, rig.image_size)
+    mask_list = _as_mask_list(masks, (h, w))
+    if srde is None and mask_list:
+        from .srde import SRDE
+
+        srde = SRDE(rig)
+
+    fused = backbone.copy()
+    source = np.zeros((h, w), dtype=np.int32)
+    textured = None
+    if border_check is not None and mask_list:
+        textured = _textured(views[rig.reference], border_check.min_gradient)
+
+    reports = []
+    for k, mask in enumerate(mask_list, start=1):
+        result = srde.estimate(views, mask)
+        n_mask = int(np.count_nonzero(mask))
+        if not _srde_ok(result):
+            reports.append(ObjectReport(
+                k, "fallback",
+                f"SRDE failed ({getattr(result, 'status', 'unknown')}): "
+                f"{getattr(result, 'reason', '')}", result, n_mask, 0))
+            continue
+        srde_disp = np.asarray(result.disparity, dtype=np.float32)
+        stats = _BorderStats(0, math.nan, math.nan, math.nan)
+        if border_check is not None:
+            stats = _border_stats(srde_disp, backbone, mask, textured, border_check)
+        common = dict(border_px=stats.n_px, border_median_diff_px=stats.median_diff_px,
+                      border_median_abs_diff_px=stats.median_abs_diff_px,
+                      border_tolerance_px=stats.tolerance_px)
+        if border_check is not None and stats.n_px >= border_check.min_px \
+                and stats.median_abs_diff_px > stats.tolerance_px:
+            reports.append(ObjectReport(
+                k, "fallback",
+                f"SRDE contradicts the backbone on the object's border: median |diff| "
+                f"{stats.median_abs_diff_px:.2f} px > tolerance {stats.tolerance_px:.2f} px "
+                f"over {stats.n_px} textured border px", result, n_mask, 0, **common))
+            continue
+        take = mask & np.isfinite(srde_disp) & (source == SOURCE_BACKBONE)
+        fused[take] = srde_disp[take]
+        source[take] = k
+        n_take = int(np.count_nonzero(take))
+        if border_check is None:
+            reason = "SRDE used (border check disabled)"
+        elif stats.n_px < border_check.min_px:
+            reason = (f"SRDE used unchecked: only {stats.n_px} textured border px with a valid "
+                      f"backbone (need {border_check.min_px})")
+        else:
+            reason = (f"SRDE agrees with the backbone on the object's border: median |diff| "
+                      f"{stats.median_abs_diff_px:.2f} px <= {stats.tolerance_px:.2f} px over "
+                      f"{stats.n_px} px")
+        reports.append(ObjectReport(k, "srde", reason, result, n_mask, n_take, **common))
+
+    return FusionResult(fused, source, tuple(reports), backbone)
+
+
+def _resolve_masker(masks: Any) -> Masker:
+    from .masks import HighlightSegmenter, UserMasks
+
+    if masks is None:
+        return HighlightSegmenter()
+    if callable(masks) and not isinstance(masks, np.ndarray):
+        return masks
+    return UserMasks(masks)
+
+
+def _rig_with_light(rig: CameraRig, light: Any) -> CameraRig:
+    if not isinstance(rig, CameraRig):
+        raise TypeError(f"rig: expected a CameraRig, got {type(rig).__name__}")
+    if light is not None:
+        return rig.with_light(light)
+    if rig.light_position_m is None:
+        raise LightError("light: expected a light position (x, y, z) in metres, given here or in "
+                         "the rig, got None")
+    return rig
+
+
+def postprocess(disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
+                masks: Any = None, *, light: Any = None, srde_method: str = "default",
+                border_check: BorderCheck | None = BorderCheck()) -> FusionResult:
+    """Fix a disparity map an existing pipeline produced, on flat glossy objects.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray, (H, W), float, pixels
+        The pipeline's disparity for the reference view of ``rig`` (stereo-pair
+        convention, ``d = fx * B / z``).
+    views : sequence of numpy.ndarray, (H, W, 3) uint8
+        One image per rig camera.
+    rig : CameraRig
+    masks : None, path, array, list of masks or masker
+        Where the objects are: None runs the built-in
+        :class:`~srde_fusion.masks.HighlightSegmenter`; a path or array is read as user
+        masks (:class:`~srde_fusion.masks.UserMasks`); a callable
+        ``masker(views, rig) -> list of masks`` is called.
+    light : array_like (3,), optional
+        Light position in the array frame, metres; the rig's by default.
+    srde_method : str
+        SRDE variant, see :class:`~srde_fusion.srde.SRDE`.
+    border_check : BorderCheck or None
+        See :func:`fuse`.
+
+    Returns
+    -------
+    FusionResult
+    """
+    rig = _rig_with_light(rig, light)
+    views = check_views(views, rig.n_cameras, rig.image_size)
+    w, h = rig.image_size
+    backbone = check_disparity(disparity, (h, w), "disparity")
+    masker = _resolve_masker(masks)
+    from .srde import SRDE
+
+    return fuse(backbone, views, rig, masker(views, rig), SRDE(rig, method=srde_method),
+                border_check=border_check)
+
+
+class HybridStereo:
+    """A stereo model made reliable on flat glossy objects: backbone + SRDE + fusion.
+
+    Parameters
+    ----------
+    backbone : callable
+        ``backbone(left, right) -> (H, W) float32`` disparity in pixels (see
+        ``srde_fusion.adapters.load_backbone`` to build one from an ONNX file or a
+        torch module). It receives the views of the rig's stereo pair.
+    rig : CameraRig
+    light : array_like (3,), optional
+        Light position in the array frame, metres; the rig's by default.
+    masker : callable, optional
+        ``masker(views, rig) -> list of (H, W) bool``; the built-in
+        :class:`~srde_fusion.masks.HighlightSegmenter` by default. Paths and arrays are
+        taken as fixed user masks.
+    srde_method : str
+        SRDE variant, see :class:`~srde_fusion.srde.SRDE`.
+    border_check : BorderCheck or None
+        See :func:`fuse`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from srde_fusion import CameraRig
+    >>> rig = CameraRig.stereo(0.1, fx=100.0, image_size=(32, 24), light_position_m=(0, -0.3, 0))
+    >>> model = HybridStereo(lambda left, right: np.full((24, 32), 5.0, np.float32), rig,
+    ...                      masker=lambda views, rig: [])
+    >>> views = [np.zeros((24, 32, 3), np.uint8)] * 2
+    >>> result = model(views)
+    >>> float(result.disparity[0, 0]), result.objects
+    (5.0, ())
+    """
+
+    def __init__(self, backbone: Backbone, rig: CameraRig, light: Any = None,
+                 masker: Any = None, *, srde_method: str = "default",
+                 border_check: BorderCheck | None = BorderCheck()) -> None:
+        if not callable(backbone):
+            raise TypeError(f"backbone: expected a callable backbone(left, right), got "
+                            f"{type(backbone).__name__}")
+        self.rig = _rig_with_light(rig, light)
+        self.backbone = backbone
+        self.masker = _resolve_masker(masker)
+        self.srde_method = srde_method
+        self.border_check = border_check
+        self._srde = None
+
+    @property
+    def srde(self) -> Any:
+        """The SRDE estimator for this rig (built on first use)."""
+        if self._srde is None:
+            from .srde import SRDE
+
+            self._srde = SRDE(self.rig, method=self.srde_method)
+        return self._srde
+
+    def __call__(self, views: Sequence[np.ndarray]) -> FusionResult:
+        """Run backbone, mask stage, SRDE and fusion on one set of views.
+
+        Parameters
+        ----------
+        views : sequence of numpy.ndarray, (H, W, 3) uint8
+            One image per rig camera.
+
+        Returns
+        -------
+        FusionResult
+        """
+        rig = self.rig
+        views = check_views(views, rig.n_cameras, rig.image_size)
+        left, right = (views[i] for i in rig.stereo_pair)
+        disparity = self.backbone(left, right)
+        masks = self.masker(views, rig)
+        srde = self.srde if len(masks) else None
+        return fuse(disparity, views, rig, masks, srde, border_check=self.border_check)
