@@ -15,6 +15,7 @@ __all__ = [
     "plane_from_lights",
     "plane_depth",
     "plane_disparity",
+    "incidence_angle_deg",
 ]
 
 
@@ -35,7 +36,7 @@ class Plane:
 
     @classmethod
     def from_point_normal(cls, point_m, normal, towards_m=(0.0, 0.0, 0.0)) -> Plane:
-        """The plane through ``point_m`` with normal ``normal``, oriented towards ``towards_m``.
+        """Build the plane through ``point_m`` with normal ``normal``, facing ``towards_m``.
 
         Examples
         --------
@@ -77,7 +78,7 @@ def mirror_point(point_m, plane: Plane) -> np.ndarray:
 
 
 def plane_from_lights(light_m, virtual_light_m, towards_m=(0.0, 0.0, 0.0)) -> Plane:
-    """The mirror plane between a light and its virtual image.
+    """Return the mirror plane between a light and its virtual image.
 
     The normal is along ``V - L`` and the plane passes through ``(V + L) / 2``
     (paper, Methods: plane from real and virtual light).
@@ -120,3 +121,42 @@ def plane_depth(plane: Plane, rig, uv=None) -> np.ndarray:
 def plane_disparity(plane: Plane, rig, uv=None) -> np.ndarray:
     """Stereo-pair disparity (pixels) of the plane at the reference pixels, ``fx B / z``."""
     return rig.depth_to_disparity(plane_depth(plane, rig, uv))
+
+
+def incidence_angle_deg(plane: Plane, rig, uv=None) -> np.ndarray:
+    """Angle between reference-camera pixel rays and the plane's normal, degrees.
+
+    Measured against the normal flipped to face the ray, so 0 is a ray hitting the plane
+    head-on, 90 a ray parallel to it (grazing), and above 90 a ray that meets the plane
+    only behind the camera. Near 90 the depth ``z = n · (s - C_ref) / (n · k)`` is
+    ill-conditioned: a small error in the normal moves the intersection far along the ray.
+
+    Parameters
+    ----------
+    plane : Plane
+        Oriented towards the cameras (as every Plane of this library is).
+    rig : CameraRig
+    uv : array_like (..., 2), optional
+        Pixels; the full reference image grid ``(H, W)`` by default.
+
+    Returns
+    -------
+    numpy.ndarray, (...) or (H, W), float64
+        Angles in [0, 180].
+
+    Examples
+    --------
+    >>> from srde_fusion.rig import CameraRig
+    >>> rig = CameraRig.stereo(0.1, fx=500.0, image_size=(64, 48))
+    >>> plane = Plane.from_point_normal([0, 0, 1.0], [0, 0, 1.0])
+    >>> float(incidence_angle_deg(plane, rig, [[rig.intrinsics.cx, rig.intrinsics.cy]])[0])
+    0.0
+    """
+    if uv is None:
+        w, h = rig.image_size
+        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+        uv = np.stack([u, v], axis=-1)
+    rays = rig.rays(uv)
+    # The normal faces the cameras, so a ray that meets the plane in front has k · n < 0.
+    cos = -(rays @ plane.n) / np.linalg.norm(rays, axis=-1)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))

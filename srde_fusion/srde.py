@@ -1,0 +1,569 @@
+"""SRDE: the disparity of a flat glossy object from its specular highlight.
+
+A planar glossy surface mirrors the light L; every camera sees the highlight as the
+image of the same virtual light V, L's mirror image across the plane. Triangulating V
+from the highlight centres and knowing L fixes the plane (normal along V - L, through
+(V + L) / 2), and casting the reference camera's pixel rays onto it gives the disparity
+of every pixel of the object (DESIGN §3).
+
+Two methods:
+
+``method="default"``
+    Sub-pixel blob centres on linear intensity; one least-squares triangulation of V
+    from all views (linear in the reference image of V and its inverse depth, residuals
+    in pixels); views whose centre does not fit one 3D point are dropped and named.
+    Works on any rectified rig of two or more cameras.
+``method="paper"``
+    The paper as published: edge-ring centroids; V triangulated separately for every
+    pair of neighbouring cameras; one disparity map per pair; their pixel-wise median.
+    Kept as the baseline.
+
+Both search for the highlight only inside the object's eroded mask in the reference
+view, and in every other view only where the reference highlight can appear: along the
+camera's baseline, over the plausible depth range of V, within the reference blob's
+size (DESIGN §3.1). What cannot be trusted is reported, never raised: the result's
+``status`` and ``reason`` say which step failed, in which view, with which numbers.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ._checks import check_mask, check_views
+from .errors import LightError, RigError, SRDEError
+from .geometry import Plane, incidence_angle_deg, plane_disparity, plane_from_lights
+from .highlight import DEFAULT_BLOB_CENTER, HighlightDetection, _check_options, _detect
+from .rig import CameraRig
+from .triangulation import (
+    adjacent_pairs,
+    max_shift_px,
+    pairwise_virtual_lights,
+    robust_triangulate,
+    triangulate_rectified,
+)
+
+__all__ = ["SRDE", "SRDEResult", "SRDE_METHODS", "SRDE_STATUSES"]
+
+#: Methods accepted by :class:`SRDE`.
+SRDE_METHODS = ("default", "paper")
+
+#: Every ``status`` an :class:`SRDEResult` can carry.
+SRDE_STATUSES = (
+    "ok",
+    "mask_too_small",    # the eroded mask (or the given region) leaves nothing to search
+    "no_highlight",      # the reference view, or too many views, show no highlight
+    "inconsistent",      # the centres do not fit one 3D point; or cameras behind the plane
+    "too_few_views",     # fewer agreeing views than min_views
+    "at_infinity",       # V's image barely moves across the rig (delta ~ 0)
+    "behind_cameras",    # V triangulates behind the cameras
+    "light_on_plane",    # V ~ L: the light lies (nearly) on the plane, the normal is undefined
+    "light_behind_plane",  # L on the far side of the plane from the cameras
+    "grazing",           # some mask pixel rays meet the plane (nearly) edge-on, or behind
+)
+
+# The virtual light's image must move at least this much across the used views (pixels)
+# for its depth to mean anything; below, V is "at infinity".
+MIN_VIRTUAL_LIGHT_SHIFT_PX = 1.0
+# |V - L| below this fraction of the light's distance from the reference camera means the
+# light lies (nearly) on the plane; the normal direction V - L is then mostly noise.
+LIGHT_ON_PLANE_FRACTION = 0.01
+# The reference highlight's search capsule in other views: this many times the reference
+# blob's half-diagonal, plus a margin, around the line where the highlight can appear.
+_CAPSULE_SCALE = 2.0
+_CAPSULE_MARGIN_PX = 6.0
+
+
+@dataclass(frozen=True)
+class SRDEResult:
+    """The outcome of one SRDE estimate.
+
+    Parameters
+    ----------
+    status : str
+        ``"ok"`` or a failure code from :data:`SRDE_STATUSES`.
+    reason : str
+        ``""`` if ok; else the failed step, the view(s) and the numbers.
+    disparity : (H, W) float32
+        Reference-camera disparity of the stereo pair, pixels; NaN outside the mask
+        (all NaN if the estimate failed).
+    plane : Plane or None
+        The object's plane in the array frame.
+    virtual_light_m : (3,) float64 or None
+        The triangulated virtual light, array frame, metres.
+    highlight_centers : (N, 2) float64
+        Highlight centre ``(u, v)`` per view, pixels; NaN where none was found.
+    used_views : (N,) bool
+        Views used in the final solve.
+    residual_px : float
+        RMS reprojection residual of the virtual light over the used views, pixels
+        (NaN if not available).
+    method : str
+        ``"default"`` or ``"paper"``.
+    notes : tuple of str
+        What was left out of an ``ok`` result and why (views without a highlight, views
+        dropped as outliers, pairs dropped by the paper method).
+    detections : tuple of HighlightDetection
+        The per-view detections (empty if the reference view already failed).
+    """
+
+    status: str
+    reason: str
+    disparity: np.ndarray
+    plane: Plane | None
+    virtual_light_m: np.ndarray | None
+    highlight_centers: np.ndarray
+    used_views: np.ndarray
+    residual_px: float
+    method: str
+    notes: tuple[str, ...] = ()
+    detections: tuple[HighlightDetection, ...] = field(default=(), repr=False)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the estimate succeeded."""
+        return self.status == "ok"
+
+    def __bool__(self) -> bool:
+        return self.ok
+
+
+def _number(value, name: str, *, low: float = 0.0, low_open: bool = True,
+            high: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+        raise SRDEError(f"{name}: expected a number, got {value!r}")
+    value = float(value)
+    bad_low = value <= low if low_open else value < low
+    if math.isnan(value) or bad_low or value > high:
+        bracket = "(" if low_open else "["
+        raise SRDEError(f"{name}: expected a number in {bracket}{low:g}, {high:g}], got {value!r}")
+    return value
+
+
+class SRDE:
+    """Estimate the plane and disparity of a flat glossy object from its highlight.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        The rectified rig the views come from.
+    light : array_like, (3,), optional
+        The point light in the array frame, metres; ``rig.light`` by default.
+    method : {"default", "paper"}
+        See the module docstring.
+    detector : {"blob", "paper"}, optional
+        Override the highlight detector of the method (``"blob"`` for default, ``"paper"``
+        for paper), e.g. to measure what each part contributes.
+    window, k, min_extent_px : int, float, int
+        The paper detector's window side (px), threshold factor and minimum component
+        extent (px); see :func:`~srde_fusion.highlight.detect_highlight`.
+    blob_center : {"weighted", "core", "lobe"}
+        The blob detector's sub-pixel centre estimator.
+    min_contrast : float
+        The blob detector's minimum peak contrast over the object (linear intensity).
+    mask_erosion_px : int
+        The object mask is eroded by this radius before the reference view is searched,
+        so its border (and the edges it makes) stay out of the search.
+    max_residual_px : float
+        A view whose centre misses the triangulated virtual light by more than this is
+        dropped as an outlier (default method).
+    min_views : int
+        Fewest agreeing views for an ``ok`` result (at least 2).
+    virtual_light_depth_m : (float, float)
+        Plausible depth range of the virtual light in front of the cameras, metres; it
+        sets how far along each baseline the other views are searched.
+    max_incidence_deg : float
+        A plane that some mask pixel ray meets at more than this angle from its normal
+        is "grazing": depth there is ill-conditioned.
+    white_references : sequence of N images, optional
+        Images of a white reference target, one per camera (same size and encoding as
+        the views). Each view's linear intensity is divided by its camera's smoothed
+        white image before detection (the paper normalises with reflection standards).
+
+    Raises
+    ------
+    RigError
+        ``rig`` is not a CameraRig.
+    LightError
+        No light given and the rig has none, or the light is not 3 finite numbers.
+    ImageError
+        ``white_references`` are not N images of the rig's size.
+    SRDEError
+        An option is out of range.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from srde_fusion.rig import CameraRig
+    >>> rig = CameraRig.stereo(0.1, fx=400.0, image_size=(96, 64))
+    >>> srde = SRDE(rig, light=[0.05, -0.3, 0.2])
+    >>> result = srde.estimate([np.zeros((64, 96), np.uint8)] * 2, np.ones((64, 96), bool))
+    >>> result.status, result.reason
+    ('no_highlight', 'view 0 (left, reference): no bright blob: peak 0.0000 is only 0.0000 above the region\\'s median 0.0000 (min_contrast 0.05, linear intensity)')
+    """
+
+    def __init__(self, rig: CameraRig, light=None, *, method: str = "default",
+                 detector: str | None = None, window: int = 15, k: float = 1.5,
+                 min_extent_px: int = 10, blob_center: str = DEFAULT_BLOB_CENTER,
+                 min_contrast: float = 0.05, mask_erosion_px: int = 3,
+                 max_residual_px: float = 1.0, min_views: int = 2,
+                 virtual_light_depth_m: tuple[float, float] = (0.05, math.inf),
+                 max_incidence_deg: float = 85.0, white_references=None) -> None:
+        if not isinstance(rig, CameraRig):
+            raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
+        if method not in SRDE_METHODS:
+            raise SRDEError(f"method: expected one of {list(SRDE_METHODS)}, got {method!r}")
+        if detector is None:
+            detector = "paper" if method == "paper" else "blob"
+        _check_options(detector, rig.image_encoding, window, k, min_extent_px, blob_center,
+                       min_contrast, 1)
+        if light is None:
+            light = rig.light
+            if light is None:
+                raise LightError("light: expected a light position (x, y, z) in metres, or a rig "
+                                 "with a light, got neither")
+        try:
+            light_m = np.asarray(light, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise LightError(f"light: expected 3 numbers (x, y, z) in metres, got {light!r}") from None
+        if light_m.shape != (3,) or not np.all(np.isfinite(light_m)):
+            raise LightError(f"light: expected 3 finite numbers (x, y, z) in metres, got {light!r}")
+        if (isinstance(mask_erosion_px, bool) or not isinstance(mask_erosion_px, (int, np.integer))
+                or mask_erosion_px < 0):
+            raise SRDEError(f"mask_erosion_px: expected an integer >= 0 (pixels), got "
+                            f"{mask_erosion_px!r}")
+        if (isinstance(min_views, bool) or not isinstance(min_views, (int, np.integer))
+                or not 2 <= min_views <= rig.n_cameras):
+            raise SRDEError(f"min_views: expected an integer in [2, {rig.n_cameras}] (the rig's "
+                            f"cameras), got {min_views!r}")
+        self.max_residual_px = _number(max_residual_px, "max_residual_px")
+        self.max_incidence_deg = _number(max_incidence_deg, "max_incidence_deg", high=90.0)
+        try:
+            z_near, z_far = (float(z) for z in virtual_light_depth_m)
+        except (TypeError, ValueError):
+            raise SRDEError(f"virtual_light_depth_m: expected (near, far) in metres, got "
+                            f"{virtual_light_depth_m!r}") from None
+        if not (0.0 < z_near < z_far):
+            raise SRDEError(f"virtual_light_depth_m: expected 0 < near < far (metres), got "
+                            f"{virtual_light_depth_m!r}")
+        self.rig = rig
+        self.light_m = light_m
+        self.method = method
+        self.detector = detector
+        self.window, self.k, self.min_extent_px = int(window), float(k), int(min_extent_px)
+        self.blob_center = blob_center
+        self.min_contrast = float(min_contrast)
+        self.mask_erosion_px = int(mask_erosion_px)
+        self.min_views = int(min_views)
+        self.virtual_light_depth_m = (z_near, z_far)
+        self.white_references = None
+        if white_references is not None:
+            refs = check_views(white_references, rig.n_cameras, rig.image_size)
+            self.white_references = [r.copy() for r in refs]
+
+    # ------------------------------------------------------------------ public
+    def estimate(self, views, mask, *, region=None) -> SRDEResult:
+        """Estimate the object's plane and disparity from the rig's views.
+
+        Parameters
+        ----------
+        views : sequence of N images, (H, W) or (H, W, 3), uint8 or float32 in [0, 1]
+            One image per camera, in the rig's order.
+        mask : numpy.ndarray, (H, W) bool
+            The object's mask in the reference view.
+        region : numpy.ndarray, (H, W) bool, optional
+            Where to search for the highlight in the reference view, instead of the
+            eroded mask. The disparity still covers the whole mask.
+
+        Returns
+        -------
+        SRDEResult
+            ``status == "ok"`` with the disparity inside the mask, or a failure code and
+            a reason (never an exception for geometric failures).
+
+        Raises
+        ------
+        ImageError
+            Wrong number of views, sizes that differ from the rig's, bad dtype or values.
+        MaskError
+            ``mask`` (or ``region``) has the wrong shape or dtype, or is empty.
+        """
+        rig = self.rig
+        views = check_views(views, rig.n_cameras, rig.image_size)
+        shape = (rig.height, rig.width)
+        mask = check_mask(mask, shape)
+        if region is not None:
+            search = check_mask(region, shape, "region")
+        else:
+            search = self._erode(mask)
+            if not search.any():
+                return self._failed(
+                    "mask_too_small", f"mask: nothing left to search after eroding the "
+                    f"{int(mask.sum())}-px mask by {self.mask_erosion_px} px")
+        ref = rig.reference
+        ref_det = self._detect_view(views, ref, search)
+        if not ref_det:
+            return self._failed("no_highlight", f"{self._view(ref)}: {ref_det.reason}",
+                                detections=(ref_det,))
+        detections: list[HighlightDetection] = []
+        for j in range(rig.n_cameras):
+            if j == ref:
+                detections.append(ref_det)
+            else:
+                detections.append(self._detect_view(views, j, self._search_region(j, ref_det, search)))
+        centers = np.full((rig.n_cameras, 2), np.nan)
+        for j, det in enumerate(detections):
+            if det:
+                centers[j] = det.center_uv
+        found = np.all(np.isfinite(centers), axis=1)
+        missing = [f"{self._view(j)}: {detections[j].reason}" for j in np.flatnonzero(~found)]
+        if found.sum() < self.min_views:
+            return self._failed(
+                "no_highlight", f"only {int(found.sum())} of {rig.n_cameras} views show a "
+                f"highlight (min_views {self.min_views}); " + "; ".join(missing),
+                centers=centers, detections=tuple(detections))
+        if self.method == "paper":
+            return self._solve_paper(mask, centers, tuple(detections), missing)
+        return self._solve_joint(mask, centers, tuple(detections), missing)
+
+    # ------------------------------------------------------------------ steps
+    def _view(self, j: int) -> str:
+        ref = ", reference" if j == self.rig.reference else ""
+        return f"view {j} ({self.rig.cameras[j].name}{ref})"
+
+    def _erode(self, mask: np.ndarray) -> np.ndarray:
+        r = self.mask_erosion_px
+        if r == 0:
+            return mask
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        return cv2.erode(mask.view(np.uint8), kernel).view(bool)
+
+    def _detect_view(self, views, j: int, region: np.ndarray) -> HighlightDetection:
+        white = None if self.white_references is None else self.white_references[j]
+        return _detect(views[j], region, method=self.detector, encoding=self.rig.image_encoding,
+                       window=self.window, k=self.k, min_extent_px=self.min_extent_px,
+                       blob_center=self.blob_center, min_contrast=self.min_contrast,
+                       min_area_px=1, white_reference=white)
+
+    def _search_region(self, j: int, ref_det: HighlightDetection, search: np.ndarray
+                       ) -> np.ndarray:
+        """Where view j can show the highlight found in the reference view.
+
+        A point seen at ``c_ref`` in the reference view appears in camera j at
+        ``c_ref + step * w`` with ``step = (-fx dX_j, -fy dY_j)`` and ``w = 1 / z`` its
+        inverse depth (DESIGN §3.1). Over the plausible depth range that is a segment;
+        the region is the capsule of the reference blob's size around it, intersected
+        with the reference search region swept along the same segment.
+        """
+        rig = self.rig
+        k = rig.intrinsics
+        h, w = rig.height, rig.width
+        offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
+        step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
+        z_near, z_far = self.virtual_light_depth_m
+        w_lo, w_hi = 1.0 / z_far, 1.0 / z_near
+        step_len = float(np.hypot(*step))
+        if step_len == 0.0:  # a camera at the reference's centre sees the same image
+            w_lo = w_hi = 0.0
+        else:  # no use searching beyond the image
+            w_hi = min(w_hi, w_lo + math.hypot(w, h) / step_len)
+        c = ref_det.center_uv
+        p0, p1 = c + step * w_lo, c + step * w_hi
+        u0, v0, u1, v1 = ref_det.bbox
+        radius = _CAPSULE_SCALE * 0.5 * math.hypot(u1 - u0, v1 - v0) + _CAPSULE_MARGIN_PX
+        capsule = np.zeros((h, w), dtype=bool)
+        lo = np.floor(np.minimum(p0, p1) - radius).astype(int)
+        hi = np.ceil(np.maximum(p0, p1) + radius).astype(int) + 1
+        cu0, cv0 = max(lo[0], 0), max(lo[1], 0)
+        cu1, cv1 = min(hi[0], w), min(hi[1], h)
+        if cu0 >= cu1 or cv0 >= cv1:
+            return capsule
+        vv, uu = np.mgrid[cv0:cv1, cu0:cu1]
+        seg = p1 - p0
+        seg_sq = float(seg @ seg)
+        du, dv = uu - p0[0], vv - p0[1]
+        if seg_sq > 0:
+            t = np.clip((du * seg[0] + dv * seg[1]) / seg_sq, 0.0, 1.0)
+            du, dv = du - t * seg[0], dv - t * seg[1]
+        capsule[cv0:cv1, cu0:cu1] = du * du + dv * dv <= radius * radius
+        return capsule & _sweep(search, step, w_lo, w_hi)
+
+    def _solve_joint(self, mask, centers, detections, missing) -> SRDEResult:
+        rig = self.rig
+        tri = robust_triangulate(rig, centers, max_residual_px=self.max_residual_px)
+        found = np.all(np.isfinite(centers), axis=1)
+        if not tri.used.any():
+            plain = triangulate_rectified(rig, centers)
+            res = ", ".join(f"{j}: {plain.residuals_px[j]:.2f}" for j in np.flatnonzero(found))
+            return self._failed(
+                "inconsistent", f"triangulation: no two views agree on one virtual light within "
+                f"{self.max_residual_px:g} px; residuals of a joint fit per view (px) {{{res}}}",
+                centers=centers, detections=detections)
+        dropped = [f"{self._view(j)}: dropped as an outlier, {tri.residuals_px[j]:.2f} px from the "
+                   f"virtual light (max_residual_px {self.max_residual_px:g})"
+                   for j in np.flatnonzero(found & ~tri.used)]
+        notes = tuple(missing) + tuple(dropped)
+        if tri.used.sum() < self.min_views:
+            return self._failed(
+                "too_few_views", f"triangulation: only {int(tri.used.sum())} views agree "
+                f"(min_views {self.min_views}); " + "; ".join(notes),
+                centers=centers, used=tri.used, detections=detections)
+        return self._finish(mask, tri.point_m, tri.inverse_depth_per_m, tri.used, centers,
+                            detections, notes)
+
+    def _solve_paper(self, mask, centers, detections, missing) -> SRDEResult:
+        """Per-pair virtual lights, per-pair disparity maps, pixel-wise median."""
+        rig = self.rig
+        pairs = adjacent_pairs(rig)
+        found = np.all(np.isfinite(centers), axis=1)
+        pairs = [p for p in pairs if found[p[0]] and found[p[1]]]
+        if not pairs:
+            return self._failed(
+                "too_few_views", "pairs: no pair of neighbouring cameras has a highlight in "
+                "both views; " + "; ".join(missing), centers=centers, detections=detections)
+        points = pairwise_virtual_lights(rig, centers, pairs)
+        depth = points[:, 2] - rig.reference_center_m[2]
+        notes = list(missing)
+        keep = []
+        for (i, j), point, z in zip(pairs, points, depth):
+            pair = np.zeros(rig.n_cameras, dtype=bool)
+            pair[[i, j]] = True
+            shift = max_shift_px(rig, 1.0 / z, pair) if np.isfinite(z) else 0.0
+            if shift < MIN_VIRTUAL_LIGHT_SHIFT_PX or z <= 0:
+                where = "at infinity" if shift < MIN_VIRTUAL_LIGHT_SHIFT_PX else f"z = {z:.3f} m"
+                notes.append(f"pair ({i}, {j}): virtual light {where}, pair dropped")
+                continue
+            keep.append(((i, j), point))
+        if not keep:
+            status = "behind_cameras" if np.any(depth[np.isfinite(depth)] < 0) else "at_infinity"
+            return self._failed(status, "pairs: every pair's virtual light is behind the cameras "
+                                "or at infinity; " + "; ".join(notes[len(missing):]),
+                                centers=centers, detections=detections)
+        used = np.zeros(rig.n_cameras, dtype=bool)
+        for (i, j), _ in keep:
+            used[[i, j]] = True
+        pair_points = np.stack([p for _, p in keep])
+        # The single V reported (and checked) is the component-wise median of the pairs'.
+        point = np.median(pair_points, axis=0)
+        w = 1.0 / (point[2] - rig.reference_center_m[2])
+        result = self._finish(mask, point, w, used, centers, detections, tuple(notes))
+        if not result.ok:
+            return result
+        uv = _mask_uv(mask)
+        stack = np.stack([plane_disparity(plane_from_lights(self.light_m, p, rig.reference_center_m),
+                                          rig, uv) for p in pair_points])
+        with warnings.catch_warnings():  # pixels every pair's plane misses stay NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            median = np.nanmedian(stack, axis=0)
+        disparity = np.full(mask.shape, np.nan, dtype=np.float32)
+        disparity[mask] = median
+        return SRDEResult("ok", "", disparity, result.plane, result.virtual_light_m, centers,
+                          used, result.residual_px, self.method, result.notes, detections)
+
+    def _finish(self, mask, point, w, used, centers, detections, notes) -> SRDEResult:
+        """Check the virtual light and the plane; compute the disparity."""
+        rig = self.rig
+        fail = {"centers": centers, "used": used, "detections": detections}
+        shift = max_shift_px(rig, w, used) if np.isfinite(w) else 0.0
+        if shift < MIN_VIRTUAL_LIGHT_SHIFT_PX:
+            return self._failed(
+                "at_infinity", f"virtual light: its image moves only {shift:.3f} px across the "
+                f"used views (needs {MIN_VIRTUAL_LIGHT_SHIFT_PX:g} px); it is at infinity", **fail)
+        if w < 0:
+            return self._failed(
+                "behind_cameras", f"virtual light: triangulated at z = {1.0 / w:.3f} m, behind "
+                f"the cameras (image shift {shift:.2f} px the wrong way)", **fail)
+        light = self.light_m
+        gap = float(np.linalg.norm(point - light))
+        reach = float(np.linalg.norm(light - rig.reference_center_m))
+        if gap < LIGHT_ON_PLANE_FRACTION * reach:
+            return self._failed(
+                "light_on_plane", f"plane: the virtual light is {gap * 1000:.1f} mm from the light "
+                f"({gap / reach:.2%} of its {reach:.3f} m distance, limit "
+                f"{LIGHT_ON_PLANE_FRACTION:.0%}); the light lies (nearly) on the plane", **fail)
+        plane = plane_from_lights(light, point, rig.reference_center_m)
+        if plane.signed_distance(light) <= 0:
+            return self._failed(
+                "light_behind_plane", f"plane: the light is {-plane.signed_distance(light):.3f} m "
+                "behind the plane, on the far side from the cameras", **fail)
+        behind = np.flatnonzero(used & (plane.signed_distance(rig.centers_m) <= 0))
+        if behind.size:
+            return self._failed(
+                "inconsistent", "plane: " + ", ".join(self._view(j) for j in behind)
+                + " lie behind the estimated plane and could not see its highlight", **fail)
+        uv = _mask_uv(mask)
+        angle = incidence_angle_deg(plane, rig, uv)
+        steep = angle > self.max_incidence_deg
+        if steep.any():
+            worst = int(np.argmax(angle))
+            return self._failed(
+                "grazing", f"plane: {int(steep.sum())} of {uv.shape[0]} mask pixels see it at more "
+                f"than {self.max_incidence_deg:g} deg incidence (worst {angle[worst]:.1f} deg at "
+                f"pixel ({uv[worst, 0]:.0f}, {uv[worst, 1]:.0f}))", plane=plane, point=point,
+                **fail)
+        disparity = np.full(mask.shape, np.nan, dtype=np.float32)
+        disparity[mask] = plane_disparity(plane, rig, uv)
+        residual = _rms_residual(rig, point, centers, used)
+        return SRDEResult("ok", "", disparity, plane, np.asarray(point, dtype=np.float64),
+                          centers, used, residual, self.method, tuple(notes), detections)
+
+    def _failed(self, status: str, reason: str, *, centers=None, used=None, detections=(),
+                plane=None, point=None) -> SRDEResult:
+        rig = self.rig
+        n = rig.n_cameras
+        residual = float("nan")
+        if centers is not None and used is not None and point is not None:
+            residual = _rms_residual(rig, point, centers, used)
+        return SRDEResult(
+            status, reason, np.full((rig.height, rig.width), np.nan, dtype=np.float32), plane,
+            None if point is None else np.asarray(point, dtype=np.float64),
+            np.full((n, 2), np.nan) if centers is None else centers,
+            np.zeros(n, dtype=bool) if used is None else used, residual, self.method, (),
+            tuple(detections))
+
+
+def _mask_uv(mask: np.ndarray) -> np.ndarray:
+    """Pixel coordinates ``(u, v)`` of the mask's pixels in row-major order, ``(M, 2)``."""
+    vv, uu = np.nonzero(mask)
+    return np.stack([uu, vv], axis=1).astype(np.float64)
+
+
+def _rms_residual(rig, point, centers, used) -> float:
+    pred = np.stack([rig.project(point, j) for j in range(rig.n_cameras)])
+    err = np.linalg.norm(pred - centers, axis=1)[used]
+    return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
+
+
+def _shifted(mask: np.ndarray, du: int, dv: int) -> np.ndarray:
+    """``out[v, u] = mask[v - dv, u - du]``, False where that falls outside."""
+    h, w = mask.shape
+    out = np.zeros_like(mask)
+    if abs(du) >= w or abs(dv) >= h:
+        return out
+    out[max(dv, 0):h + min(dv, 0), max(du, 0):w + min(du, 0)] = \
+        mask[max(-dv, 0):h - max(dv, 0), max(-du, 0):w - max(du, 0)]
+    return out
+
+
+def _sweep(mask: np.ndarray, step: np.ndarray, t0: float, t1: float) -> np.ndarray:
+    """Union of ``mask`` shifted by ``t * step`` for every ``t`` in ``[t0, t1]``.
+
+    Unit steps along the dominant axis, combined by doubling (log2 of the length in
+    shifts); rounding off the axes is covered by a final 1-px dilation.
+    """
+    start = np.rint(step * t0).astype(int)
+    out = _shifted(mask, int(start[0]), int(start[1]))
+    dominant = float(np.abs(step).max())
+    n_steps = int(math.ceil(dominant * (t1 - t0))) if dominant > 0 else 0
+    if n_steps > 0:
+        unit = step / dominant
+        span = 1
+        while span <= n_steps:
+            s = np.rint(unit * span).astype(int)
+            out |= _shifted(out, int(s[0]), int(s[1]))
+            span *= 2
+    return cv2.dilate(out.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
