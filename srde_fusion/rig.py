@@ -76,10 +76,12 @@ class Intrinsics:
     cy: float
 
     def __post_init__(self) -> None:
+        # Stored as Python floats so that the rig serialises to JSON whatever the input type.
         for name in ("fx", "fy"):
-            _number(getattr(self, name), f"intrinsics.{name}", positive=True)
+            value = _number(getattr(self, name), f"intrinsics.{name}", positive=True)
+            object.__setattr__(self, name, value)
         for name in ("cx", "cy"):
-            _number(getattr(self, name), f"intrinsics.{name}")
+            object.__setattr__(self, name, _number(getattr(self, name), f"intrinsics.{name}"))
 
     @classmethod
     def from_focal_length(cls, focal_length_mm: float, pixel_size_um: float, cx: float, cy: float
@@ -156,6 +158,16 @@ class CameraRig:
         cams = tuple(self.cameras)
         if len(cams) < 2:
             raise RigError(f"cameras: expected at least 2 cameras, got {len(cams)}")
+        for i, c in enumerate(cams):
+            if not isinstance(c, Camera):
+                raise RigError(
+                    f"cameras[{i}]: expected a Camera(name, center_m), got {type(c).__name__}"
+                )
+            if not isinstance(c.name, str) or not c.name:
+                raise RigError(f"cameras[{i}].name: expected a non-empty string, got {c.name!r}")
+        # Centres as tuples of floats keep the rig hashable, comparable and JSON-serialisable.
+        cams = tuple(Camera(c.name, _vector3(c.center_m, f"cameras[{i}].center"))
+                     for i, c in enumerate(cams))
         names = [c.name for c in cams]
         if len(set(names)) != len(names):
             raise RigError(f"cameras: expected unique names, got {names}")
@@ -165,6 +177,11 @@ class CameraRig:
         if isinstance(ref, bool) or not isinstance(ref, (int, np.integer)) or not 0 <= ref < n:
             raise RigError(f"reference: expected a camera index in [0, {n - 1}], got {ref!r}")
         object.__setattr__(self, "reference", int(ref))
+        if not isinstance(self.stereo_pair, (tuple, list)):
+            raise RigError(
+                f"stereo_pair: expected two camera indices in [0, {n - 1}], "
+                f"got {self.stereo_pair!r}"
+            )
         pair = tuple(self.stereo_pair)
         if (len(pair) != 2 or not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool)
                                       and 0 <= i < n for i in pair)):
@@ -363,7 +380,13 @@ class CameraRig:
 
     def subset(self, indices: Any) -> CameraRig:
         """A rig of some of the cameras; the reference and its partner must be kept."""
-        idx = [int(i) for i in indices]
+        n = self.n_cameras
+        idx = list(indices)
+        # Negative indices would silently wrap to other cameras.
+        if not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < n
+                   for i in idx):
+            raise RigError(f"indices: expected camera indices in [0, {n - 1}], got {idx!r}")
+        idx = [int(i) for i in idx]
         for must in self.stereo_pair:
             if must not in idx:
                 raise RigError(f"indices: expected the stereo pair {list(self.stereo_pair)} to be kept, got {idx}")
@@ -464,8 +487,10 @@ class CameraRig:
 
 
 def _make_intrinsics(fx, fy, cx, cy, image_size, focal_length_mm, pixel_size_um) -> Intrinsics:
-    if (not isinstance(image_size, (tuple, list)) or len(image_size) != 2):
-        raise RigError(f"image_size: expected (width, height), got {image_size!r}")
+    if (not isinstance(image_size, (tuple, list)) or len(image_size) != 2
+            or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool)
+                       for s in image_size)):
+        raise RigError(f"image_size: expected (width, height) as two integers, got {image_size!r}")
     w, h = image_size
     cx = (w - 1) / 2.0 if cx is None else cx
     cy = (h - 1) / 2.0 if cy is None else cy

@@ -1,4 +1,4 @@
-"""Shared fixtures: the paper's 3x3 array and a small stereo rig."""
+"""Shared fixtures: the paper's 3x3 array and a small stereo rig (immutable, so session-wide)."""
 
 from __future__ import annotations
 
@@ -12,14 +12,15 @@ settings.register_profile("srde", deadline=None, max_examples=50)
 settings.load_profile("srde")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def rig3x3() -> CameraRig:
     """The paper's array: 3x3 cameras, 85 mm baselines, reference = centre camera 4."""
-    return CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, fy=600.0, cx=319.5, cy=239.5,
-                          image_size=(640, 480))
+    return CameraRig.grid(
+        3, 3, baseline_m=0.085, fx=600.0, fy=600.0, cx=319.5, cy=239.5, image_size=(640, 480)
+    )
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def small_stereo_rig() -> CameraRig:
     """A 32x24 px two-camera rig, small enough to write and read many images quickly."""
     return CameraRig.stereo(0.1, fx=40.0, image_size=(32, 24), names=("cam0", "cam1"))

@@ -336,8 +336,13 @@ def test_middlebury_calib(tmp_path):
 
 def test_middlebury_calib_image_size_keyword(tmp_path):
     path = tmp_path / "calib.txt"
-    path.write_text("\n".join(line for line in MIDDLEBURY_CALIB.splitlines()
-                              if not line.startswith(("width", "height"))))
+    path.write_text(
+        "\n".join(
+            line
+            for line in MIDDLEBURY_CALIB.splitlines()
+            if not line.startswith(("width", "height"))
+        )
+    )
     assert read_middlebury_calib(path, image_size=(100, 80)).rig.image_size == (100, 80)
     with pytest.raises(FileFormatError, match="expected width and height in the file"):
         read_middlebury_calib(path)
@@ -347,11 +352,17 @@ def test_middlebury_calib_image_size_keyword(tmp_path):
     ("edit", "match"),
     [
         (lambda s: s.replace("baseline=176.252\n", ""), r"missing \['baseline'\]"),
-        (lambda s: s.replace("cam0=[4161.221 0 1445.577;", "cam0=[4161.221 0;"),
-         "cam0: expected a 3x3 matrix"),
+        (
+            lambda s: s.replace("cam0=[4161.221 0 1445.577;", "cam0=[4161.221 0;"),
+            "cam0: expected a 3x3 matrix",
+        ),
         (lambda s: s.replace("doffs=209.059", "doffs=200"), "doffs = cx1 - cx0 = 209.059"),
-        (lambda s: s.replace("0 4161.221 984.686; 0 0 1]\ndoffs", "0 4000 984.686; 0 0 1]\ndoffs"),
-         "rectified cameras with equal fy"),
+        (
+            lambda s: s.replace(
+                "0 4161.221 984.686; 0 0 1]\ndoffs", "0 4000 984.686; 0 0 1]\ndoffs"
+            ),
+            "rectified cameras with equal fy",
+        ),
         (lambda s: s.replace("ndisp=280", "ndisp=many"), "ndisp: expected a number"),
         (lambda s: s + "garbage line\n", "expected 'key=value'"),
         (lambda s: s.replace("baseline=176.252", "baseline=-1"), "positive baseline in mm"),
@@ -375,12 +386,19 @@ def test_middlebury_calib_size_mismatch_and_missing(tmp_path):
 
 
 # ---------------------------------------------------------------------- OpenCV YAML
-def _write_opencv_yaml(path: Path, *, t=(-60.0, 0.0, 0.0), d=(0.0,) * 5, r=None, size=None,
-                       skip=()) -> Path:
+def _write_opencv_yaml(
+    path: Path, *, t=(-60.0, 0.0, 0.0), d=(0.0,) * 5, r=None, size=None, skip=()
+) -> Path:
     k = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-    entries = {"K1": k, "D1": np.array([d]), "K2": k, "D2": np.zeros((1, 5)),
-               "R": np.eye(3) if r is None else r, "T": np.array(t, dtype=np.float64).reshape(3, 1)}
+    entries = {
+        "K1": k,
+        "D1": np.array([d]),
+        "K2": k,
+        "D2": np.zeros((1, 5)),
+        "R": np.eye(3) if r is None else r,
+        "T": np.array(t, dtype=np.float64).reshape(3, 1),
+    }
     for name, value in entries.items():
         if name not in skip:
             fs.write(name, value)
@@ -431,8 +449,9 @@ def test_opencv_yaml_warns_about_ignored_calibration(tmp_path):
     ids=["left", "no-T", "no-K1", "no-size"],
 )
 def test_opencv_yaml_errors(tmp_path, kwargs, call_kwargs, match):
-    path = _write_opencv_yaml(tmp_path / "s.yml", t=kwargs.get("t", (-0.06, 0, 0)),
-                              skip=kwargs.get("skip", ()))
+    path = _write_opencv_yaml(
+        tmp_path / "s.yml", t=kwargs.get("t", (-0.06, 0, 0)), skip=kwargs.get("skip", ())
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         with pytest.raises(FileFormatError, match=match):
@@ -466,10 +485,17 @@ def test_scene_round_trip(tmp_path, small_stereo_rig):
     rig = small_stereo_rig.with_light([0.05, -0.3, 0.1])
     views, gt, labels = _scene_inputs(rig)
     meta = {"virtual_light_m": [0.1, 0.2, 1.5], "planes": [{"normal": [0, 0, -1], "offset_m": -1}]}
-    folder = write_scene(tmp_path / "scene_a", views, rig, mask=labels, gt_disparity=gt,
-                         metadata=meta)
+    folder = write_scene(
+        tmp_path / "scene_a", views, rig, mask=labels, gt_disparity=gt, metadata=meta
+    )
     assert sorted(p.name for p in folder.iterdir()) == [
-        "cam0.png", "cam1.png", "gt_disparity.pfm", "mask.png", "rig.json", "scene.json"]
+        "cam0.png",
+        "cam1.png",
+        "gt_disparity.pfm",
+        "mask.png",
+        "rig.json",
+        "scene.json",
+    ]
     scene = read_scene(folder)
     assert scene.name == "scene_a" and scene.path == folder
     assert scene.rig == rig
@@ -484,8 +510,7 @@ def test_scene_round_trip(tmp_path, small_stereo_rig):
 
 def test_scene_minimal_and_mask_list(tmp_path, small_stereo_rig):
     views, _, labels = _scene_inputs(small_stereo_rig)
-    folder = write_scene(tmp_path / "s", views, small_stereo_rig,
-                         mask=[labels == 1, labels == 2])
+    folder = write_scene(tmp_path / "s", views, small_stereo_rig, mask=[labels == 1, labels == 2])
     scene = read_scene(folder)
     np.testing.assert_array_equal(scene.mask_labels, labels)
     assert scene.gt_disparity is None and scene.metadata == {}

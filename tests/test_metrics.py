@@ -21,9 +21,30 @@ from srde_fusion.metrics import (
 
 def test_keys_and_threshold_names():
     assert [k for k, _ in THRESHOLD_KEYS] == [
-        "bmp0.1", "bmp0.01", "bmp0.001", "bad0.5", "bad1", "bad2", "bad3", "bad4"]
-    assert METRIC_KEYS == ("epe", "rmse", "bmp0.1", "bmp0.01", "bmp0.001", "bad0.5", "bad1",
-                           "bad2", "bad3", "bad4", "d1", "valid_px", "invalid_pred_px")
+        "bmp0.1",
+        "bmp0.01",
+        "bmp0.001",
+        "bad0.5",
+        "bad1",
+        "bad2",
+        "bad3",
+        "bad4",
+    ]
+    assert METRIC_KEYS == (
+        "epe",
+        "rmse",
+        "bmp0.1",
+        "bmp0.01",
+        "bmp0.001",
+        "bad0.5",
+        "bad1",
+        "bad2",
+        "bad3",
+        "bad4",
+        "d1",
+        "valid_px",
+        "invalid_pred_px",
+    )
     assert set(PAPER_KEYS) <= set(METRIC_KEYS)
 
 
@@ -133,15 +154,35 @@ def test_integer_and_float32_inputs():
 @pytest.mark.parametrize(
     ("pred", "gt", "region", "error", "match"),
     [
-        (np.zeros((2, 3)), np.zeros((2, 2)), None, DisparityError,
-         r"pred: expected the shape of gt \(2, 2\), got \(2, 3\)"),
-        (np.zeros((2, 2, 1)), np.zeros((2, 2)), None, DisparityError,
-         r"pred: expected shape \(H, W\), got \(2, 2, 1\)"),
+        (
+            np.zeros((2, 3)),
+            np.zeros((2, 2)),
+            None,
+            DisparityError,
+            r"pred: expected the shape of gt \(2, 2\), got \(2, 3\)",
+        ),
+        (
+            np.zeros((2, 2, 1)),
+            np.zeros((2, 2)),
+            None,
+            DisparityError,
+            r"pred: expected shape \(H, W\), got \(2, 2, 1\)",
+        ),
         ([[0.0]], np.zeros((1, 1)), None, DisparityError, "pred: expected a numpy array"),
-        (np.zeros((2, 2)), np.zeros((2, 2), complex), None, DisparityError,
-         "gt: expected a float disparity map, got dtype complex128"),
-        (np.zeros((2, 2)), np.zeros((2, 2)), np.ones((3, 2), bool), MaskError,
-         r"region: expected shape \(2, 2\), got \(3, 2\)"),
+        (
+            np.zeros((2, 2)),
+            np.zeros((2, 2), complex),
+            None,
+            DisparityError,
+            "gt: expected a float disparity map, got dtype complex128",
+        ),
+        (
+            np.zeros((2, 2)),
+            np.zeros((2, 2)),
+            np.ones((3, 2), bool),
+            MaskError,
+            r"region: expected shape \(2, 2\), got \(3, 2\)",
+        ),
     ],
     ids=["shape-mismatch", "ndim", "not-array", "dtype", "region-shape"],
 )
@@ -190,8 +231,11 @@ def test_region_agrees_with_nan_gt(gt, noise, region):
 
 # ---------------------------------------------------------------------- summaries and tables
 def test_summarize_mean_std_and_nan():
-    rows = [{"epe": 1.0, "valid_px": 10}, {"epe": 3.0, "valid_px": 20},
-            {"epe": float("nan"), "valid_px": 0}]
+    rows = [
+        {"epe": 1.0, "valid_px": 10},
+        {"epe": 3.0, "valid_px": 20},
+        {"epe": float("nan"), "valid_px": 0},
+    ]
     summary = summarize(rows)
     assert list(summary) == ["epe", "valid_px"]
     assert summary["epe"] == (2.0, 1.0)
