@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import ImageError
+
 __all__ = [
     "srgb_to_linear",
     "linear_to_srgb",
@@ -19,6 +21,9 @@ __all__ = [
 
 #: Rec. 709 / sRGB luminance weights for linear RGB.
 REC709_LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+
+#: How image values can encode intensity (the rig's ``image_encoding``).
+IMAGE_ENCODINGS = ("srgb", "linear")
 
 #: A uint8 value at or above this is treated as clipped (saturated).
 SATURATION_LEVEL_U8 = 254
@@ -65,12 +70,19 @@ def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
     numpy.ndarray, (H, W), float32
         Linear luminance in [0, 1].
 
+    Raises
+    ------
+    ImageError
+        An unknown ``encoding`` (a typo must not silently skip the sRGB decoding).
+
     Examples
     --------
     >>> import numpy as np
     >>> float(luminance(np.full((2, 2, 3), 255, np.uint8))[0, 0])
     1.0
     """
+    if encoding not in IMAGE_ENCODINGS:
+        raise ImageError(f"encoding: expected one of {list(IMAGE_ENCODINGS)}, got {encoding!r}")
     if encoding == "srgb":
         if image.dtype == np.uint8:
             lin = _SRGB_LUT[image]
