@@ -127,7 +127,7 @@ def _decode_image(path: Path, what: str) -> np.ndarray:
         except cv2.error:
             image = None
     if image is None:
-        raise FileFormatError(f"{path}: expected a readable {what} image, got undecodable data")
+        raise FileFormatError(f"{path}: expected a readable {what}, got undecodable data")
     return image
 
 
@@ -156,7 +156,7 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     ----------
     path : str or path-like
         A ``PF`` (colour) or ``Pf`` (grey) file, either byte order (a negative scale in
-        the header means little endian).
+        the header means little endian). The scale's magnitude is not applied.
 
     Returns
     -------
@@ -170,9 +170,9 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     """
     p = _existing_file(path, "PFM")
     data = _read_bytes(p, "PFM")
-    # The header is three whitespace-separated tokens after the magic; a single
-    # whitespace byte separates it from the raster.
-    match = re.match(rb"(P[Ff])\s+(\d+)\s+(\d+)\s+([-+0-9.eE]+)\s", data)
+    # The header is three whitespace-separated tokens after the magic; one line break
+    # (or whitespace byte) separates it from the raster. CRLF files exist in the wild.
+    match = re.match(rb"(P[Ff])\s+(\d+)\s+(\d+)\s+([-+0-9.eE]+)(?:\r\n|\s)", data)
     if match is None:
         head = data[:20]
         if not head.startswith((b"PF", b"Pf")):
@@ -427,7 +427,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         that is not fully opaque (transparency has no meaning for a camera image).
     """
     p = Path(path)
-    image = _decode_image(p, "8-bit")
+    image = _decode_image(p, "8-bit image")
     if image.dtype != np.uint8:
         raise FileFormatError(
             f"{p}: expected an 8-bit image, got dtype {image.dtype}; convert it to 8 bits "
@@ -504,7 +504,7 @@ def read_mask(path: str | os.PathLike) -> np.ndarray:
         Missing or undecodable file, or colour channels that differ.
     """
     p = Path(path)
-    raw = _decode_image(p, "mask")
+    raw = _decode_image(p, "mask image")
     if raw.ndim == 3:
         if not all(np.array_equal(raw[:, :, 0], raw[:, :, c]) for c in range(1, raw.shape[2])):
             raise FileFormatError(

@@ -71,6 +71,12 @@ def test_pfm_reads_big_endian_colour(tmp_path):
     np.testing.assert_array_equal(out[0], [[6, 7, 8], [9, 10, 11]])
 
 
+def test_pfm_with_crlf_header(tmp_path):
+    path = tmp_path / "crlf.pfm"
+    path.write_bytes(b"Pf\r\n2 1\r\n-1.0\r\n" + struct.pack("<2f", 5, 6))
+    np.testing.assert_array_equal(read_pfm(path), [[5, 6]])
+
+
 def test_write_pfm_layout(tmp_path):
     path = write_pfm(tmp_path / "w.pfm", np.array([[1.0, 2.0], [3.0, 4.0]]))
     data = path.read_bytes()
@@ -228,9 +234,11 @@ def test_image_16bit_refused(tmp_path):
 
 def test_image_bad_data_and_missing(tmp_path):
     (tmp_path / "bad.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
-    with pytest.raises(FileFormatError, match="bad.png: expected a readable 8-bit image"):
+    with pytest.raises(
+        FileFormatError, match="bad.png: expected a readable 8-bit image, got undecodable"
+    ):
         read_image(tmp_path / "bad.png")
-    with pytest.raises(FileFormatError, match="existing 8-bit file"):
+    with pytest.raises(FileFormatError, match="existing 8-bit image file"):
         read_image(tmp_path / "missing.png")
 
 
@@ -418,6 +426,32 @@ def test_opencv_yaml_in_mm(tmp_path):
     assert rig.baseline_m == pytest.approx(0.06)
     assert (rig.intrinsics.fx, rig.intrinsics.cx, rig.intrinsics.cy) == (500.0, 320.0, 240.0)
     np.testing.assert_allclose(rig.centers_m[1], [0.06, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("form", ["matrix", "sequence"])
+def test_opencv_yaml_image_size_in_file_and_m_names(tmp_path, form):
+    # cv2's stereo_calib sample names the camera matrices M1/M2.
+    path = tmp_path / "s.yml"
+    k = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for name, value in (
+        ("M1", k),
+        ("M2", k),
+        ("R", np.eye(3)),
+        ("T", np.array([[-0.1], [0], [0]])),
+    ):
+        fs.write(name, value)
+    if form == "matrix":
+        fs.write("image_size", np.array([[640, 480]], np.int32))
+    else:
+        fs.startWriteStruct("imageSize", cv2.FILE_NODE_SEQ)
+        fs.write("", 640)
+        fs.write("", 480)
+        fs.endWriteStruct()
+    fs.release()
+    with pytest.warns(UserWarning, match="rectified images assumed"):
+        rig = read_opencv_stereo_yaml(path)
+    assert rig.image_size == (640, 480) and rig.baseline_m == pytest.approx(0.1)
 
 
 def test_opencv_yaml_does_not_guess_mm(tmp_path):
