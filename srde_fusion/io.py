@@ -74,7 +74,7 @@ KITTI_DISPARITY_SCALE = 256.0
 KITTI_DISPARITY_MAX_PX = np.iinfo(np.uint16).max / KITTI_DISPARITY_SCALE
 #: File extensions understood by :func:`read_disparity` / :func:`write_disparity`.
 DISPARITY_EXTENSIONS = (".pfm", ".png", ".npy")
-#: Extensions accepted for camera images in a scene folder (first match wins on write: PNG).
+#: Extensions read as camera images in a scene folder (write_scene writes PNG).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 RIG_FILE = "rig.json"
