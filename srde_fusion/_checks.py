@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import DisparityError, ImageError, MaskError
+from .errors import DisparityError, ImageError, LightError, MaskError, SRDEError
 
 __all__ = [
     "check_image",
@@ -161,12 +161,16 @@ def check_disparity(disparity: Any, shape: tuple[int, int] | None = None, name: 
     return out
 
 
-def check_point3(point: Any, name: str) -> np.ndarray:
-    """Validate a 3D point in metres and return it as float64 ``(3,)``."""
+def check_point3(point: Any, name: str, error: type[SRDEError] = LightError) -> np.ndarray:
+    """Validate a 3D point in metres and return it as float64 ``(3,)``.
+
+    ``error`` is the :class:`SRDEError` subclass raised; points are most often light
+    positions, hence the default.
+    """
     try:
         arr = np.asarray(point, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ImageError(f"{name}: expected 3 numbers (x, y, z) in metres, got {point!r}") from None
+        raise error(f"{name}: expected 3 numbers (x, y, z) in metres, got {point!r}") from None
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ImageError(f"{name}: expected 3 finite numbers (x, y, z) in metres, got {point!r}")
+        raise error(f"{name}: expected 3 finite numbers (x, y, z) in metres, got {point!r}")
     return arr
