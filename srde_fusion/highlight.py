@@ -89,6 +89,10 @@ class HighlightDetection:
         the component divided by the mean local threshold there. 0 if nothing found.
     reason : str
         ``""`` when found, else why not, with the numbers.
+    level : float
+        Blob detector: the linear intensity level that delimited the blob (pass it as
+        ``level`` to detect the same highlight in other views consistently); NaN for
+        the paper detector and when nothing was found.
     """
 
     found: bool
@@ -97,6 +101,7 @@ class HighlightDetection:
     bbox: tuple[int, int, int, int] | None
     score: float
     reason: str
+    level: float = float("nan")
 
     def __bool__(self) -> bool:
         return self.found
@@ -132,7 +137,8 @@ def _check_options(method, encoding, window, k, min_extent_px, blob_center, min_
 def detect_highlight(image, region=None, *, method: str = "blob", encoding: str = "srgb",
                      window: int = 15, k: float = 1.5, min_extent_px: int = 10,
                      blob_center: str = DEFAULT_BLOB_CENTER, min_contrast: float = 0.05,
-                     min_area_px: int = 3, white_reference=None) -> HighlightDetection:
+                     min_area_px: int = 3, level: float | None = None,
+                     white_reference=None) -> HighlightDetection:
     """Find the specular highlight of one view inside a search region.
 
     Parameters
@@ -159,7 +165,12 @@ def detect_highlight(image, region=None, *, method: str = "blob", encoding: str 
         Blob detector: the smoothed peak must exceed the region's median by this much
         (linear intensity, after white normalisation if any).
     min_area_px : int
-        Blob detector: smallest blob (pixels above the half-maximum level) accepted.
+        Blob detector: smallest blob (pixels above the level) accepted.
+    level : float, optional
+        Blob detector: the linear intensity that delimits the blob. By default halfway
+        between the region's median and its smoothed peak. Centroids of an asymmetric
+        lobe depend on the level, so views of one highlight are best measured at one
+        level: pass the reference view's ``HighlightDetection.level`` to the others.
     white_reference : numpy.ndarray, (H, W) or (H, W, 3), optional
         An image of a white reference target taken by the same camera, same encoding.
         Linear intensity is divided by its smoothed luminance before detection, which
@@ -196,6 +207,10 @@ def detect_highlight(image, region=None, *, method: str = "blob", encoding: str 
     image = check_image(image)
     _check_options(method, encoding, window, k, min_extent_px, blob_center, min_contrast,
                    min_area_px)
+    if level is not None and (isinstance(level, bool)
+                              or not isinstance(level, (int, float, np.number))
+                              or not np.isfinite(level)):
+        raise SRDEError(f"level: expected a finite number (linear intensity), got {level!r}")
     shape = image.shape[:2]
     if region is None:
         region = np.ones(shape, dtype=bool)
@@ -210,11 +225,11 @@ def detect_highlight(image, region=None, *, method: str = "blob", encoding: str 
     return _detect(image, region, method=method, encoding=encoding, window=int(window),
                    k=float(k), min_extent_px=int(min_extent_px), blob_center=blob_center,
                    min_contrast=float(min_contrast), min_area_px=int(min_area_px),
-                   white_reference=white_reference)
+                   level=None if level is None else float(level), white_reference=white_reference)
 
 
 def _detect(image, region, *, method, encoding, window, k, min_extent_px, blob_center,
-            min_contrast, min_area_px, white_reference) -> HighlightDetection:
+            min_contrast, min_area_px, level, white_reference) -> HighlightDetection:
     """:func:`detect_highlight` on validated input (used by SRDE without re-checking)."""
     rows = np.flatnonzero(region.any(axis=1))
     if rows.size == 0:
@@ -224,8 +239,8 @@ def _detect(image, region, *, method, encoding, window, k, min_extent_px, blob_c
     # with this margin the crop gives the same values as the full image inside the region.
     margin = window // 2 + 2 if method == "paper" else _BLOB_MARGIN_PX
     h, w = region.shape
-    v0, v1 = max(rows[0] - margin, 0), min(rows[-1] + 1 + margin, h)
-    u0, u1 = max(cols[0] - margin, 0), min(cols[-1] + 1 + margin, w)
+    v0, v1 = max(int(rows[0]) - margin, 0), min(int(rows[-1]) + 1 + margin, h)
+    u0, u1 = max(int(cols[0]) - margin, 0), min(int(cols[-1]) + 1 + margin, w)
     crop = (slice(v0, v1), slice(u0, u1))
     lum = luminance(image[crop], encoding)
     if white_reference is not None:
@@ -237,12 +252,13 @@ def _detect(image, region, *, method, encoding, window, k, min_extent_px, blob_c
         det = _detect_paper(lum, sub_region, window=window, k=k, min_extent_px=min_extent_px)
     else:
         det = _detect_blob(lum, saturation_mask(image[crop]), sub_region, center=blob_center,
-                           min_contrast=min_contrast, min_area_px=min_area_px)
+                           min_contrast=min_contrast, min_area_px=min_area_px, level=level)
     if not det.found:
         return det
     bu0, bv0, bu1, bv1 = det.bbox
     return HighlightDetection(True, det.center_uv + np.array([u0, v0], dtype=np.float64),
-                              det.area_px, (bu0 + u0, bv0 + v0, bu1 + u0, bv1 + v0), det.score, "")
+                              det.area_px, (bu0 + u0, bv0 + v0, bu1 + u0, bv1 + v0), det.score, "",
+                              det.level)
 
 
 def _components(binary: np.ndarray):
@@ -290,7 +306,7 @@ def _detect_paper(lum, region, *, window, k, min_extent_px) -> HighlightDetectio
     return HighlightDetection(True, center, int(stats[label, 4]), _bbox(stats[label]), score, "")
 
 
-def _detect_blob(lum, saturated, region, *, center, min_contrast, min_area_px
+def _detect_blob(lum, saturated, region, *, center, min_contrast, min_area_px, level
                  ) -> HighlightDetection:
     """Half-maximum blob on linear intensity and its sub-pixel centre, on a crop."""
     smooth = cv2.GaussianBlur(lum, (0, 0), _PEAK_SMOOTHING_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
@@ -302,18 +318,19 @@ def _detect_blob(lum, saturated, region, *, center, min_contrast, min_area_px
         return HighlightDetection.missing(
             f"no bright blob: peak {peak:.4f} is only {contrast:.4f} above the region's median "
             f"{background:.4f} (min_contrast {min_contrast:g}, linear intensity)")
-    level = background + _BLOB_LEVEL * contrast
+    if level is None:
+        level = background + _BLOB_LEVEL * contrast
     excess = np.where(region, lum - level, 0.0).astype(np.float32)
     n, labels, stats = _components(excess > 0)
     if n <= 1:  # smoothing can lift a lone spike's surroundings above every raw pixel
         return HighlightDetection.missing(
-            f"no pixel above the half-maximum level {level:.4f} in the search region")
+            f"no pixel above the level {level:.4f} in the search region")
     light = np.bincount(labels.ravel(), weights=np.maximum(excess, 0.0).ravel(), minlength=n)
     label = 1 + int(np.argmax(light[1:]))
     area = int(stats[label, 4])
     if area < min_area_px:
         return HighlightDetection.missing(
-            f"brightest blob has {area} px above the half-maximum level, fewer than "
+            f"brightest blob has {area} px above the level {level:.4f}, fewer than "
             f"min_area_px {min_area_px}")
     x, y, bw, bh = (int(s) for s in stats[label, :4])
     box = (slice(y, y + bh), slice(x, x + bw))
@@ -328,7 +345,7 @@ def _detect_blob(lum, saturated, region, *, center, min_contrast, min_area_px
         fitted = _lobe_center(lum, saturated, region, labels == label, background, contrast)
         if fitted is not None:
             center_uv = fitted
-    return HighlightDetection(True, center_uv, area, _bbox(stats[label]), contrast, "")
+    return HighlightDetection(True, center_uv, area, _bbox(stats[label]), contrast, "", level)
 
 
 def _weighted_centroid(weights: np.ndarray) -> np.ndarray:

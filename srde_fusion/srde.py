@@ -38,6 +38,7 @@ from ._checks import check_mask, check_views
 from .errors import LightError, RigError, SRDEError
 from .geometry import Plane, incidence_angle_deg, plane_disparity, plane_from_lights
 from .highlight import DEFAULT_BLOB_CENTER, HighlightDetection, _check_options, _detect
+from .imaging import luminance
 from .rig import CameraRig
 from .triangulation import (
     adjacent_pairs,
@@ -76,6 +77,10 @@ LIGHT_ON_PLANE_FRACTION = 0.01
 # blob's half-diagonal, plus a margin, around the line where the highlight can appear.
 _CAPSULE_SCALE = 2.0
 _CAPSULE_MARGIN_PX = 6.0
+# Spacing of the candidate virtual-light positions along a baseline, pixels.
+_REGION_SAMPLE_PX = 0.5
+# Smallest blob (pixels above the level) taken for a highlight.
+_MIN_BLOB_AREA_PX = 3
 
 
 @dataclass(frozen=True)
@@ -173,9 +178,11 @@ class SRDE:
         dropped as an outlier (default method).
     min_views : int
         Fewest agreeing views for an ``ok`` result (at least 2).
-    virtual_light_depth_m : (float, float)
-        Plausible depth range of the virtual light in front of the cameras, metres; it
-        sets how far along each baseline the other views are searched.
+    object_depth_m : (float, float)
+        Plausible depth range (reference camera z, metres) of the object. With the
+        light's position it bounds the depth of the virtual light seen along the
+        reference highlight's ray, which sets how far along each baseline the other
+        views are searched.
     max_incidence_deg : float
         A plane that some mask pixel ray meets at more than this angle from its normal
         is "grazing": depth there is ill-conditioned.
@@ -202,8 +209,8 @@ class SRDE:
     >>> rig = CameraRig.stereo(0.1, fx=400.0, image_size=(96, 64))
     >>> srde = SRDE(rig, light=[0.05, -0.3, 0.2])
     >>> result = srde.estimate([np.zeros((64, 96), np.uint8)] * 2, np.ones((64, 96), bool))
-    >>> result.status, result.reason
-    ('no_highlight', 'view 0 (left, reference): no bright blob: peak 0.0000 is only 0.0000 above the region\\'s median 0.0000 (min_contrast 0.05, linear intensity)')
+    >>> result.status, result.reason.split(":")[0]
+    ('no_highlight', 'view 0 (left, reference)')
     """
 
     def __init__(self, rig: CameraRig, light=None, *, method: str = "default",
@@ -211,7 +218,7 @@ class SRDE:
                  min_extent_px: int = 10, blob_center: str = DEFAULT_BLOB_CENTER,
                  min_contrast: float = 0.05, mask_erosion_px: int = 3,
                  max_residual_px: float = 1.0, min_views: int = 2,
-                 virtual_light_depth_m: tuple[float, float] = (0.05, math.inf),
+                 object_depth_m: tuple[float, float] = (0.2, 10.0),
                  max_incidence_deg: float = 85.0, white_references=None) -> None:
         if not isinstance(rig, CameraRig):
             raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
@@ -229,7 +236,8 @@ class SRDE:
         try:
             light_m = np.asarray(light, dtype=np.float64)
         except (TypeError, ValueError):
-            raise LightError(f"light: expected 3 numbers (x, y, z) in metres, got {light!r}") from None
+            raise LightError(f"light: expected 3 numbers (x, y, z) in metres, got {light!r}"
+                             ) from None
         if light_m.shape != (3,) or not np.all(np.isfinite(light_m)):
             raise LightError(f"light: expected 3 finite numbers (x, y, z) in metres, got {light!r}")
         if (isinstance(mask_erosion_px, bool) or not isinstance(mask_erosion_px, (int, np.integer))
@@ -243,13 +251,13 @@ class SRDE:
         self.max_residual_px = _number(max_residual_px, "max_residual_px")
         self.max_incidence_deg = _number(max_incidence_deg, "max_incidence_deg", high=90.0)
         try:
-            z_near, z_far = (float(z) for z in virtual_light_depth_m)
+            z_near, z_far = (float(z) for z in object_depth_m)
         except (TypeError, ValueError):
-            raise SRDEError(f"virtual_light_depth_m: expected (near, far) in metres, got "
-                            f"{virtual_light_depth_m!r}") from None
-        if not (0.0 < z_near < z_far):
-            raise SRDEError(f"virtual_light_depth_m: expected 0 < near < far (metres), got "
-                            f"{virtual_light_depth_m!r}")
+            raise SRDEError(f"object_depth_m: expected (near, far) in metres, got "
+                            f"{object_depth_m!r}") from None
+        if not (0.0 < z_near < z_far < math.inf):
+            raise SRDEError(f"object_depth_m: expected 0 < near < far < inf (metres), got "
+                            f"{object_depth_m!r}")
         self.rig = rig
         self.light_m = light_m
         self.method = method
@@ -259,7 +267,7 @@ class SRDE:
         self.min_contrast = float(min_contrast)
         self.mask_erosion_px = int(mask_erosion_px)
         self.min_views = int(min_views)
-        self.virtual_light_depth_m = (z_near, z_far)
+        self.object_depth_m = (z_near, z_far)
         self.white_references = None
         if white_references is not None:
             refs = check_views(white_references, rig.n_cameras, rig.image_size)
@@ -314,7 +322,10 @@ class SRDE:
             if j == ref:
                 detections.append(ref_det)
             else:
-                detections.append(self._detect_view(views, j, self._search_region(j, ref_det, search)))
+                # One level for all views: an asymmetric lobe's centroid depends on it.
+                level = None if np.isnan(ref_det.level) else ref_det.level
+                region_j = self._search_region(views, j, ref_det, search)
+                detections.append(self._detect_view(views, j, region_j, level))
         centers = np.full((rig.n_cameras, 2), np.nan)
         for j, det in enumerate(detections):
             if det:
@@ -342,55 +353,112 @@ class SRDE:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         return cv2.erode(mask.view(np.uint8), kernel).view(bool)
 
-    def _detect_view(self, views, j: int, region: np.ndarray) -> HighlightDetection:
+    def _detect_view(self, views, j: int, region: np.ndarray, level: float | None = None
+                     ) -> HighlightDetection:
         white = None if self.white_references is None else self.white_references[j]
         return _detect(views[j], region, method=self.detector, encoding=self.rig.image_encoding,
                        window=self.window, k=self.k, min_extent_px=self.min_extent_px,
                        blob_center=self.blob_center, min_contrast=self.min_contrast,
-                       min_area_px=1, white_reference=white)
+                       min_area_px=_MIN_BLOB_AREA_PX, level=level, white_reference=white)
 
-    def _search_region(self, j: int, ref_det: HighlightDetection, search: np.ndarray
+    def _search_region(self, views, j: int, ref_det: HighlightDetection, search: np.ndarray
                        ) -> np.ndarray:
         """Where view j can show the highlight found in the reference view.
 
-        A point seen at ``c_ref`` in the reference view appears in camera j at
+        A virtual light seen at ``c_ref`` in the reference view appears in camera j at
         ``c_ref + step * w`` with ``step = (-fx dX_j, -fy dY_j)`` and ``w = 1 / z`` its
-        inverse depth (DESIGN §3.1). Over the plausible depth range that is a segment;
-        the region is the capsule of the reference blob's size around it, intersected
-        with the reference search region swept along the same segment.
+        inverse depth (DESIGN §3.1); over V's plausible depth range that is a segment.
+        Each candidate V also fixes the depth of the mirror point on the object, hence
+        how far the object moves between the views: a candidate counts only if it lands
+        on the reference search region moved by that shift. The brightest candidate
+        (luminance smoothed at the blob's scale) is taken, and the region is a disc of
+        the reference blob's size around it, within the reference search region moved
+        by V's shift (and, for the paper detector, also by the object's shift, so that
+        object edges, which sit at the object's disparity and not at V's, stay out).
         """
         rig = self.rig
         k = rig.intrinsics
         h, w = rig.height, rig.width
+        empty = np.zeros((h, w), dtype=bool)
         offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
         step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
-        z_near, z_far = self.virtual_light_depth_m
-        w_lo, w_hi = 1.0 / z_far, 1.0 / z_near
-        step_len = float(np.hypot(*step))
-        if step_len == 0.0:  # a camera at the reference's centre sees the same image
-            w_lo = w_hi = 0.0
-        else:  # no use searching beyond the image
-            w_hi = min(w_hi, w_lo + math.hypot(w, h) / step_len)
         c = ref_det.center_uv
-        p0, p1 = c + step * w_lo, c + step * w_hi
+        w_lo, w_hi = self._inverse_depth_range(c)
+        n = int(math.ceil(float(np.hypot(*step)) * (w_hi - w_lo) / _REGION_SAMPLE_PX)) + 1
+        w_v = np.linspace(w_lo, w_hi, n)
+        centers = c + step * w_v[:, None]                                    # (n, 2) (u, v)
+        shift = np.rint(step * self._mirror_inverse_depth(c, w_v)[:, None]).astype(int)
+        pix = np.rint(centers).astype(int)
+        src = pix - shift
+        ok = ((pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
+              & (src[:, 0] >= 0) & (src[:, 0] < w) & (src[:, 1] >= 0) & (src[:, 1] < h))
+        ok[ok] = search[src[ok, 1], src[ok, 0]]
+        if not ok.any():
+            return empty
         u0, v0, u1, v1 = ref_det.bbox
-        radius = _CAPSULE_SCALE * 0.5 * math.hypot(u1 - u0, v1 - v0) + _CAPSULE_MARGIN_PX
-        capsule = np.zeros((h, w), dtype=bool)
-        lo = np.floor(np.minimum(p0, p1) - radius).astype(int)
-        hi = np.ceil(np.maximum(p0, p1) + radius).astype(int) + 1
-        cu0, cv0 = max(lo[0], 0), max(lo[1], 0)
-        cu1, cv1 = min(hi[0], w), min(hi[1], h)
-        if cu0 >= cu1 or cv0 >= cv1:
-            return capsule
-        vv, uu = np.mgrid[cv0:cv1, cu0:cu1]
-        seg = p1 - p0
-        seg_sq = float(seg @ seg)
-        du, dv = uu - p0[0], vv - p0[1]
-        if seg_sq > 0:
-            t = np.clip((du * seg[0] + dv * seg[1]) / seg_sq, 0.0, 1.0)
-            du, dv = du - t * seg[0], dv - t * seg[1]
-        capsule[cv0:cv1, cu0:cu1] = du * du + dv * dv <= radius * radius
-        return capsule & _sweep(search, step, w_lo, w_hi)
+        half_diagonal = 0.5 * math.hypot(u1 - u0, v1 - v0)
+        sigma = max(1.0, 0.5 * half_diagonal)
+        pad = int(math.ceil(3 * sigma))
+        lo = np.maximum(pix[ok].min(axis=0) - pad, 0)
+        hi = np.minimum(pix[ok].max(axis=0) + pad + 1, [w, h])
+        lum = luminance(views[j][lo[1]:hi[1], lo[0]:hi[0]], rig.image_encoding)
+        lum = cv2.GaussianBlur(lum, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        brightness = np.full(n, -np.inf)
+        brightness[ok] = lum[pix[ok, 1] - lo[1], pix[ok, 0] - lo[0]]
+        best = int(np.argmax(brightness))
+        radius = _CAPSULE_SCALE * half_diagonal + _CAPSULE_MARGIN_PX
+        center = centers[best]
+        bu0, bv0 = np.maximum(np.floor(center - radius).astype(int), 0)
+        bu1, bv1 = np.minimum(np.ceil(center + radius).astype(int) + 1, [w, h])
+        vv, uu = np.mgrid[bv0:bv1, bu0:bu1]
+        disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
+        # Moved with the highlight, the reference region clips the blob the same way in
+        # every view, so the clip biases all centroids alike. The paper detector is also
+        # kept inside the object as it appears in view j: its edges would be gradient rings.
+        moves = [np.rint(step * w_v[best]).astype(int)]
+        if self.detector == "paper":
+            moves.append(shift[best])
+        for moved in moves:
+            su, sv = uu - moved[0], vv - moved[1]
+            inside = (su >= 0) & (su < w) & (sv >= 0) & (sv < h)
+            disc[inside] &= search[sv[inside], su[inside]]
+            disc[~inside] = False
+        region = empty
+        region[bv0:bv1, bu0:bu1] = disc
+        return region
+
+    def _inverse_depth_range(self, center_uv: np.ndarray) -> tuple[float, float]:
+        """Range of ``w = 1 / z`` of a virtual light seen at ``center_uv`` in the reference view.
+
+        The mirror point H lies on the ray at distance t, V beyond it with
+        ``|V - H| = |H - L|`` (H is on the bisector plane of L and V), so V's distance
+        along the ray is ``t + |t k - L|``, increasing in t: the object's depth range
+        maps to an interval of V's depth.
+        """
+        rig = self.rig
+        ray = rig.rays(center_uv)
+        unit = ray / np.linalg.norm(ray)
+        light = self.light_m - rig.reference_center_m
+        w_range = []
+        for z_obj in self.object_depth_m:
+            t = z_obj / unit[2]
+            distance = t + float(np.linalg.norm(t * unit - light))
+            w_range.append(1.0 / (distance * unit[2]))
+        return w_range[1], w_range[0]
+
+    def _mirror_inverse_depth(self, center_uv: np.ndarray, w_v: np.ndarray) -> np.ndarray:
+        """``1 / z`` of the mirror point H for virtual lights at inverse depths ``w_v``.
+
+        Inverting ``d = t + |t k - L|`` for the distance t of H along the unit ray k:
+        ``t = (d^2 - |L|^2) / (2 (d - k · L))``.
+        """
+        rig = self.rig
+        ray = rig.rays(center_uv)
+        unit = ray / np.linalg.norm(ray)
+        light = self.light_m - rig.reference_center_m
+        distance = 1.0 / (w_v * unit[2])
+        t = (distance ** 2 - light @ light) / (2.0 * (distance - unit @ light))
+        return 1.0 / (t * unit[2])
 
     def _solve_joint(self, mask, centers, detections, missing) -> SRDEResult:
         rig = self.rig
@@ -429,7 +497,7 @@ class SRDE:
         depth = points[:, 2] - rig.reference_center_m[2]
         notes = list(missing)
         keep = []
-        for (i, j), point, z in zip(pairs, points, depth):
+        for (i, j), point, z in zip(pairs, points, depth, strict=True):
             pair = np.zeros(rig.n_cameras, dtype=bool)
             pair[[i, j]] = True
             shift = max_shift_px(rig, 1.0 / z, pair) if np.isfinite(z) else 0.0
@@ -454,8 +522,8 @@ class SRDE:
         if not result.ok:
             return result
         uv = _mask_uv(mask)
-        stack = np.stack([plane_disparity(plane_from_lights(self.light_m, p, rig.reference_center_m),
-                                          rig, uv) for p in pair_points])
+        planes = [plane_from_lights(self.light_m, p, rig.reference_center_m) for p in pair_points]
+        stack = np.stack([plane_disparity(plane, rig, uv) for plane in planes])
         with warnings.catch_warnings():  # pixels every pair's plane misses stay NaN
             warnings.simplefilter("ignore", RuntimeWarning)
             median = np.nanmedian(stack, axis=0)
@@ -536,34 +604,3 @@ def _rms_residual(rig, point, centers, used) -> float:
     pred = np.stack([rig.project(point, j) for j in range(rig.n_cameras)])
     err = np.linalg.norm(pred - centers, axis=1)[used]
     return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
-
-
-def _shifted(mask: np.ndarray, du: int, dv: int) -> np.ndarray:
-    """``out[v, u] = mask[v - dv, u - du]``, False where that falls outside."""
-    h, w = mask.shape
-    out = np.zeros_like(mask)
-    if abs(du) >= w or abs(dv) >= h:
-        return out
-    out[max(dv, 0):h + min(dv, 0), max(du, 0):w + min(du, 0)] = \
-        mask[max(-dv, 0):h - max(dv, 0), max(-du, 0):w - max(du, 0)]
-    return out
-
-
-def _sweep(mask: np.ndarray, step: np.ndarray, t0: float, t1: float) -> np.ndarray:
-    """Union of ``mask`` shifted by ``t * step`` for every ``t`` in ``[t0, t1]``.
-
-    Unit steps along the dominant axis, combined by doubling (log2 of the length in
-    shifts); rounding off the axes is covered by a final 1-px dilation.
-    """
-    start = np.rint(step * t0).astype(int)
-    out = _shifted(mask, int(start[0]), int(start[1]))
-    dominant = float(np.abs(step).max())
-    n_steps = int(math.ceil(dominant * (t1 - t0))) if dominant > 0 else 0
-    if n_steps > 0:
-        unit = step / dominant
-        span = 1
-        while span <= n_steps:
-            s = np.rint(unit * span).astype(int)
-            out |= _shifted(out, int(s[0]), int(s[1]))
-            span *= 2
-    return cv2.dilate(out.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
