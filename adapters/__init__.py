@@ -1,1 +1,59 @@
-"""Backbone adapters: ONNX and torch stereo models behind one callable contract."""
+"""Backbone adapters: ONNX and torch stereo models behind one callable contract.
+
+Every adapter is ``backbone(left, right) -> (H, W) float32`` disparity in pixels,
+positive, at input resolution, for rectified ``(H, W, 3)`` uint8 RGB images (floats in
+[0, 1] and grey images are accepted). A :class:`StereoSpec` declares a model's
+conventions (channel order, value range, padding, which output, sign, resolution,
+fixed input size); :data:`PRESETS` holds those of IGEV, IGEV++, RAFT-Stereo, CREStereo,
+NMRF and FoundationStereo.
+
+The stand-in network (:mod:`.standin`, :mod:`.training`) and the torch adapter import
+torch only when used, so ``import srde_fusion.adapters`` stays light.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from .loading import default_model_info, default_weights_path, load_backbone
+from .onnx_backend import OnnxStereo
+from .spec import PRESETS, StereoSpec, preset
+from .torch_backend import TorchStereo
+
+__all__ = [
+    "StereoSpec",
+    "PRESETS",
+    "preset",
+    "OnnxStereo",
+    "TorchStereo",
+    "load_backbone",
+    "default_weights_path",
+    "default_model_info",
+    "StandinConfig",
+    "StandinStereo",
+    "STANDIN_SIZES",
+    "build_standin",
+    "TrainingConfig",
+    "train_standin",
+    "export_standin_onnx",
+    "random_stereo_pair",
+]
+
+# Names that need torch, resolved on first access (PEP 562).
+_LAZY = {
+    "StandinConfig": ".standin",
+    "StandinStereo": ".standin",
+    "STANDIN_SIZES": ".standin",
+    "build_standin": ".standin",
+    "TrainingConfig": ".training",
+    "train_standin": ".training",
+    "export_standin_onnx": ".training",
+    "random_stereo_pair": ".procedural",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

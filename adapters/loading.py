@@ -1,0 +1,106 @@
+"""One entry point that turns a model file, a torch module or ``"default"`` into a backbone."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from srde_fusion.errors import BackboneError
+
+from ._pipeline import StereoAdapter
+from .onnx_backend import OnnxStereo
+from .spec import StereoSpec, preset
+
+__all__ = ["load_backbone", "default_weights_path", "default_model_info"]
+
+_WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+_DEFAULT_MODEL = "standin.onnx"
+_DEFAULT_INFO = "standin.json"
+# The stand-in follows IGEV's conventions (RGB 0..255, pad to 32, positive disparity).
+_DEFAULT_PRESET = "igev"
+
+
+def default_weights_path() -> Path:
+    """Path of the bundled stand-in stereo network (ONNX).
+
+    Raises
+    ------
+    BackboneError
+        The file is missing from the installation.
+    """
+    path = _WEIGHTS_DIR / _DEFAULT_MODEL
+    if not path.is_file():
+        raise BackboneError(
+            f"default model: expected the bundled {_DEFAULT_MODEL} next to the adapters, "
+            f"got no file at {path}; recreate it with `srde-fusion train-standin --out {path}`"
+        )
+    return path
+
+
+def default_model_info() -> dict[str, Any]:
+    """Return the stand-in's record: architecture, training command and measured metrics."""
+    path = _WEIGHTS_DIR / _DEFAULT_INFO
+    if not path.is_file():
+        return {}
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def load_backbone(source: Any, spec: StereoSpec | str | None = None, **options: Any
+                  ) -> StereoAdapter:
+    """Make a backbone callable from a model file, a torch module, or the bundled default.
+
+    Parameters
+    ----------
+    source : str, os.PathLike or torch.nn.Module
+        ``"default"`` for the bundled stand-in network, a path to an ``.onnx`` file, or a
+        torch module.
+    spec : StereoSpec or str, optional
+        Conventions of the model or a preset name. ``None``: the stand-in's own preset
+        for ``"default"``, ``"generic"`` otherwise.
+    **options
+        Passed on to :class:`OnnxStereo` (``providers``, ``session_options``) or
+        :class:`TorchStereo` (``device``).
+
+    Returns
+    -------
+    OnnxStereo or TorchStereo
+        ``backbone(left, right) -> (H, W) float32`` disparity in pixels.
+
+    Raises
+    ------
+    BackboneError
+        Unknown source type or extension, missing or unreadable model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from srde_fusion.adapters import load_backbone
+    >>> backbone = load_backbone("default")
+    >>> left = np.zeros((40, 60, 3), np.uint8)
+    >>> backbone(left, left).shape
+    (40, 60)
+    """
+    if isinstance(source, str) and source == "default":
+        info = default_model_info()
+        spec = preset(spec or info.get("preset", _DEFAULT_PRESET))
+        return OnnxStereo(default_weights_path(), spec, **options)
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        if path.suffix.lower() != ".onnx":
+            raise BackboneError(
+                f"source: expected 'default', a .onnx file or a torch.nn.Module, "
+                f"got {str(source)!r}"
+            )
+        return OnnxStereo(path, preset(spec or "generic"), **options)
+    torch = sys.modules.get("torch")  # a torch module can only exist if torch is imported
+    if torch is not None and isinstance(source, torch.nn.Module):
+        from .torch_backend import TorchStereo
+
+        return TorchStereo(source, preset(spec or "generic"), **options)
+    raise BackboneError(
+        f"source: expected 'default', a .onnx file or a torch.nn.Module, "
+        f"got {type(source).__name__}"
+    )

@@ -1,0 +1,367 @@
+r"""Training, ONNX export and the ``srde-fusion train-standin`` command for the stand-in.
+
+The stand-in learns from procedural pairs (:mod:`srde_fusion.adapters.procedural`):
+textured slanted planes and occluding layers with exact disparity, generated on the fly,
+so training needs no data set. The bundled default was made with::
+
+    srde-fusion train-standin --out adapters/weights/standin.onnx --size default \\
+        --steps 1500 --seed 0
+
+This module imports torch only inside its functions: the ``srde-fusion`` command
+imports it at start-up to register the subcommand.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from srde_fusion.errors import BackboneError
+
+from .procedural import random_stereo_batch
+
+__all__ = [
+    "TrainingConfig",
+    "TrainingReport",
+    "train_standin",
+    "export_standin_onnx",
+    "evaluate_standin",
+    "register_cli",
+]
+
+ONNX_OPSET = 17
+ONNX_INPUT_NAMES = ("left", "right")
+ONNX_OUTPUT_NAME = "disparity"
+PARITY_SIZES_HW = ((96, 160), (100, 150))  # one multiple of 32 and one that is not
+_VALIDATION_SEED = 1_000_003  # held-out pairs never drawn by a training seed stream
+_BAD_THRESHOLD_PX = 2.0
+# IGEV's loss: smooth-L1 on the initial estimate, gamma-weighted L1 on the iterates.
+_INITIAL_LOSS_WEIGHT = 1.0
+_ITERATION_GAMMA = 0.9
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    """How the stand-in is trained.
+
+    Attributes
+    ----------
+    size : {"default", "tiny"}
+        Architecture (see ``STANDIN_SIZES``).
+    steps : int
+        Optimiser steps.
+    seed : int
+        Seeds the weights and the stream of procedural training pairs.
+    batch_size : int
+        Pairs per step.
+    crop_hw : (int, int)
+        Training image height and width in pixels (multiples of 32).
+    max_train_disparity_px : float
+        Largest disparity in training pairs (at most the network's ``max_disparity_px``).
+    learning_rate : float
+        Peak AdamW learning rate of the one-cycle schedule.
+    validation_pairs : int
+        Held-out procedural pairs evaluated before and after training.
+    threads : int
+        torch CPU threads. One thread is the default: on a shared 2-core machine two
+        threads contend with other processes and ran several times slower.
+    """
+
+    size: str = "default"
+    steps: int = 1500
+    seed: int = 0
+    batch_size: int = 4
+    crop_hw: tuple[int, int] = (96, 224)
+    max_train_disparity_px: float = 96.0
+    learning_rate: float = 2e-3
+    validation_pairs: int = 16
+    threads: int = 1
+
+
+@dataclass(frozen=True)
+class TrainingReport:
+    """What a training run produced and measured.
+
+    Attributes
+    ----------
+    onnx_path : pathlib.Path
+        The exported model.
+    info_path : pathlib.Path
+        The JSON record next to it (config, command, metrics).
+    initial_epe_px, final_epe_px : float
+        Mean absolute disparity error on the held-out procedural pairs before and after.
+    final_bad2 : float
+        Fraction of held-out pixels with error above 2 px after training.
+    parity_max_abs_px : float
+        Largest |torch - onnxruntime| disparity difference over the parity sizes.
+    seconds : float
+        Wall time of the training loop.
+    """
+
+    onnx_path: Path
+    info_path: Path
+    initial_epe_px: float
+    final_epe_px: float
+    final_bad2: float
+    parity_max_abs_px: float
+    seconds: float
+
+
+def _to_tensors(samples: list, device: Any) -> tuple[Any, Any, Any]:
+    import torch
+
+    # (B, H, W, 3) uint8 -> (B, 3, H, W) float in 0..255, the IGEV input convention
+    left = torch.from_numpy(np.stack([s.left for s in samples])).permute(0, 3, 1, 2).float()
+    right = torch.from_numpy(np.stack([s.right for s in samples])).permute(0, 3, 1, 2).float()
+    disp = torch.from_numpy(np.stack([s.disparity_px for s in samples]))[:, None]
+    return left.to(device), right.to(device), disp.to(device)
+
+
+def evaluate_standin(net: Any, samples: list, *, batch_size: int = 8) -> dict[str, float]:
+    """Mean EPE and bad-2 of a stand-in network on procedural samples.
+
+    Parameters
+    ----------
+    net : StandinStereo
+    samples : list of StereoSample
+        Sizes must be multiples of 32.
+
+    Returns
+    -------
+    dict
+        ``{"epe": px, "bad2": fraction}`` over all pixels.
+    """
+    import torch
+
+    was_training = net.training
+    net.eval()
+    abs_sum, bad_sum, count = 0.0, 0.0, 0
+    with torch.inference_mode():
+        for i in range(0, len(samples), batch_size):
+            left, right, gt = _to_tensors(samples[i:i + batch_size], "cpu")
+            err = (net(left, right) - gt).abs()
+            abs_sum += float(err.sum())
+            bad_sum += float((err > _BAD_THRESHOLD_PX).sum())
+            count += err.numel()
+    net.train(was_training)
+    return {"epe": abs_sum / count, "bad2": bad_sum / count}
+
+
+def _loss(outputs: Any, gt: Any, max_disparity_px: float) -> Any:
+    import torch.nn.functional as F
+
+    valid = (gt < max_disparity_px).float()
+    norm = valid.sum().clamp(min=1.0)
+    loss = _INITIAL_LOSS_WEIGHT * (
+        F.smooth_l1_loss(outputs.initial, gt, reduction="none") * valid
+    ).sum() / norm
+    n = len(outputs.refined)
+    for i, pred in enumerate(outputs.refined):
+        weight = _ITERATION_GAMMA ** (n - i - 1)
+        loss = loss + weight * ((pred - gt).abs() * valid).sum() / norm
+    return loss
+
+
+def export_standin_onnx(net: Any, path: str | os.PathLike) -> float:
+    """Export a stand-in network to ONNX with dynamic batch, height and width.
+
+    Uses the TorchScript-based exporter (``dynamo=False``): the dynamo exporter needs
+    the optional ``onnxscript`` package. Afterwards the model is run with onnxruntime
+    at two sizes and compared with torch.
+
+    Parameters
+    ----------
+    net : StandinStereo
+    path : str or os.PathLike
+        Output ``.onnx`` file.
+
+    Returns
+    -------
+    float
+        Largest absolute disparity difference (px) between torch and onnxruntime.
+    """
+    import onnxruntime as ort
+    import torch
+
+    net = net.eval()
+    h, w = PARITY_SIZES_HW[0]
+    example = (torch.zeros(1, 3, h, w), torch.zeros(1, 3, h, w))
+    dynamic = {0: "batch", 2: "height", 3: "width"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the exporter's deprecation and tracer notices
+        torch.onnx.export(
+            net, example, str(path), input_names=list(ONNX_INPUT_NAMES),
+            output_names=[ONNX_OUTPUT_NAME], opset_version=ONNX_OPSET, dynamo=False,
+            dynamic_axes={ONNX_INPUT_NAMES[0]: dynamic, ONNX_INPUT_NAMES[1]: dynamic,
+                          ONNX_OUTPUT_NAME: dynamic},
+        )
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    worst = 0.0
+    for i, (ph, pw) in enumerate(PARITY_SIZES_HW):
+        sample = random_stereo_batch(_VALIDATION_SEED + i, 1, height=ph + (-ph) % 32,
+                                     width=pw + (-pw) % 32, max_disparity_px=32.0)
+        left, right, _ = _to_tensors(sample, "cpu")
+        with torch.inference_mode():
+            expected = net(left, right).numpy()
+        got = session.run(None, {ONNX_INPUT_NAMES[0]: left.numpy(),
+                                 ONNX_INPUT_NAMES[1]: right.numpy()})[0]
+        worst = max(worst, float(np.abs(expected - got).max()))
+    return worst
+
+
+def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, *,
+                  progress: bool = True, command: str | None = None) -> TrainingReport:
+    """Train the stand-in on procedural pairs, export it to ONNX and write its record.
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+        Output ``.onnx`` path; the record goes next to it with suffix ``.json``.
+    config : TrainingConfig, optional
+        Defaults to ``TrainingConfig()`` (the bundled default's settings).
+    progress : bool
+        Show a tqdm progress bar.
+    command : str, optional
+        The command line to store in the record.
+
+    Returns
+    -------
+    TrainingReport
+
+    Raises
+    ------
+    BackboneError
+        Invalid settings (unknown size, crop not a multiple of 32, ...).
+    """
+    import torch
+    from tqdm import tqdm
+
+    from .standin import INPUT_MULTIPLE, STANDIN_SIZES, build_standin
+
+    config = config or TrainingConfig()
+    out = Path(out)
+    if out.suffix.lower() != ".onnx":
+        raise BackboneError(f"out: expected a path ending in .onnx, got {str(out)!r}")
+    if config.size not in STANDIN_SIZES:
+        raise BackboneError(
+            f"size: expected one of {', '.join(STANDIN_SIZES)}, got {config.size!r}"
+        )
+    if config.steps < 1 or config.batch_size < 1:
+        raise BackboneError(
+            f"steps, batch_size: expected integers >= 1, got {config.steps}, {config.batch_size}"
+        )
+    crop_h, crop_w = config.crop_hw
+    if crop_h % INPUT_MULTIPLE or crop_w % INPUT_MULTIPLE:
+        raise BackboneError(
+            f"crop_hw: expected multiples of {INPUT_MULTIPLE}, got {config.crop_hw}"
+        )
+    arch = STANDIN_SIZES[config.size]
+    max_train_disp = min(config.max_train_disparity_px, float(arch.max_disparity_px))
+
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    net = build_standin(arch).train()
+    val_samples = random_stereo_batch(_VALIDATION_SEED, config.validation_pairs,
+                                      height=crop_h, width=crop_w,
+                                      max_disparity_px=max_train_disp)
+    initial = evaluate_standin(net, val_samples)
+
+    optimiser = torch.optim.AdamW(net.parameters(), lr=config.learning_rate, weight_decay=1e-5)
+    schedule = torch.optim.lr_scheduler.OneCycleLR(
+        optimiser, max_lr=config.learning_rate, total_steps=config.steps, pct_start=0.05,
+        anneal_strategy="linear",
+    )
+    seeds = np.random.SeedSequence(config.seed)
+    start = time.perf_counter()
+    bar = tqdm(range(config.steps), desc="train-standin", disable=not progress,
+               dynamic_ncols=True)
+    running = None
+    for _ in bar:
+        batch_seed = int(seeds.spawn(1)[0].generate_state(1)[0])
+        samples = random_stereo_batch(batch_seed, config.batch_size, height=crop_h,
+                                      width=crop_w, max_disparity_px=max_train_disp)
+        left, right, gt = _to_tensors(samples, "cpu")
+        loss = _loss(net.forward_all(left, right), gt, float(arch.max_disparity_px))
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        optimiser.step()
+        schedule.step()
+        value = float(loss.detach())
+        running = value if running is None else 0.95 * running + 0.05 * value
+        bar.set_postfix(loss=f"{running:.3f}")
+    seconds = time.perf_counter() - start
+    final = evaluate_standin(net, val_samples)
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    parity = export_standin_onnx(net, out)
+    info_path = out.with_suffix(".json")
+    record = {
+        "format": "srde-standin/1",
+        "model": out.name,
+        "preset": "igev",
+        "architecture": asdict(arch),
+        "training": {**asdict(config), "crop_hw": list(config.crop_hw),
+                     "data": "procedural textured planes with occluding layers",
+                     "seconds": round(seconds, 1), "command": command},
+        "validation": {
+            "pairs": config.validation_pairs, "size_hw": [crop_h, crop_w],
+            "max_disparity_px": max_train_disp,
+            "initial_epe_px": round(initial["epe"], 4),
+            "final_epe_px": round(final["epe"], 4),
+            "final_bad2": round(final["bad2"], 4),
+        },
+        "onnx": {"opset": ONNX_OPSET, "inputs": list(ONNX_INPUT_NAMES),
+                 "output": ONNX_OUTPUT_NAME, "dynamic_axes": ["batch", "height", "width"],
+                 "parity_max_abs_px": float(f"{parity:.3g}")},
+        "versions": {"torch": torch.__version__, "python": platform.python_version()},
+    }
+    info_path.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    return TrainingReport(out, info_path, initial["epe"], final["epe"], final["bad2"], parity,
+                          seconds)
+
+
+def _run_cli(args: argparse.Namespace) -> int:
+    config = TrainingConfig(size=args.size, steps=args.steps, seed=args.seed,
+                            batch_size=args.batch_size, threads=args.threads)
+    command = (f"srde-fusion train-standin --out {Path(args.out).name} --size {args.size} "
+               f"--steps {args.steps} --seed {args.seed} --batch-size {args.batch_size}")
+    report = train_standin(args.out, config, progress=not args.quiet, command=command)
+    print(f"wrote {report.onnx_path} and {report.info_path.name}: held-out EPE "
+          f"{report.initial_epe_px:.2f} -> {report.final_epe_px:.2f} px, bad-2 "
+          f"{report.final_bad2:.1%}, ONNX parity {report.parity_max_abs_px:.1e} px, "
+          f"{report.seconds / 60:.1f} min")
+    return 0
+
+
+def register_cli(subparsers: Any) -> None:
+    """Add the ``train-standin`` subcommand."""
+    parser = subparsers.add_parser(
+        "train-standin",
+        help="train the tiny stand-in stereo network and export it to ONNX",
+        description="Train the stand-in stereo network on procedural textured stereo pairs "
+        "(CPU), export it to ONNX with dynamic height and width, and write a JSON record "
+        "(config, command, held-out metrics) next to it.",
+    )
+    defaults = TrainingConfig()
+    parser.add_argument("--out", required=True, help="output .onnx path")
+    parser.add_argument("--steps", type=int, default=defaults.steps,
+                        help=f"optimiser steps (default {defaults.steps})")
+    parser.add_argument("--size", choices=("tiny", "default"), default=defaults.size,
+                        help="architecture size (default: default)")
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="random seed")
+    parser.add_argument("--batch-size", type=int, default=defaults.batch_size,
+                        help=f"pairs per step (default {defaults.batch_size})")
+    parser.add_argument("--threads", type=int, default=defaults.threads,
+                        help=f"torch CPU threads (default {defaults.threads})")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.set_defaults(func=_run_cli)
