@@ -67,9 +67,10 @@ class Plane:
         return p - 2.0 * self.signed_distance(p)[..., None] * self.n
 
     def angle_to(self, other: Plane) -> float:
-        """Angle between the two normals, degrees."""
-        c = float(np.clip(abs(np.dot(self.n, other.n)), -1.0, 1.0))
-        return float(np.degrees(np.arccos(c)))
+        """Angle between the two normals (ignoring orientation), degrees."""
+        # atan2 of sine and cosine stays accurate for tiny angles, where arccos does not.
+        sine = float(np.linalg.norm(np.cross(self.n, other.n)))
+        return float(np.degrees(np.arctan2(sine, abs(float(np.dot(self.n, other.n))))))
 
 
 def mirror_point(point_m, plane: Plane) -> np.ndarray:

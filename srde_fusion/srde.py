@@ -173,9 +173,12 @@ class SRDE:
     mask_erosion_px : int
         The object mask is eroded by this radius before the reference view is searched,
         so its border (and the edges it makes) stay out of the search.
-    max_residual_px : float
-        A view whose centre misses the triangulated virtual light by more than this is
-        dropped as an outlier (default method).
+    max_residual_px, min_residual_px : float
+        Outlier bounds of the default method, pixels: a view whose centre misses the
+        triangulated virtual light by more than ``max_residual_px`` is dropped; with
+        five or more agreeing views the bound tightens to four robust standard
+        deviations of their residuals, but not below ``min_residual_px`` (see
+        :func:`~srde_fusion.triangulation.robust_triangulate`).
     min_views : int
         Fewest agreeing views for an ``ok`` result (at least 2).
     object_depth_m : (float, float)
@@ -217,7 +220,8 @@ class SRDE:
                  detector: str | None = None, window: int = 15, k: float = 1.5,
                  min_extent_px: int = 10, blob_center: str = DEFAULT_BLOB_CENTER,
                  min_contrast: float = 0.05, mask_erosion_px: int = 3,
-                 max_residual_px: float = 1.0, min_views: int = 2,
+                 max_residual_px: float = 1.0, min_residual_px: float = 0.1,
+                 min_views: int = 2,
                  object_depth_m: tuple[float, float] = (0.2, 10.0),
                  max_incidence_deg: float = 85.0, white_references=None) -> None:
         if not isinstance(rig, CameraRig):
@@ -249,6 +253,8 @@ class SRDE:
             raise SRDEError(f"min_views: expected an integer in [2, {rig.n_cameras}] (the rig's "
                             f"cameras), got {min_views!r}")
         self.max_residual_px = _number(max_residual_px, "max_residual_px")
+        self.min_residual_px = _number(min_residual_px, "min_residual_px",
+                                       high=self.max_residual_px)
         self.max_incidence_deg = _number(max_incidence_deg, "max_incidence_deg", high=90.0)
         try:
             z_near, z_far = (float(z) for z in object_depth_m)
@@ -462,7 +468,8 @@ class SRDE:
 
     def _solve_joint(self, mask, centers, detections, missing) -> SRDEResult:
         rig = self.rig
-        tri = robust_triangulate(rig, centers, max_residual_px=self.max_residual_px)
+        tri = robust_triangulate(rig, centers, max_residual_px=self.max_residual_px,
+                                 min_residual_px=self.min_residual_px)
         found = np.all(np.isfinite(centers), axis=1)
         if not tri.used.any():
             plain = triangulate_rectified(rig, centers)
@@ -472,7 +479,7 @@ class SRDE:
                 f"{self.max_residual_px:g} px; residuals of a joint fit per view (px) {{{res}}}",
                 centers=centers, detections=detections)
         dropped = [f"{self._view(j)}: dropped as an outlier, {tri.residuals_px[j]:.2f} px from the "
-                   f"virtual light (max_residual_px {self.max_residual_px:g})"
+                   f"virtual light the other views agree on"
                    for j in np.flatnonzero(found & ~tri.used)]
         notes = tuple(missing) + tuple(dropped)
         if tri.used.sum() < self.min_views:

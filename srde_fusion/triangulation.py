@@ -41,6 +41,10 @@ _MIN_BASELINE_M = 1e-9
 _ADJACENCY_TOL = 1e-6
 # Refit rounds of the robust solve before it settles on an inlier set.
 _MAX_REFITS = 10
+# Fewest agreeing views from which their residual spread is estimated.
+_MIN_VIEWS_FOR_SCALE = 5
+# The adaptive outlier bound, in robust standard deviations of the residuals.
+_OUTLIER_SIGMAS = 4.0
 
 
 @dataclass(frozen=True)
@@ -166,7 +170,8 @@ def triangulate_rectified(rig, centers_uv, use=None) -> Triangulation:
     return _result(rig, centers_uv, use, _solve(rig, centers_uv, use))
 
 
-def robust_triangulate(rig, centers_uv, *, max_residual_px: float) -> Triangulation:
+def robust_triangulate(rig, centers_uv, *, max_residual_px: float,
+                       min_residual_px: float | None = None) -> Triangulation:
     """Triangulate from the largest set of views that agree on one point.
 
     Every pair of views with a centre and distinct camera centres proposes a point; the
@@ -174,13 +179,22 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float) -> Triangulat
     residual over them) wins; the point is refitted on those views and the inlier set
     recomputed until it no longer changes.
 
+    With ``min_residual_px`` and at least five agreeing views, the bound then adapts to
+    the data: it becomes ``4 sigma`` of the agreeing views' residuals (sigma from their
+    median, a robust scale), kept within ``[min_residual_px, max_residual_px]``. A view
+    whose highlight is cut by an object edge misses by a fraction of a pixel, far more
+    than clean views disagree among themselves, but not always more than a fixed bound
+    loose enough for real calibration errors.
+
     Parameters
     ----------
     rig : CameraRig
     centers_uv : array_like, (N, 2) float
         Image centres, NaN where a view has none.
     max_residual_px : float
-        Reprojection residual above which a view counts as an outlier, pixels.
+        Reprojection residual above which a view is always an outlier, pixels.
+    min_residual_px : float, optional
+        Floor of the adaptive bound, pixels; None keeps the bound fixed.
 
     Returns
     -------
@@ -207,17 +221,29 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float) -> Triangulat
             best_use, best_cost = inliers, cost
     if best_use is None:
         return _result(rig, centers_uv, finite & False, None)
-    use = best_use
+    use = _refit(rig, centers_uv, finite, best_use, max_residual_px)
+    if min_residual_px is not None and use.sum() >= _MIN_VIEWS_FOR_SCALE:
+        solution = _solve(rig, centers_uv, use)
+        res = _residuals(rig, centers_uv, *solution)
+        # Residual norms of isotropic 2D noise are Rayleigh: median = sigma sqrt(2 ln 2).
+        sigma = float(np.median(res[use])) / np.sqrt(2.0 * np.log(2.0))
+        bound = float(np.clip(_OUTLIER_SIGMAS * sigma, min_residual_px, max_residual_px))
+        use = _refit(rig, centers_uv, finite, use, bound)
+    return _result(rig, centers_uv, use, _solve(rig, centers_uv, use))
+
+
+def _refit(rig, centers_uv, finite, use, bound) -> np.ndarray:
+    """Refit and re-select the views within ``bound`` until the selection settles."""
     for _ in range(_MAX_REFITS):
         solution = _solve(rig, centers_uv, use)
         if solution is None:
             break
         res = _residuals(rig, centers_uv, *solution)
-        refit = finite & (np.nan_to_num(res, nan=np.inf) <= max_residual_px)
+        refit = finite & (np.nan_to_num(res, nan=np.inf) <= bound)
         if refit.sum() < 2 or np.array_equal(refit, use):
             break
         use = refit
-    return _result(rig, centers_uv, use, _solve(rig, centers_uv, use))
+    return use
 
 
 def adjacent_pairs(rig) -> list[tuple[int, int]]:
