@@ -3,9 +3,16 @@
 Inside each object's mask the disparity comes from SRDE (the plane found from the
 specular highlight); everywhere else it is the backbone's, untouched. Each object falls
 back to the backbone on its own, with the reason recorded, when SRDE fails or when its
-plane grossly contradicts the backbone where the backbone can be trusted: on the
-object's border, where the object's silhouette against the background gives the
-backbone something to match even though the object's interior is textureless.
+plane grossly contradicts the backbone where the backbone can be trusted.
+
+Where can it be trusted? Not inside the object: there is nothing to match. Along the
+object's outline the backbone matches the silhouette against the background, but an
+occluding edge mixes both depths: right at the edge a network or SGBM reports the
+object's disparity on some pixels and the background's on others. The check therefore
+looks at the ratio ``backbone / srde`` on the textured band around the outline: the
+object is the nearest thing along its own edge, so the ratio's upper quantiles should be
+close to 1 and its bulk should not lie above 1. Only a large factor rejects SRDE
+(``benchmarks/fusion_eval.py`` records what was measured and what was tried).
 
 The fused map never loses a valid backbone pixel: a pixel is either the backbone's value,
 bit for bit, or a finite SRDE value.
@@ -23,6 +30,7 @@ import numpy as np
 
 from ._checks import check_disparity, check_mask, check_views
 from .errors import LightError, MaskError
+from .geometry import plane_disparity
 from .imaging import REC709_LUMA, saturation_mask, to_float
 from .rig import CameraRig
 
@@ -45,46 +53,54 @@ Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
 
 @dataclass(frozen=True)
 class BorderCheck:
-    """How SRDE is checked against the backbone on an object's border.
+    """How SRDE is checked against the backbone around an object's outline.
 
-    The check compares the two maps on the *border band*: mask pixels within
-    ``width_px`` of the mask's edge whose reference image shows texture (Sobel gradient
-    of the encoded grey image above ``min_gradient``) and no clipped highlight. There
-    the backbone sees the silhouette of the object and matches it, while the interior
-    gives it nothing to match.
+    The *band* is every pixel within ``width_px`` of the mask's outline, inside or
+    outside, whose reference image shows texture (Sobel gradient of the encoded grey
+    image above ``min_gradient``), away from clipped highlights, and where the backbone
+    is valid. There the ratio ``backbone / srde`` is formed, with SRDE's plane extended
+    beyond the mask. At an occluding edge the backbone reports the object's disparity
+    (ratio 1) or the background's (ratio < 1), rarely more (something in front of the
+    object). SRDE is rejected when the ``high_quantile`` of the ratio is below
+    ``1 / max_ratio`` (SRDE puts the object far in front of anything seen along its
+    outline) or when the ``low_quantile`` is above ``max_ratio`` (SRDE puts it far
+    behind what is seen there).
 
     Parameters
     ----------
     width_px : int
-        Width of the band inside the mask's edge, pixels.
+        Half-width of the band around the outline, pixels.
     min_gradient : float
         Gradient magnitude (Sobel 3x3 on grey values in [0, 1]) above which a band pixel
         counts as textured.
-    max_diff_px : float
-        Absolute part of the tolerance on the median ``|srde - backbone|`` over the band,
-        pixels.
-    max_diff_rel : float
-        Relative part of the tolerance, as a fraction of the median backbone disparity
-        on the band. SRDE is rejected when the median difference exceeds
-        ``max(max_diff_px, max_diff_rel * median backbone disparity)``.
+    low_quantile, high_quantile : float
+        The quantiles of ``backbone / srde`` over the band that are tested, in (0, 1).
+    max_ratio : float
+        Largest accepted factor between a tested quantile and 1 (> 1).
     min_px : int
-        Fewest reliable band pixels for the check to run; with fewer, SRDE is accepted
+        Fewest band pixels for the check to run; with fewer, SRDE is accepted
         unchecked and the report says so.
     """
 
     width_px: int = 4
     min_gradient: float = 0.08
-    max_diff_px: float = 3.0
-    max_diff_rel: float = 0.15
+    low_quantile: float = 0.75
+    high_quantile: float = 0.95
+    max_ratio: float = 1.5
     min_px: int = 30
 
     def __post_init__(self) -> None:
         if int(self.width_px) != self.width_px or self.width_px < 1:
             raise ValueError(f"width_px: expected a positive integer, got {self.width_px!r}")
-        for name in ("min_gradient", "max_diff_px", "max_diff_rel"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
+        if not (isinstance(self.min_gradient, (int, float)) and math.isfinite(self.min_gradient)
+                and self.min_gradient >= 0):
+            raise ValueError(f"min_gradient: expected a finite number >= 0, got "
+                             f"{self.min_gradient!r}")
+        if not 0.0 < self.low_quantile <= self.high_quantile < 1.0:
+            raise ValueError(f"low_quantile, high_quantile: expected 0 < low <= high < 1, got "
+                             f"{self.low_quantile!r}, {self.high_quantile!r}")
+        if not (isinstance(self.max_ratio, (int, float)) and 1.0 < self.max_ratio < math.inf):
+            raise ValueError(f"max_ratio: expected a finite number > 1, got {self.max_ratio!r}")
         if int(self.min_px) != self.min_px or self.min_px < 1:
             raise ValueError(f"min_px: expected a positive integer, got {self.min_px!r}")
 
@@ -109,13 +125,13 @@ class ObjectReport:
     replaced_px : int
         Pixels whose disparity now comes from SRDE (0 on fallback).
     border_px : int
-        Reliable border-band pixels the check used (0 when it did not run).
+        Band pixels the check used (0 when it did not run).
+    border_ratio_low, border_ratio_high : float
+        The tested low and high quantiles of ``backbone / srde`` over the band (NaN when
+        the check did not run).
     border_median_diff_px : float
-        Median of ``srde - backbone`` on the band, pixels (NaN when the check did not run).
-    border_median_abs_diff_px : float
-        Median of ``|srde - backbone|`` on the band, pixels (NaN when it did not run).
-    border_tolerance_px : float
-        The tolerance the median absolute difference was held to (NaN when not run).
+        Median of ``srde - backbone`` over the band, pixels (NaN when not run); for
+        information, not used in the decision.
     """
 
     index: int
@@ -125,9 +141,9 @@ class ObjectReport:
     pixel_count: int
     replaced_px: int
     border_px: int = 0
+    border_ratio_low: float = math.nan
+    border_ratio_high: float = math.nan
     border_median_diff_px: float = math.nan
-    border_median_abs_diff_px: float = math.nan
-    border_tolerance_px: float = math.nan
 
     @property
     def used_srde(self) -> bool:
@@ -144,9 +160,9 @@ class ObjectReport:
             "replaced_px": self.replaced_px,
             "border": {
                 "px": self.border_px,
+                "ratio_low": _json_float(self.border_ratio_low),
+                "ratio_high": _json_float(self.border_ratio_high),
                 "median_diff_px": _json_float(self.border_median_diff_px),
-                "median_abs_diff_px": _json_float(self.border_median_abs_diff_px),
-                "tolerance_px": _json_float(self.border_tolerance_px),
             },
             "srde": _srde_to_dict(self.srde),
         }
@@ -282,30 +298,39 @@ def _textured(reference: np.ndarray, min_gradient: float) -> np.ndarray:
 
 
 def _border_band(mask: np.ndarray, width_px: int) -> np.ndarray:
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * width_px + 1, 2 * width_px + 1))
-    inner = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
-    return mask & ~inner
+    """Pixels within ``width_px`` of the mask's outline, on either side, (H, W) bool."""
+    size = 2 * width_px + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    m = mask.astype(np.uint8)
+    inner = cv2.erode(m, kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
+    outer = cv2.dilate(m, kernel).astype(bool)
+    return outer & ~inner
 
 
 @dataclass(frozen=True)
 class _BorderStats:
-    n_px: int
-    median_diff_px: float
-    median_abs_diff_px: float
-    tolerance_px: float
+    n_px: int = 0
+    ratio_low: float = math.nan
+    ratio_high: float = math.nan
+    median_diff_px: float = math.nan
 
 
-def _border_stats(srde_disp: np.ndarray, backbone: np.ndarray, mask: np.ndarray,
+def _border_stats(result: Any, rig: CameraRig, backbone: np.ndarray, mask: np.ndarray,
                   textured: np.ndarray, check: BorderCheck) -> _BorderStats:
-    band = _border_band(mask, check.width_px) & textured
-    band &= np.isfinite(backbone) & np.isfinite(srde_disp)
-    n = int(np.count_nonzero(band))
-    if n == 0:
-        return _BorderStats(0, math.nan, math.nan, math.nan)
-    diff = srde_disp[band].astype(np.float64) - backbone[band]
-    median_bb = float(np.median(backbone[band]))
-    tol = max(check.max_diff_px, check.max_diff_rel * median_bb)
-    return _BorderStats(n, float(np.median(diff)), float(np.median(np.abs(diff))), tol)
+    plane = getattr(result, "plane", None)
+    if plane is None:
+        return _BorderStats()
+    band = _border_band(mask, check.width_px) & textured & np.isfinite(backbone)
+    vs, us = np.nonzero(band)
+    # SRDE's plane, extended beyond the mask onto the outer half of the band.
+    srde_px = plane_disparity(plane, rig, np.stack([us, vs], axis=-1).astype(np.float64))
+    keep = np.isfinite(srde_px) & (srde_px > 0)
+    if not keep.any():
+        return _BorderStats()
+    srde_px, backbone_px = srde_px[keep], backbone[vs[keep], us[keep]].astype(np.float64)
+    low, high = np.quantile(backbone_px / srde_px, [check.low_quantile, check.high_quantile])
+    return _BorderStats(int(keep.sum()), float(low), float(high),
+                        float(np.median(srde_px - backbone_px)))
 
 
 def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
@@ -381,19 +406,26 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
                 f"{getattr(result, 'reason', '')}", result, n_mask, 0))
             continue
         srde_disp = np.asarray(result.disparity, dtype=np.float32)
-        stats = _BorderStats(0, math.nan, math.nan, math.nan)
+        stats = _BorderStats()
         if border_check is not None:
-            stats = _border_stats(srde_disp, backbone, mask, textured, border_check)
-        common = dict(border_px=stats.n_px, border_median_diff_px=stats.median_diff_px,
-                      border_median_abs_diff_px=stats.median_abs_diff_px,
-                      border_tolerance_px=stats.tolerance_px)
-        if border_check is not None and stats.n_px >= border_check.min_px \
-                and stats.median_abs_diff_px > stats.tolerance_px:
+            stats = _border_stats(result, rig, backbone, mask, textured, border_check)
+        common = dict(border_px=stats.n_px, border_ratio_low=stats.ratio_low,
+                      border_ratio_high=stats.ratio_high,
+                      border_median_diff_px=stats.median_diff_px)
+        checked = border_check is not None and stats.n_px >= border_check.min_px
+        contradiction = ""
+        if checked and stats.ratio_high < 1.0 / border_check.max_ratio:
+            contradiction = (f"it puts the object far in front of anything the backbone sees "
+                             f"there (q{border_check.high_quantile:g} of backbone/srde = "
+                             f"{stats.ratio_high:.2f} < {1.0 / border_check.max_ratio:.2f}")
+        elif checked and stats.ratio_low > border_check.max_ratio:
+            contradiction = (f"it puts the object far behind what the backbone sees there "
+                             f"(q{border_check.low_quantile:g} of backbone/srde = "
+                             f"{stats.ratio_low:.2f} > {border_check.max_ratio:.2f}")
+        if contradiction:
             reports.append(ObjectReport(
-                k, "fallback",
-                f"SRDE contradicts the backbone on the object's border: median |diff| "
-                f"{stats.median_abs_diff_px:.2f} px > tolerance {stats.tolerance_px:.2f} px "
-                f"over {stats.n_px} textured border px", result, n_mask, 0, **common))
+                k, "fallback", f"SRDE contradicts the backbone around the object's outline: "
+                f"{contradiction}, over {stats.n_px} textured px)", result, n_mask, 0, **common))
             continue
         take = mask & np.isfinite(srde_disp) & (source == SOURCE_BACKBONE)
         fused[take] = srde_disp[take]
@@ -401,13 +433,14 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
         n_take = int(np.count_nonzero(take))
         if border_check is None:
             reason = "SRDE used (border check disabled)"
-        elif stats.n_px < border_check.min_px:
-            reason = (f"SRDE used unchecked: only {stats.n_px} textured border px with a valid "
-                      f"backbone (need {border_check.min_px})")
+        elif not checked:
+            reason = (f"SRDE used unchecked: only {stats.n_px} textured px with a valid "
+                      f"backbone around the outline (need {border_check.min_px})")
         else:
-            reason = (f"SRDE agrees with the backbone on the object's border: median |diff| "
-                      f"{stats.median_abs_diff_px:.2f} px <= {stats.tolerance_px:.2f} px over "
-                      f"{stats.n_px} px")
+            reason = (f"SRDE agrees with the backbone around the object's outline "
+                      f"(backbone/srde q{border_check.low_quantile:g} = {stats.ratio_low:.2f}, "
+                      f"q{border_check.high_quantile:g} = {stats.ratio_high:.2f} over "
+                      f"{stats.n_px} px)")
         reports.append(ObjectReport(k, "srde", reason, result, n_mask, n_take, **common))
 
     return FusionResult(fused, source, tuple(reports), backbone)

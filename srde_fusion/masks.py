@@ -24,7 +24,7 @@ from scipy import ndimage
 
 from ._checks import check_views
 from .errors import BackboneError, FileFormatError, MaskError
-from .imaging import REC709_LUMA, luminance, saturation_mask, to_float
+from .imaging import luminance, saturation_mask, to_float
 from .io import masks_from_labels, read_mask
 from .rig import CameraRig
 
@@ -199,49 +199,75 @@ class _Blob:
     mask: np.ndarray  # (H, W) bool
 
 
+#: Distances from a seed (pixels) between which the object's own noise level is sampled.
+_NOISE_ANNULUS_PX = (5.0, 30.0)
+#: Percentile of the fine-scale contrast in that annulus taken as the surface's noise:
+#: low enough to ignore the highlight's fall-off and any edge the annulus crosses.
+_NOISE_PERCENTILE = 25.0
+#: A ring around the seed counts as quiet when this fraction of it is below the threshold.
+_QUIET_RING_FRACTION = 0.9
+#: The highlight's fall-off ends at the first run of this many quiet rings.
+_QUIET_RINGS = 3
+
+
 class HighlightSegmenter:
     """Built-in mask stage: textureless regions around cross-view-consistent highlights.
 
-    For the reference view:
+    Needs no training data. For the reference view:
 
     1. **Seeds** — bright blobs of linear luminance (at least ``seed_luminance``, or
        clipped) of at least ``min_seed_area_px``.
-    2. **Lobe** — the highlight's smooth fall-off around a seed is not an edge of the
-       object: the ring-wise median brightness around the seed is followed outwards
-       until it stops falling; everything up to there is the lobe.
-    3. **Growth** — from the lobe over pixels without a strong edge (Sobel gradient of the
-       smoothed luma below ``edge_threshold``), 8-connected; a morphological opening
-       cuts thin leaks through gaps in the object's outline, holes are filled, and the
-       region is widened by the edge's own width.
-    4. **Consistency** — in a rectified array a highlight at ``(u, v)`` in the reference
+    2. **Consistency** — in a rectified array a highlight at ``(u, v)`` in the reference
        view appears in camera ``j`` at ``(u - fx·dX_j/z, v - fy·dY_j/z)`` for the one
-       depth ``z > 0`` of its 3D point (the virtual light). The region is kept only if
-       every other view has a bright blob at such a place, for a common ``z``.
+       depth ``z > 0`` of its 3D point (the virtual light). A seed is kept only if every
+       other view has a bright blob at such a place, for a common ``z``.
+    3. **Growth** — over the textureless surface around the seed. Texture and edges are
+       measured as fine-scale contrast, ``max_c |G_s1 * I_c - G_s2 * I_c|`` (a difference
+       of Gaussians per encoded colour channel), which stays low on the highlight's
+       smooth fall-off but not on a step. The threshold is ``noise_factor`` times the
+       surface's own noise level, read near the seed; rings around the seed are passable
+       until the first few quiet ones, so the clipped core's sharp rim does not wall the
+       seed in. The region is the seed's 8-connected component of passable pixels,
+       opened (cuts thin leaks through gaps in the outline) and with holes filled.
+    4. **Boundary** — the growth stops a few pixels short of the outline (the filter's
+       reach); a marker-controlled watershed on the gradient magnitude, between the
+       region and everything ``refine_band_px`` beyond it, puts the boundary on the
+       outline's ridge.
 
     Parameters
     ----------
     seed_luminance : float
-        Linear luminance in [0, 1] at or above which a pixel can seed a highlight.
+        Linear luminance in (0, 1] at or above which a pixel can seed a highlight.
     min_seed_area_px : int
         Smallest seed blob, pixels.
-    edge_threshold : float
-        Gradient magnitude (Sobel 3x3 on Gaussian-smoothed luma in [0, 1]) that counts as
-        an object edge or texture.
-    smoothing_sigma_px : float
-        Gaussian smoothing before the gradient, pixels (suppresses sensor noise).
+    contrast_sigmas_px : (float, float)
+        The two Gaussian scales of the fine-scale contrast, pixels.
+    noise_factor : float
+        Threshold on the contrast, in multiples of the surface's noise level.
+    min_threshold, max_threshold : float
+        Bounds of that threshold (encoded intensity in [0, 1]). A surface noisier than
+        ``max_threshold / noise_factor`` is texture, not a glossy object: the seed is
+        dropped.
+    lobe_max_radius_px : int
+        How far from the seed the highlight's fall-off may reach, pixels.
     opening_radius_px : int
-        Radius of the opening that cuts thin leaks.
+        Radius of the opening that cuts thin leaks, pixels.
+    refine_band_px : int
+        Width of the band the boundary is searched in, pixels (0 = no refinement).
     min_region_px : int
-        Smallest object region, pixels.
+        Smallest object, pixels.
     min_region_to_seed : float
-        The region must be at least this many times the seed's area (a bright spot in
-        texture grows no textureless region around it).
+        An object must be at least this many times its seed's area.
     max_region_fraction : float
-        Largest region as a fraction of the image (larger = leaked into the background).
+        Largest object as a fraction of the image (larger = leaked into the background).
     consistency_tol_px : float
-        How far a blob in another view may lie from where the common 3D point puts it.
+        How far a blob in another view may lie from where the common 3D point puts it,
+        pixels ...
+    consistency_tol_rel : float
+        ... or this fraction of the seed's equivalent radius, whichever is larger (a blob
+        cut by the object's edge in one view shifts its centre).
     min_consistent_views : int or None
-        Views (besides the reference) that must agree; all of them by default.
+        Views besides the reference that must agree; all of them by default.
 
     Examples
     --------
@@ -254,30 +280,44 @@ class HighlightSegmenter:
     """
 
     def __init__(self, *, seed_luminance: float = 0.8, min_seed_area_px: int = 6,
-                 edge_threshold: float = 0.06, smoothing_sigma_px: float = 1.0,
-                 opening_radius_px: int = 2, min_region_px: int = 200,
+                 contrast_sigmas_px: tuple[float, float] = (1.0, 3.0), noise_factor: float = 4.0,
+                 min_threshold: float = 0.002, max_threshold: float = 0.04,
+                 lobe_max_radius_px: int = 40, opening_radius_px: int = 2,
+                 refine_band_px: int = 8, min_region_px: int = 200,
                  min_region_to_seed: float = 4.0, max_region_fraction: float = 0.6,
-                 consistency_tol_px: float = 2.0, min_consistent_views: int | None = None
-                 ) -> None:
+                 consistency_tol_px: float = 2.0, consistency_tol_rel: float = 0.25,
+                 min_consistent_views: int | None = None) -> None:
         if not 0.0 < seed_luminance <= 1.0:
             raise ValueError(f"seed_luminance: expected a value in (0, 1], got {seed_luminance!r}")
         if not 0.0 < max_region_fraction <= 1.0:
             raise ValueError(f"max_region_fraction: expected a value in (0, 1], got "
                              f"{max_region_fraction!r}")
+        s1, s2 = (float(s) for s in contrast_sigmas_px)
+        if not 0.0 < s1 < s2:
+            raise ValueError(f"contrast_sigmas_px: expected 0 < s1 < s2, got "
+                             f"{contrast_sigmas_px!r}")
+        if not 0.0 <= min_threshold <= max_threshold:
+            raise ValueError(f"min_threshold, max_threshold: expected 0 <= min <= max, got "
+                             f"{min_threshold!r}, {max_threshold!r}")
         self.seed_luminance = float(seed_luminance)
         self.min_seed_area_px = int(min_seed_area_px)
-        self.edge_threshold = float(edge_threshold)
-        self.smoothing_sigma_px = float(smoothing_sigma_px)
+        self.contrast_sigmas_px = (s1, s2)
+        self.noise_factor = float(noise_factor)
+        self.min_threshold = float(min_threshold)
+        self.max_threshold = float(max_threshold)
+        self.lobe_max_radius_px = int(lobe_max_radius_px)
         self.opening_radius_px = int(opening_radius_px)
+        self.refine_band_px = int(refine_band_px)
         self.min_region_px = int(min_region_px)
         self.min_region_to_seed = float(min_region_to_seed)
         self.max_region_fraction = float(max_region_fraction)
         self.consistency_tol_px = float(consistency_tol_px)
+        self.consistency_tol_rel = float(consistency_tol_rel)
         self.min_consistent_views = min_consistent_views
         self.last_diagnostics: SegmenterDiagnostics | None = None
 
     def __call__(self, views: Sequence[np.ndarray], rig: CameraRig) -> list[np.ndarray]:
-        """Masks of the glossy objects in the reference view.
+        """Find the glossy objects in the reference view.
 
         Parameters
         ----------
@@ -297,46 +337,53 @@ class HighlightSegmenter:
 
     def segment(self, views: Sequence[np.ndarray], rig: CameraRig
                 ) -> tuple[list[np.ndarray], SegmenterDiagnostics]:
-        """Like calling the segmenter, but also return the per-seed diagnostics."""
+        """Find the objects, and say why each seed was kept or dropped.
+
+        Returns
+        -------
+        masks : list of numpy.ndarray, (H, W), bool
+        diagnostics : SegmenterDiagnostics
+        """
         views = check_views(views, rig.n_cameras, rig.image_size)
         ref = views[rig.reference]
         seeds = self._blobs(ref, rig.image_encoding)
         blobs_per_view = {j: self._blobs(views[j], rig.image_encoding)
-                          for j in range(rig.n_cameras) if j != rig.reference}
-        edges = self._edges(ref)
+                          for j in range(rig.n_cameras) if j != rig.reference} if seeds else {}
+        contrast = self._contrast(ref) if seeds else None
 
         masks: list[np.ndarray] = []
+        taken = np.zeros(ref.shape[:2], dtype=bool)
         kept, reasons, inv_depths = [], [], []
         h, w = ref.shape[:2]
         for blob in seeds:
-            if any(m[int(round(blob.center_uv[1])), int(round(blob.center_uv[0]))] for m in masks):
-                kept.append(False)
-                reasons.append("inside an object already found")
-                inv_depths.append(np.nan)
-                continue
-            inv_depth, why = self._consistent(blob.center_uv, blobs_per_view, rig)
-            if why:
-                kept.append(False)
-                reasons.append(why)
-                inv_depths.append(np.nan)
-                continue
-            region = self._grow(blob, ref, edges, rig.image_encoding)
-            n = int(np.count_nonzero(region))
-            why = ""
-            if n < self.min_region_px:
-                why = f"region of {n} px < min_region_px {self.min_region_px}"
-            elif n < self.min_region_to_seed * blob.area_px:
-                why = (f"region of {n} px is < {self.min_region_to_seed:g} x the highlight's "
-                       f"{blob.area_px} px: no textureless surface around it")
-            elif n > self.max_region_fraction * h * w:
-                why = (f"region of {n} px covers {n / (h * w):.0%} of the image: the object's "
-                       f"outline is not closed")
-            kept.append(not why)
-            reasons.append(why or f"object of {n} px, highlight at 1/z = {inv_depth:.3f} /m")
-            inv_depths.append(inv_depth)
+            inv_depth, why, region = np.nan, "", None
+            if np.any(taken[blob.mask]):
+                why = "inside an object already found"
             if not why:
-                masks.append(region)
-        centers = (np.array([b.center_uv for b in seeds]) if seeds else np.zeros((0, 2)))
+                inv_depth, why = self._consistent(blob, blobs_per_view, rig)
+            if not why:
+                region, why = self._grow(blob, ref, contrast)
+            if not why:
+                region &= ~taken
+                n = int(np.count_nonzero(region))
+                if n < self.min_region_px:
+                    why = f"region of {n} px < min_region_px {self.min_region_px}"
+                elif n < self.min_region_to_seed * blob.area_px:
+                    why = (f"region of {n} px is < {self.min_region_to_seed:g} x the highlight's "
+                           f"{blob.area_px} px: no textureless surface around it")
+                elif n > self.max_region_fraction * h * w:
+                    why = (f"region of {n} px covers {n / (h * w):.0%} of the image: the "
+                           f"object's outline is not closed")
+            kept.append(not why)
+            inv_depths.append(inv_depth)
+            if why:
+                reasons.append(why)
+                continue
+            reasons.append(f"object of {int(region.sum())} px; the views agree on a highlight at "
+                           f"1/z = {inv_depth:.3f} /m")
+            masks.append(region)
+            taken |= region
+        centers = np.array([b.center_uv for b in seeds]) if seeds else np.zeros((0, 2))
         return masks, SegmenterDiagnostics(centers, tuple(kept), tuple(reasons), tuple(inv_depths))
 
     # ------------------------------------------------------------------ steps
@@ -346,7 +393,7 @@ class HighlightSegmenter:
         n, comp, stats, _ = cv2.connectedComponentsWithStats(bright.astype(np.uint8),
                                                              connectivity=8)
         blobs = []
-        for i in range(1, n):
+        for i in range(1, n):  # a handful of blobs, not pixels
             area = int(stats[i, cv2.CC_STAT_AREA])
             if area < self.min_seed_area_px:
                 continue
@@ -357,92 +404,119 @@ class HighlightSegmenter:
             blobs.append(_Blob(center, area, mask))
         return blobs
 
-    def _luma(self, image: np.ndarray) -> np.ndarray:
-        gray = to_float(image)
-        if gray.ndim == 3:
-            gray = gray @ REC709_LUMA
-        if self.smoothing_sigma_px > 0:
-            gray = cv2.GaussianBlur(gray, (0, 0), self.smoothing_sigma_px)
-        return gray
+    def _contrast(self, image: np.ndarray) -> np.ndarray:
+        """Fine-scale contrast: max over channels of a difference of Gaussians, (H, W)."""
+        # Encoded values: their noise is closer to uniform across brightness than the
+        # linear values' after an sRGB camera curve, and edges look as the eye sees them.
+        f = to_float(image)
+        s1, s2 = self.contrast_sigmas_px
+        dog = np.abs(cv2.GaussianBlur(f, (0, 0), s1) - cv2.GaussianBlur(f, (0, 0), s2))
+        return dog.max(axis=2) if dog.ndim == 3 else dog
 
-    def _edges(self, image: np.ndarray) -> np.ndarray:
-        gray = self._luma(image)
-        gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
-        gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
-        return cv2.magnitude(gx, gy) > self.edge_threshold
+    def _gradient(self, image: np.ndarray) -> np.ndarray:
+        f = cv2.GaussianBlur(to_float(image), (0, 0), self.contrast_sigmas_px[0])
+        if f.ndim == 2:
+            f = f[:, :, None]
+        mags = [cv2.magnitude(cv2.Sobel(f[:, :, c], cv2.CV_32F, 1, 0, ksize=3),
+                              cv2.Sobel(f[:, :, c], cv2.CV_32F, 0, 1, ksize=3))
+                for c in range(f.shape[2])]
+        return np.max(mags, axis=0)
 
-    def _lobe(self, blob: _Blob, image: np.ndarray) -> np.ndarray:
-        """Return the seed plus the smooth fall-off of its highlight around it."""
-        gray = self._luma(image)
+    def _grow(self, blob: _Blob, image: np.ndarray, contrast: np.ndarray
+              ) -> tuple[np.ndarray | None, str]:
         dist = ndimage.distance_transform_edt(~blob.mask)
-        ring = np.minimum(np.floor(dist), _LOBE_MAX_RADIUS_PX + 1).astype(np.int64)
-        sel = ring <= _LOBE_MAX_RADIUS_PX
-        # Ring-wise median brightness; the fall-off ends where it stops dropping.
-        medians = np.full(_LOBE_MAX_RADIUS_PX + 1, np.nan)
-        for r in range(1, _LOBE_MAX_RADIUS_PX + 1):  # a few dozen rings, not pixels
-            values = gray[sel & (ring == r)]
-            if values.size:
-                medians[r] = np.median(values)
-        radius = 1
-        for r in range(2, _LOBE_MAX_RADIUS_PX + 1):
-            if not np.isfinite(medians[r]) or medians[r - 1] - medians[r] < _LOBE_FLAT_STEP:
-                break
-            radius = r
-        return dist <= radius
+        lo, hi = _NOISE_ANNULUS_PX
+        noise = float(np.percentile(contrast[(dist > lo) & (dist <= hi)], _NOISE_PERCENTILE))
+        threshold = self.noise_factor * noise
+        if threshold > self.max_threshold:
+            return None, (f"textured surroundings: contrast threshold {threshold:.4f} > "
+                          f"max_threshold {self.max_threshold:g}")
+        threshold = max(threshold, self.min_threshold)
+        passable = contrast < threshold
 
-    def _grow(self, blob: _Blob, image: np.ndarray, edges: np.ndarray, encoding: str
-              ) -> np.ndarray:
-        lobe = self._lobe(blob, image)
-        passable = ~edges | lobe
-        labels, _ = ndimage.label(passable, structure=np.ones((3, 3), bool))
-        ids = np.unique(labels[blob.mask])
-        region = np.isin(labels, ids[ids > 0])
+        # The highlight's fall-off: rings around the seed until a run of quiet ones.
+        r_max = self.lobe_max_radius_px
+        ring = np.floor(dist).astype(np.int64)
+        near = (ring >= 1) & (ring <= r_max)
+        count = np.bincount(ring[near], minlength=r_max + 1)
+        quiet = np.bincount(ring[near], weights=passable[near], minlength=r_max + 1)
+        quiet_fraction = np.where(count > 0, quiet / np.maximum(count, 1), 1.0)
+        is_quiet = quiet_fraction >= _QUIET_RING_FRACTION
+        runs = np.convolve(is_quiet[1:].astype(int), np.ones(_QUIET_RINGS, int), "valid")
+        first = np.flatnonzero(runs == _QUIET_RINGS)
+        lobe_radius = int(first[0]) + 1 if first.size else r_max
+        passable |= dist <= lobe_radius
+
+        region = _component_with(passable, blob.mask)
         if self.opening_radius_px > 0:
-            disc = cv2.getStructuringElement(
-                cv2.MORPH_ELLIPSE, (2 * self.opening_radius_px + 1,) * 2)
+            size = 2 * self.opening_radius_px + 1
+            disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
             opened = cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_OPEN, disc).astype(bool)
-            labels, _ = ndimage.label(opened | blob.mask, structure=np.ones((3, 3), bool))
-            ids = np.unique(labels[blob.mask])
-            region = np.isin(labels, ids[ids > 0])
+            region = _component_with(opened | blob.mask, blob.mask)
         region = ndimage.binary_fill_holes(region)
-        # The outline's edge pixels belong half to the object: take them back.
-        grown = cv2.dilate(region.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-        return region | (grown & edges)
+        if self.refine_band_px > 0:
+            region = self._refine(region, image)
+        return region, ""
 
-    def _consistent(self, center_uv: np.ndarray, blobs_per_view: dict[int, list[_Blob]],
+    def _refine(self, region: np.ndarray, image: np.ndarray) -> np.ndarray:
+        """Move the boundary onto the outline's gradient ridge (marker watershed)."""
+        from skimage.segmentation import watershed
+
+        band = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * self.refine_band_px + 1,) * 2)
+        outer = cv2.dilate(region.astype(np.uint8), band).astype(bool)
+        vs, us = np.nonzero(outer)
+        h, w = region.shape
+        v0, v1 = max(vs.min() - 2, 0), min(vs.max() + 3, h)
+        u0, u1 = max(us.min() - 2, 0), min(us.max() + 3, w)
+        crop = (slice(v0, v1), slice(u0, u1))
+        markers = np.where(region[crop], 1, np.where(outer[crop], 0, 2)).astype(np.int32)
+        labels = watershed(self._gradient(image[crop]), markers)
+        out = np.zeros_like(region)
+        out[crop] = labels == 1
+        return ndimage.binary_fill_holes(out)
+
+    def _consistent(self, blob: _Blob, blobs_per_view: dict[int, list[_Blob]],
                     rig: CameraRig) -> tuple[float, str]:
         """Find the highlight's common inverse depth across views, or why there is none."""
         k = rig.intrinsics
         ref_c = rig.reference_center_m
+        tol = max(self.consistency_tol_px,
+                  self.consistency_tol_rel * float(np.sqrt(blob.area_px / np.pi)))
         # Per view j, the shift c_ref - c_j equals a_j / z with a_j = (fx dX_j, fy dY_j).
         candidates = []  # (view, inverse depth, a_j, shift)
         for j, blobs in blobs_per_view.items():
             d = rig.centers_m[j] - ref_c
             a = np.array([k.fx * d[0], k.fy * d[1]])
             for b in blobs:
-                shift = center_uv - b.center_uv
+                shift = blob.center_uv - b.center_uv
                 inv = float(shift @ a / (a @ a))
-                if inv > -self.consistency_tol_px / np.linalg.norm(a):
+                if inv > -tol / np.linalg.norm(a):
                     candidates.append((j, max(inv, 0.0), a, shift))
         n_needed = (len(blobs_per_view) if self.min_consistent_views is None
                     else min(self.min_consistent_views, len(blobs_per_view)))
         best_inv, best_views = np.nan, set()
         for _, inv, _, _ in candidates:  # hypotheses: each candidate's depth
-            agree = {j for j, _, a, s in candidates
-                     if np.linalg.norm(s - a * inv) <= self.consistency_tol_px}
+            agree = {j for j, _, a, s in candidates if np.linalg.norm(s - a * inv) <= tol}
             if len(agree) > len(best_views):
                 best_inv, best_views = inv, agree
         if len(best_views) >= n_needed:
-            return best_inv, ""
+            # Refine: least-squares inverse depth over the agreeing blobs.
+            rows = [(a, s) for j, _, a, s in candidates
+                    if j in best_views and np.linalg.norm(s - a * best_inv) <= tol]
+            num = sum(float(s @ a) for a, s in rows)
+            den = sum(float(a @ a) for a, _ in rows)
+            return (num / den if den > 0 else best_inv), ""
         missing = sorted(set(blobs_per_view) - best_views)
         return np.nan, (f"views {missing} show no highlight where the reference highlight's 3D "
-                        f"point would appear ({len(best_views)} of {n_needed} views agree)")
+                        f"point would appear ({len(best_views)} of {n_needed} views agree "
+                        f"within {tol:.1f} px)")
 
 
-#: How far out (pixels from the seed) the highlight's fall-off is followed.
-_LOBE_MAX_RADIUS_PX = 40
-#: A ring darker than the previous one by less than this (luma) ends the fall-off.
-_LOBE_FLAT_STEP = 0.004
+def _component_with(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
+    """Return the 8-connected components of ``passable`` that touch ``seed``."""
+    labels, _ = ndimage.label(passable, structure=np.ones((3, 3), bool))
+    ids = np.unique(labels[seed])
+    return np.isin(labels, ids[ids > 0])
 
 
 # --------------------------------------------------------------------------- ONNX masker

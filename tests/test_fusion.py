@@ -32,20 +32,30 @@ class FakeResult:
         return self.status == "ok"
 
 
-class FakeSRDE:
-    """Returns a fixed disparity (or a failure) per call, in call order."""
+def plane_result(plane, rig, mask):
+    disp = np.where(mask, plane_disparity(plane, rig), np.nan).astype(np.float32)
+    return FakeResult("ok", "", disp, plane)
 
-    def __init__(self, outcomes):
+
+class FakeSRDE:
+    """Per call, in call order: a fronto-parallel plane of the given disparity, or a failure."""
+
+    def __init__(self, outcomes, rig=None):
         self.outcomes = list(outcomes)
         self.masks_seen = []
+        self.rig = rig or CameraRig.stereo(0.1, fx=60.0, image_size=(W, H))
 
     def estimate(self, views, mask):
         self.masks_seen.append(mask.copy())
         outcome = self.outcomes[len(self.masks_seen) - 1]
         if isinstance(outcome, str):
             return FakeResult(outcome, f"{outcome} for this object", None)
-        disp = np.where(mask, outcome, np.nan).astype(np.float32)
-        return FakeResult("ok", "", disp)
+        if isinstance(outcome, Plane):
+            return plane_result(outcome, self.rig, mask)
+        depth_m = self.rig.intrinsics.fx * self.rig.baseline_m / outcome
+        result = plane_result(Plane.from_point_normal([0, 0, depth_m], [0, 0, 1]), self.rig, mask)
+        # Exactly the requested value, so tests can compare bit for bit.
+        return FakeResult("ok", "", np.where(mask, np.float32(outcome), np.nan), result.plane)
 
 
 @pytest.fixture
@@ -183,60 +193,70 @@ def test_label_image_is_accepted_as_masks(rig):
 
 
 def flat_object_scene(rig):
-    """Textured background at 6 px, a uniform grey object plane at ~12 px."""
+    """Textured background at 6 px, a uniform grey tilted object plane at ~12 px."""
     views = textured_views(3)
     mask = box(12, 36, 16, 48)
     for v in views:
         v[mask] = 128  # textureless inside; the silhouette against texture stays
     plane = Plane.from_point_normal([0.0, 0.0, 0.5], [0.1, -0.2, -1.0])
     truth = plane_disparity(plane, rig).astype(np.float32)
-    # The backbone is wrong inside (stripes of +3 px) but right along the silhouette.
+    # The backbone is wrong inside (stripes of +3 px) and sees the background outside,
+    # but reports the object's disparity along its outline, a little beyond it too
+    # (foreground fattening, as matchers do at occluding edges).
     stripes = np.float32(3.0) * (np.arange(W) % 2)[None, :].repeat(H, axis=0)
     backbone = np.full((H, W), 6.0, np.float32)
     backbone[mask] = truth[mask] + stripes[mask]
-    band = mask & ~ndimage.binary_erosion(mask, iterations=4)
-    backbone[band] = truth[band]
-    return views, mask, truth, backbone
+    rim = (ndimage.binary_dilation(mask, iterations=2)
+           & ~ndimage.binary_erosion(mask, iterations=BorderCheck().width_px))
+    backbone[rim] = truth[rim]
+    return views, mask, plane, backbone
 
 
-def test_srde_that_agrees_with_the_border_is_used(rig):
-    views, mask, truth, backbone = flat_object_scene(rig)
+def scaled(plane: Plane, disparity_factor: float) -> Plane:
+    """The plane whose disparity is ``disparity_factor`` times ``plane``'s everywhere."""
+    return Plane(plane.normal, plane.offset_m / disparity_factor)
 
-    class Truth(FakeSRDE):
-        def estimate(self, views, m):
-            return FakeResult("ok", "", np.where(m, truth, np.nan).astype(np.float32))
 
-    result = fuse(backbone, views, rig, [mask], Truth([]))
+def test_srde_that_agrees_with_the_outline_is_used(rig):
+    views, mask, plane, backbone = flat_object_scene(rig)
+    result = fuse(backbone, views, rig, [mask], FakeSRDE([plane], rig))
     obj = result.objects[0]
     assert obj.status == "srde", obj.reason
     assert obj.border_px >= BorderCheck().min_px
-    assert abs(obj.border_median_diff_px) < 1e-5
+    assert obj.border_ratio_high == pytest.approx(1.0, abs=1e-5)
+    assert obj.border_ratio_low == pytest.approx(1.0, abs=1e-5)
     assert "agrees" in obj.reason
+    truth = plane_disparity(plane, rig).astype(np.float32)
     np.testing.assert_array_equal(result.disparity[mask], truth[mask])
 
 
-def test_srde_that_contradicts_the_border_falls_back(rig):
-    views, mask, truth, backbone = flat_object_scene(rig)
-
-    class Doubled(FakeSRDE):
-        def estimate(self, views, m):
-            return FakeResult("ok", "", np.where(m, 2 * truth, np.nan).astype(np.float32))
-
-    result = fuse(backbone, views, rig, [mask], Doubled([]))
+@pytest.mark.parametrize("factor, where", [(2.0, "in front of"), (0.5, "behind")])
+def test_srde_that_grossly_contradicts_the_outline_falls_back(rig, factor, where):
+    views, mask, plane, backbone = flat_object_scene(rig)
+    result = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, factor)], rig))
     obj = result.objects[0]
     assert obj.status == "fallback"
-    assert obj.reason.startswith("SRDE contradicts the backbone")
-    assert obj.border_median_abs_diff_px > obj.border_tolerance_px
-    assert obj.border_median_diff_px > 0  # SRDE is the larger one
+    assert obj.reason.startswith("SRDE contradicts the backbone around the object's outline")
+    assert f"far {where}" in obj.reason
+    tested = obj.border_ratio_high if factor > 1 else obj.border_ratio_low
+    assert tested == pytest.approx(1.0 / factor, rel=1e-4)
     assert np.array_equal(result.disparity, backbone)
     assert not result.source.any()
     # The same SRDE passes when the check is switched off.
-    unchecked = fuse(backbone, views, rig, [mask], Doubled([]), border_check=None)
+    unchecked = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, factor)], rig),
+                     border_check=None)
     assert unchecked.objects[0].status == "srde"
     assert "disabled" in unchecked.objects[0].reason
 
 
-def test_border_without_texture_is_not_checked(rig):
+def test_moderate_disagreement_is_not_gross(rig):
+    views, mask, plane, backbone = flat_object_scene(rig)
+    result = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, 1.2)], rig))
+    assert result.objects[0].status == "srde"
+    assert result.objects[0].border_ratio_high == pytest.approx(1 / 1.2, rel=1e-4)
+
+
+def test_outline_without_texture_is_not_checked(rig):
     views = [np.full((H, W, 3), 90, np.uint8)] * 2  # no texture anywhere
     mask = box(10, 30, 10, 30)
     result = fuse(np.full((H, W), 3.0, np.float32), views, rig, [mask], FakeSRDE([30.0]))
@@ -258,7 +278,7 @@ def test_report_is_json_serialisable_and_counts_pixels(rig):
     assert report["pixels_from_backbone"] == H * W - 100 - 4
     assert report["invalid_px"] == 4
     assert report["objects"][1]["srde"]["status"] == "degenerate_plane"
-    assert report["objects"][0]["border"]["median_diff_px"] is None
+    assert report["objects"][0]["border"]["ratio_high"] is None
     assert report["image_size"] == [W, H]
 
 
@@ -301,8 +321,10 @@ def test_bad_views_raise(rig):
 def test_border_check_options_are_validated():
     with pytest.raises(ValueError, match=r"width_px: expected a positive integer"):
         BorderCheck(width_px=0)
-    with pytest.raises(ValueError, match=r"max_diff_rel: expected a finite number >= 0"):
-        BorderCheck(max_diff_rel=-0.1)
+    with pytest.raises(ValueError, match=r"max_ratio: expected a finite number > 1"):
+        BorderCheck(max_ratio=1.0)
+    with pytest.raises(ValueError, match=r"low_quantile, high_quantile: expected 0 < low"):
+        BorderCheck(low_quantile=0.9, high_quantile=0.5)
 
 
 def test_hybrid_stereo_needs_a_light():
