@@ -568,8 +568,9 @@ class SRDE:
         behind = np.flatnonzero(used & (plane.signed_distance(rig.centers_m) <= 0))
         if behind.size:
             return self._failed(
-                "inconsistent", "plane: " + ", ".join(self._view(j) for j in behind)
-                + " lie behind the estimated plane and could not see its highlight", **fail)
+                "inconsistent", "plane: the estimated plane leaves "
+                + ", ".join(self._view(j) for j in behind)
+                + " on its far side, where its highlight cannot be seen", **fail)
         uv = _mask_uv(mask)
         angle = incidence_angle_deg(plane, rig, uv)
         steep = angle > self.max_incidence_deg
