@@ -407,9 +407,9 @@ def render_board_image(board: Board, dpi: float = 300.0) -> np.ndarray:
 
     Examples
     --------
-    >>> img = render_board_image(Board.corner_layout(), dpi=50)
+    >>> img = render_board_image(Board.corner_layout(), dpi=25)
     >>> img.shape, img.dtype, int(img[img.shape[0] // 2, img.shape[1] // 2])
-    ((41, 58), dtype('uint8'), 255)
+    ((207, 292), dtype('uint8'), 255)
     """
     dpi = _number(dpi, "dpi", positive=True)
     w_m, h_m = board.plate_size_m

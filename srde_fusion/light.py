@@ -75,6 +75,10 @@ _EDGE_MARGIN_FRACTION = 0.1
 _MARKER_MARGIN_FRACTION = 0.15
 # ...and this many pixels from both, once projected.
 _REGION_EROSION_PX = 2
+# Joint refinement: residual kinds are weighted by their RMS, re-estimated this many
+# times, and never taken below this (exact synthetic centres would get infinite weight).
+_REWEIGHT_ROUNDS = 2
+_MIN_SIGMA_PX = 0.01
 # A blob closer than this (pixels) to the search region's border beyond its own radius
 # is taken to be cut by it.
 _CLIP_MARGIN_PX = 1.0
@@ -328,9 +332,11 @@ def _refine_jointly(
 
     Every highlight centre is the image of the virtual light, ``L`` mirrored across its
     plate, so with ``L`` shared by all captures the highlights also pull on the plate
-    normals, which the markers of a small plate fix only to about 0.1 deg. Residuals
-    are pixels: marker corners of every view, and highlight centres against the
-    projected virtual light. Poses given without corners stay fixed.
+    normals, which the corners of small markers fix only to a few tenths of a
+    milliradian. Residuals are pixels: marker corners of every view, and highlight
+    centres against the projected virtual light, each kind divided by its own RMS
+    (re-estimated once after a first fit), so noisy highlight centres do not bend
+    well-measured plates. Poses given without corners stay fixed.
     """
     free = [c for c, p in enumerate(poses) if p.has_corners]
     marker_data = []
@@ -342,6 +348,7 @@ def _refine_jointly(
         marker_data.append(
             (cams, np.concatenate(p.plate_points_m), np.concatenate(p.image_points_px))
         )
+    views = [np.flatnonzero(np.all(np.isfinite(cc), axis=1)) for cc in centers]
 
     def unpack(x: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         rt = [(p.rotation, p.translation_m) for p in poses]
@@ -349,27 +356,36 @@ def _refine_jointly(
             rt[c] = (rotation_from_vector(x[3 + 6 * k : 6 + 6 * k]), x[6 + 6 * k : 9 + 6 * k])
         return rt
 
-    def residuals(x: np.ndarray) -> np.ndarray:
-        light = x[:3]
+    def parts(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rt = unpack(x)
-        out = []
-        for k, c in enumerate(free):
-            cams, obj, img = marker_data[k]
-            r, t = rt[c]
-            out.append((project_points(rig, obj @ r.T + t, cams) - img).ravel())
-        for (r, t), cc in zip(rt, centers, strict=True):
-            views = np.flatnonzero(np.all(np.isfinite(cc), axis=1))
-            v = _virtual_light(light, r, t)
-            proj = project_points(rig, np.repeat(v[None], views.size, axis=0), views)
-            out.append((proj - cc[views]).ravel())
-        return np.concatenate(out)
+        corners = [
+            (project_points(rig, obj @ rt[c][0].T + rt[c][1], cams) - img).ravel()
+            for (cams, obj, img), c in zip(marker_data, free, strict=True)
+        ]
+        highlights = []
+        for (r, t), cc, vv in zip(rt, centers, views, strict=True):
+            v = _virtual_light(x[:3], r, t)
+            proj = project_points(rig, np.repeat(v[None], vv.size, axis=0), vv)
+            highlights.append((proj - cc[vv]).ravel())
+        return np.concatenate(corners or [np.zeros(0)]), np.concatenate(highlights)
 
-    x0 = np.concatenate(
+    def rms(r: np.ndarray) -> float:
+        return max(float(np.sqrt(np.mean(r**2))) if r.size else 1.0, _MIN_SIGMA_PX)
+
+    x = np.concatenate(
         [light_m]
         + [np.r_[rotation_to_vector(poses[c].rotation), poses[c].translation_m] for c in free]
     )
-    fit = least_squares(residuals, x0, method="lm", x_scale="jac")
-    rt = unpack(fit.x)
+    for _ in range(_REWEIGHT_ROUNDS):
+        sigma_corner, sigma_highlight = (rms(r) for r in parts(x))
+
+        def residuals(x: np.ndarray, sc=sigma_corner, sh=sigma_highlight) -> np.ndarray:
+            corner, highlight = parts(x)
+            return np.concatenate([corner / sc, highlight / sh])
+
+        fit = least_squares(residuals, x, method="lm", x_scale="jac")
+        x = fit.x
+    rt = unpack(x)
     refined = tuple(
         p.moved(r, t, rig) if c in free else p
         for c, (p, (r, t)) in enumerate(zip(poses, rt, strict=True))
@@ -378,7 +394,7 @@ def _refine_jointly(
     dof = max(fit.fun.size - fit.x.size, 1)
     s2 = 2.0 * fit.cost / dof
     cov = np.linalg.pinv(fit.jac.T @ fit.jac)[:3, :3] * s2
-    return fit.x[:3], refined, np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return x[:3], refined, np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
 
 def light_from_reflections(
@@ -597,7 +613,10 @@ def plate_highlight_region(
         The plate inside a margin from its edge, without the markers and a margin
         around them, eroded by a few pixels.
     """
-    plate, labels = _plate_maps(rig, board, pose, camera)
+    return _free_region(*_plate_maps(rig, board, pose, camera))
+
+
+def _free_region(plate: np.ndarray, labels: np.ndarray) -> np.ndarray:
     free = (plate & (labels == 0)).astype(np.uint8)
     kernel = np.ones((2 * _REGION_EROSION_PX + 1,) * 2, np.uint8)
     return cv2.erode(free, kernel).astype(bool)
@@ -625,8 +644,8 @@ def _find_one(
     from .highlight import detect_highlight
 
     name = rig.camera_names[camera]
-    region = plate_highlight_region(rig, board, pose, camera)
     plate, labels = _plate_maps(rig, board, pose, camera)
+    region = _free_region(plate, labels)
     det = detect_highlight(view, region, encoding=rig.image_encoding, **detector_options)
     if det.found:
         center = np.asarray(det.center_uv, dtype=np.float64)
@@ -640,9 +659,12 @@ def _find_one(
     # Nothing in the free area: is the highlight on a marker, or absent?
     det_all = detect_highlight(view, plate, encoding=rig.image_encoding, **detector_options)
     if det_all.found:
-        center = np.asarray(det_all.center_uv, dtype=np.float64)
-        if _clipped_by(center, det_all.area_px, labels > 0):
-            return None, f"{name}: highlight under marker {_nearest_marker(center, labels, board)}"
+        h, w = labels.shape
+        u, v = np.clip(np.rint(det_all.center_uv).astype(int), 0, (w - 1, h - 1))
+        # Only a centre on a marker counts: glow of a highlight beside the plate also
+        # brightens the plate near its edge, next to the corner markers.
+        if labels[v, u] > 0:
+            return None, f"{name}: highlight under marker {board.markers[labels[v, u] - 1].id}"
     return None, f"{name}: no highlight on the plate ({det.reason})"
 
 
