@@ -19,7 +19,7 @@ import os
 import platform
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -55,8 +55,8 @@ class TrainingConfig:
 
     Attributes
     ----------
-    size : {"default", "tiny"}
-        Architecture (see ``STANDIN_SIZES``).
+    size : {"default", "tiny"} or StandinConfig
+        Architecture: a named size (see ``STANDIN_SIZES``) or a config of its own.
     steps : int
         Optimiser steps.
     seed : int
@@ -76,7 +76,7 @@ class TrainingConfig:
         threads contend with other processes and ran several times slower.
     """
 
-    size: str = "default"
+    size: Any = "default"
     steps: int = 1500
     seed: int = 0
     batch_size: int = 4
@@ -105,6 +105,8 @@ class TrainingReport:
         Largest |torch - onnxruntime| disparity difference over the parity sizes.
     seconds : float
         Wall time of the training loop.
+    network : StandinStereo
+        The trained torch module, in eval mode.
     """
 
     onnx_path: Path
@@ -114,6 +116,7 @@ class TrainingReport:
     final_bad2: float
     parity_max_abs_px: float
     seconds: float
+    network: Any = field(repr=False)
 
 
 def _to_tensors(samples: list, device: Any) -> tuple[Any, Any, Any]:
@@ -245,15 +248,20 @@ def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, 
     import torch
     from tqdm import tqdm
 
-    from .standin import INPUT_MULTIPLE, STANDIN_SIZES, build_standin
+    from .standin import INPUT_MULTIPLE, STANDIN_SIZES, StandinConfig, build_standin
 
     config = config or TrainingConfig()
     out = Path(out)
     if out.suffix.lower() != ".onnx":
         raise BackboneError(f"out: expected a path ending in .onnx, got {str(out)!r}")
-    if config.size not in STANDIN_SIZES:
+    if isinstance(config.size, StandinConfig):
+        arch = config.size
+    elif config.size in STANDIN_SIZES:
+        arch = STANDIN_SIZES[config.size]
+    else:
         raise BackboneError(
-            f"size: expected one of {', '.join(STANDIN_SIZES)}, got {config.size!r}"
+            f"size: expected one of {', '.join(STANDIN_SIZES)} or a StandinConfig, "
+            f"got {config.size!r}"
         )
     if config.steps < 1 or config.batch_size < 1:
         raise BackboneError(
@@ -264,7 +272,6 @@ def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, 
         raise BackboneError(
             f"crop_hw: expected multiples of {INPUT_MULTIPLE}, got {config.crop_hw}"
         )
-    arch = STANDIN_SIZES[config.size]
     max_train_disp = min(config.max_train_disparity_px, float(arch.max_disparity_px))
 
     torch.set_num_threads(config.threads)
@@ -311,6 +318,7 @@ def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, 
         "preset": "igev",
         "architecture": asdict(arch),
         "training": {**asdict(config), "crop_hw": list(config.crop_hw),
+                     "size": config.size if isinstance(config.size, str) else "custom",
                      "data": "procedural textured planes with occluding layers",
                      "seconds": round(seconds, 1), "command": command},
         "validation": {
@@ -327,7 +335,7 @@ def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, 
     }
     info_path.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     return TrainingReport(out, info_path, initial["epe"], final["epe"], final["bad2"], parity,
-                          seconds)
+                          seconds, net.eval())
 
 
 def _run_cli(args: argparse.Namespace) -> int:

@@ -1,0 +1,138 @@
+"""The stand-in network: it learns, its ONNX export matches torch, the bundled default works."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnxruntime")
+
+from srde_fusion.adapters import (  # noqa: E402
+    OnnxStereo,
+    TorchStereo,
+    default_model_info,
+    load_backbone,
+)
+from srde_fusion.adapters.procedural import random_stereo_pair  # noqa: E402
+from srde_fusion.adapters.standin import (  # noqa: E402
+    STANDIN_SIZES,
+    StandinConfig,
+    build_standin,
+)
+from srde_fusion.adapters.training import TrainingConfig, train_standin  # noqa: E402
+
+from srde_fusion.cli import main  # noqa: E402
+from srde_fusion.errors import BackboneError  # noqa: E402
+
+PARITY_PX = 1e-3
+# Smaller than "tiny": trains in seconds on one CPU thread.
+MICRO = StandinConfig(feature_channels=8, max_disparity_px=32, correlation_groups=2,
+                      volume_channels=2, hidden_channels=8, lookup_radius=1, iterations=1)
+MICRO_TRAINING = TrainingConfig(size=MICRO, steps=80, batch_size=4, crop_hw=(32, 64),
+                                max_train_disparity_px=16.0, learning_rate=3e-3,
+                                validation_pairs=8)
+DEFAULT_EPE_BOUND_PX = 2.5  # textured procedural pairs; measured ~1 px (see standin.json)
+
+
+@pytest.fixture(scope="module")
+def micro(tmp_path_factory):
+    return train_standin(tmp_path_factory.mktemp("micro") / "micro.onnx", MICRO_TRAINING,
+                         progress=False)
+
+
+def test_micro_network_learns(micro):
+    assert micro.final_epe_px < 0.6 * micro.initial_epe_px, micro
+    record = json.loads(micro.info_path.read_text())
+    assert record["architecture"]["feature_channels"] == MICRO.feature_channels
+    assert record["validation"]["final_epe_px"] == pytest.approx(micro.final_epe_px, abs=1e-3)
+    assert record["onnx"]["parity_max_abs_px"] < PARITY_PX
+
+
+@pytest.mark.parametrize("hw", [(64, 96), (50, 75)])  # a multiple of 32 and not
+def test_torch_and_onnx_adapters_agree(micro, hw):
+    sample = random_stereo_pair(11, height=hw[0], width=hw[1], max_disparity_px=16)
+    via_torch = TorchStereo(micro.network, "igev")(sample.left, sample.right)
+    via_onnx = OnnxStereo(micro.onnx_path, "igev")(sample.left, sample.right)
+    assert via_torch.shape == via_onnx.shape == hw
+    assert np.abs(via_torch - via_onnx).max() < PARITY_PX
+    assert np.abs(via_onnx).max() > 1.0  # a trained network, not a constant zero map
+
+
+def test_forward_all_returns_every_iterate():
+    net = build_standin("tiny").eval()
+    x = torch.rand(2, 3, 64, 96) * 255
+    out = net.forward_all(x, x)
+    assert out.initial.shape == (2, 1, 64, 96)
+    assert len(out.refined) == STANDIN_SIZES["tiny"].iterations
+    assert torch.equal(net(x, x), out.refined[-1])
+
+
+def test_bundled_default_fulfils_the_contract():
+    backbone = load_backbone("default")
+    info = default_model_info()
+    assert info["preset"] == "igev" and backbone.spec.pad_multiple == 32
+    sample = random_stereo_pair(5, height=100, width=150, max_disparity_px=40)
+    disp = backbone(sample.left, sample.right)
+    assert disp.shape == (100, 150) and disp.dtype == np.float32
+    assert np.isfinite(disp).all()
+    assert np.abs(disp - sample.disparity_px).mean() < DEFAULT_EPE_BOUND_PX
+
+
+def _ncc(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a - a.mean(), b - b.mean()
+    return float((a * b).sum() / np.sqrt((a * a).sum() * (b * b).sum()))
+
+
+def test_procedural_pair_is_consistent_with_its_disparity():
+    for seed in range(4):
+        s = random_stereo_pair(seed, height=64, width=128, max_disparity_px=40)
+        again = random_stereo_pair(seed, height=64, width=128, max_disparity_px=40)
+        assert np.array_equal(s.left, again.left)
+        assert np.array_equal(s.disparity_px, again.disparity_px)
+        assert 0 <= s.disparity_px.min() and s.disparity_px.max() <= 40
+        ys, xs = np.mgrid[0:64, 0:128].astype(np.float32)
+        scores = []
+        for shift in (0.0, 3.0):
+            x_right = xs - s.disparity_px - shift
+            warped = cv2.remap(s.right.astype(np.float32), x_right, ys, cv2.INTER_LINEAR)
+            inside = x_right >= 0
+            # horizontal gradients: exposure differences between the views cancel out
+            grad_warped = cv2.Sobel(warped.mean(axis=2), cv2.CV_32F, 1, 0)
+            grad_left = cv2.Sobel(s.left.astype(np.float32).mean(axis=2), cv2.CV_32F, 1, 0)
+            scores.append(_ncc(grad_warped[inside], grad_left[inside]))
+        assert scores[0] > scores[1] + 0.15, (seed, scores)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"max_disparity_px": 60}, "multiple of 8"),
+        ({"correlation_groups": 5}, "divisor of feature_channels"),
+        ({"iterations": 0}, "iterations"),
+    ],
+)
+def test_invalid_architecture(changes, message):
+    with pytest.raises(BackboneError, match=message):
+        StandinConfig(**changes)
+
+
+def test_invalid_training_settings(tmp_path):
+    with pytest.raises(BackboneError, match="multiples of 32"):
+        train_standin(tmp_path / "x.onnx", TrainingConfig(size=MICRO, crop_hw=(30, 64)))
+    with pytest.raises(BackboneError, match="ending in .onnx"):
+        train_standin(tmp_path / "x.pt", MICRO_TRAINING)
+    with pytest.raises(BackboneError, match="expected one of default, tiny"):
+        build_standin("huge")
+
+
+def test_cli_reports_bad_output_path(tmp_path, capsys):
+    assert main(["train-standin", "--out", str(tmp_path / "model.txt"), "--steps", "1"]) == 2
+    assert "ending in .onnx" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train-standin", "--help"])
+    assert exit_info.value.code == 0
+    assert "procedural" in capsys.readouterr().out
