@@ -25,8 +25,9 @@ class TorchStereo(StereoAdapter):
     Parameters
     ----------
     module : torch.nn.Module
-        The network. It is called as the spec's ``call`` style says, with
-        ``(1, 3, H, W)`` float32 tensors (``NCHW`` layout) on ``device``.
+        The network. It is called as the spec's ``call`` style says, with float32
+        image tensors in the spec's layout (``(1, 3, H, W)`` for ``NCHW``) on
+        ``device``, and extra inputs as the Python numbers the spec holds.
     spec_or_preset : StereoSpec or str
         The model's conventions, or a preset name (see :data:`PRESETS`).
     device : str or torch.device

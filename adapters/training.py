@@ -5,7 +5,7 @@ textured slanted planes and occluding layers with exact disparity, generated on 
 so training needs no data set. The bundled default was made with::
 
     srde-fusion train-standin --out adapters/weights/standin.onnx --size default \\
-        --steps 1500 --seed 0
+        --steps 800 --seed 0
 
 This module imports torch only inside its functions: the ``srde-fusion`` command
 imports it at start-up to register the subcommand.
@@ -77,7 +77,7 @@ class TrainingConfig:
     """
 
     size: Any = "default"
-    steps: int = 1500
+    steps: int = 800
     seed: int = 0
     batch_size: int = 4
     crop_hw: tuple[int, int] = (96, 224)
