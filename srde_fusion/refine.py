@@ -1,0 +1,1014 @@
+"""Photometric refinement of an SRDE plane: fit a specular lobe to the highlight in every view.
+
+A centroid of the highlight (the paper's edge ring, or an intensity-weighted blob) is not
+the image of the virtual light. Irradiance on the plane falls off with distance and angle
+from the light, the lobe widens with roughness and clipping flattens its top, so the
+blob's mass drifts towards the part of the plane nearest the light. The drift is nearly
+the same in every view, so the triangulated virtual light moves while the reprojection
+residual stays small: on rough surfaces the plane comes out tilted or shifted by tenths of
+a pixel of disparity although every view agrees.
+
+:func:`refine_plane` removes that bias by analysis by synthesis. It renders the highlight
+of a glossy plane lit by the known point light and seen from the known camera centres, and
+adjusts the plane (3 DoF around the initial plane) together with what it cannot know —
+lobe width and tail, a foreshortening exponent, specular and diffuse intensity, ambient
+level — until the rendering explains the linear luminance around the highlight in all
+views at once. Saturated pixels only say "at least this bright" and enter as one-sided
+residuals. The fit is a short Levenberg-Marquardt run on a few thousand block-averaged
+samples near the highlights, with the intensities solved in closed form at every step
+(variable projection); its own cost decides whether the refined plane replaces the
+initial one.
+
+The shading model, for a sample whose ray meets the plane at X (array frame, metres)::
+
+    Y = level + diffuse * (g_d - 1) + specular * S(n . h) * g_s
+
+    g_d = cos(theta_i) / r^2
+    g_s = F(omega_i . h) * (cos(theta_i) cos(theta_o))^k / (cos(theta_o) r^2)
+
+``g_d`` and ``g_s`` are normalised to a median of 1 over the samples at the initial plane,
+so ``specular`` and ``diffuse`` read as luminances at the highlight and
+``level = ambient + diffuse``. ``r`` is the distance from X to the light, ``h`` the half
+vector between the directions to the light and to the camera, ``F`` Schlick's Fresnel
+term and ``S`` the lobe scaled to a peak of 1. The foreshortening exponent ``k`` spans the
+conventions in use: ``k = 0`` is the Cook-Torrance microfacet BRDF
+``D F G / (4 cos(theta_i) cos(theta_o))`` (its radiance under a point light is
+``I D F G / (4 cos(theta_o) r^2)``; ``G ~ 1`` near the mirror direction), ``k = 1`` a
+Phong-style BRDF without the ``1 / (4 cos cos)`` factor. Near the mirror direction the
+factor tilts the lobe across the image, which shifts its peak, so it must be modelled
+(or fitted) rather than ignored.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ._checks import check_mask, check_views
+from .errors import ImageError, LightError, SRDEError
+from .geometry import Plane
+from .imaging import REC709_LUMA, SATURATION_LEVEL_U8, luminance, srgb_to_linear
+from .rig import CameraRig
+
+__all__ = [
+    "LOBES",
+    "DEFAULT_LOBE",
+    "LobeFit",
+    "PlaneRefinement",
+    "refine_plane",
+]
+
+#: Lobe shapes :func:`refine_plane` can fit, as functions of the half-vector angle:
+#:
+#: ``"gtr"``
+#:     Generalised Trowbridge-Reitz with a free tail: ``(1 + t z)^(-1 / t)`` with
+#:     ``z = 2 (1 - w^2) sin^2(theta_h) / w^2``. ``t = 1/2`` is GGX of roughness ``w``,
+#:     ``t -> 0`` a Gaussian in ``sin(theta_h)`` (Beckmann-like), ``t < 0`` lighter tails
+#:     (Blinn-Phong of exponent ``e`` is close to ``t = -1 / e``). Flexible enough to fit
+#:     materials that follow neither GGX nor Blinn-Phong.
+#: ``"ggx"``
+#:     Trowbridge-Reitz, ``(w^2 / (w^2 + (1 - w^2) sin^2(theta_h)))^2``.
+#: ``"blinn_phong"``
+#:     ``cos(theta_h)^e`` with ``e = 2 / w^2 - 2``.
+LOBES = ("gtr", "ggx", "blinn_phong")
+DEFAULT_LOBE = "gtr"
+
+#: Fresnel reflectance at normal incidence assumed for the Schlick term (dielectrics).
+DEFAULT_F0 = 0.04
+
+# --- fitting window -------------------------------------------------------------------
+#: The window's half-size is at most this fraction of the smaller image side.
+MAX_WINDOW_FRACTION = 0.2
+#: Smallest half-size of the window, pixels.
+MIN_WINDOW_HALF_PX = 8
+#: The window reaches this many half-maximum radii of the highlight blob from its centre.
+WINDOW_PER_BLOB_RADIUS = 3.0
+#: Block samples per window side at most; larger windows average larger blocks.
+SAMPLES_PER_SIDE = 30
+#: Pixels closer than this to the object's outline are not fitted (mask warping slack).
+MASK_MARGIN_PX = 2
+#: Fewer samples than this, all views together, are too few to fit the model.
+MIN_SAMPLES = 60
+#: Fewer unsaturated samples than this above the background cannot show the lobe's flanks.
+MIN_FLANK_SAMPLES = 12
+#: Peak-over-background contrast (linear luminance) below which there is no highlight.
+MIN_HIGHLIGHT_CONTRAST = 0.02
+#: A fit whose RMS residual exceeds this fraction of the highlight's contrast does not
+#: explain the image (texture, a second light, a curved surface): the plane is kept.
+MAX_RELATIVE_RESIDUAL = 0.05
+#: The refined highlight may move at most this fraction of the window half-size.
+MAX_SHIFT_FRACTION = 0.5
+
+# Coarse grid step (pixels) and number of views used to size the window.
+_SIZING_STRIDE_PX = 4
+_SIZING_VIEWS = 3
+# Quantile of the luminance taken as the object's background level near the highlight.
+_BACKGROUND_QUANTILE = 0.2
+
+# --- optimisation ---------------------------------------------------------------------
+# Start: lobe widths scanned with a GGX tail, then other tails around the best width.
+_WIDTH_GRID = np.geomspace(0.002, 0.4, 16)
+_TAIL_GRID = (0.5, 0.25, 0.0)
+_WIDTH_REFINE_FACTORS = (0.8, 1.0, 1.25)
+# A start whose lobe stays below this (relative to its peak) on every unsaturated sample
+# is invisible: skipped.
+_MIN_LOBE_ON_UNCLIPPED = 1e-3
+# Bounds keep the shape parameters where the model is meaningful. Tails heavier than
+# 0.75 let a hugely clipped needle lobe mimic a broad one.
+_WIDTH_BOUNDS = (1e-3, 1.0)
+_TAIL_BOUNDS = (-0.25, 0.75)
+_FORESHORTENING_BOUNDS = (-4.0, 5.0)
+# Fitted foreshortening exponent starts here, halfway between the conventions.
+_FORESHORTENING_START = 0.5
+# Forward-difference steps: tilts (rad), offset (m), log width, tail, exponent.
+_FD_STEPS = np.array([1e-7, 1e-7, 1e-7, 1e-6, 1e-6, 1e-6])
+# Levenberg-Marquardt: start and largest damping, and stopping rules. A joint step ends
+# the fit when it moves the disparity at the object's corners by less than
+# _DISPARITY_STEP_TOL_PX and lowers the cost by less than _PLANE_COST_RTOL (relative), or
+# lowers it by less than _COST_RTOL. Photometric-only fits only seed or compare, and stop
+# at _PHOTOMETRIC_COST_RTOL.
+_LAMBDA0 = 1e-3
+_LAMBDA_MAX = 1e8
+_COST_RTOL = 1e-7
+_DISPARITY_STEP_TOL_PX = 1e-4
+_PLANE_COST_RTOL = 1e-4
+_PHOTOMETRIC_COST_RTOL = 1e-4
+# Passes of the active-set solve for the intensities (saturated samples in or out).
+_ACTIVE_SET_PASSES = 4
+
+# uint8 code -> linear intensity, per image encoding
+_DECODE_LUT = {
+    "srgb": srgb_to_linear(np.arange(256, dtype=np.float32) / 255.0),
+    "linear": np.arange(256, dtype=np.float32) / 255.0,
+}
+
+# Layout of the parameter vector theta.
+_N_PLANE = 3
+_I_WIDTH, _I_TAIL, _I_FORE = 3, 4, 5
+_I_SPEC, _I_DIFF, _I_LEVEL = 6, 7, 8
+_N_PARAMS = 9
+
+
+@dataclass(frozen=True)
+class LobeFit:
+    """Photometric parameters of a fit (what the plane's refinement could not know).
+
+    Parameters
+    ----------
+    width : float
+        Lobe width ``w`` (see :data:`LOBES`; the GGX roughness alpha for ``"ggx"`` and for
+        ``"gtr"`` at ``tail = 0.5``), dimensionless.
+    tail : float
+        Tail parameter ``t`` of ``"gtr"`` (0.5 for ``"ggx"``; 0 for ``"blinn_phong"``,
+        whose shape is fixed).
+    foreshortening : float
+        Exponent ``k`` of ``(cos(theta_i) cos(theta_o))^k`` in the specular term
+        (0: microfacet BRDF, 1: Phong-style).
+    specular : float
+        Peak specular luminance at the initial highlight's geometry, linear units.
+    diffuse : float
+        Diffuse luminance near the highlight, linear units.
+    ambient : float
+        Constant luminance (ambient light times albedo, flare), linear units.
+    """
+
+    width: float
+    tail: float
+    foreshortening: float
+    specular: float
+    diffuse: float
+    ambient: float
+
+
+@dataclass(frozen=True)
+class PlaneRefinement:
+    """Outcome of :func:`refine_plane`.
+
+    Parameters
+    ----------
+    plane : Plane
+        The refined plane, or the initial one when ``status == "kept_initial"``.
+    initial_plane : Plane
+        The plane the refinement started from.
+    status : {"refined", "kept_initial"}
+    reason : str
+        Why the initial plane was kept, naming the step and the numbers ("" if refined).
+    converged : bool
+        The joint Levenberg-Marquardt fit met a stopping rule before ``max_iterations``.
+    iterations : int
+        Steps (accepted or rejected) of the joint fit.
+    cost_initial : float
+        Mean squared residual (linear luminance squared) with the plane held at the
+        initial plane and only the photometric parameters fitted; NaN if not reached.
+    cost_final : float
+        Mean squared residual of the joint fit; NaN if not reached.
+    residual : float
+        RMS residual of the returned plane's fit, linear luminance; NaN if no fit ran.
+    params : LobeFit or None
+        Photometric parameters belonging to the returned plane; None if no fit ran.
+    n_samples : int
+        Block samples fitted, all views together.
+    lobe : str
+        Lobe model fitted.
+    time_s : float
+        Wall time, seconds.
+    """
+
+    plane: Plane
+    initial_plane: Plane
+    status: str
+    reason: str
+    converged: bool
+    iterations: int
+    cost_initial: float
+    cost_final: float
+    residual: float
+    params: LobeFit | None
+    n_samples: int
+    lobe: str
+    time_s: float
+
+    @property
+    def ok(self) -> bool:
+        """True when the refined plane replaced the initial one."""
+        return self.status == "refined"
+
+    def __bool__(self) -> bool:
+        return self.ok
+
+
+# ======================================================================================
+# Public entry point
+# ======================================================================================
+
+
+def refine_plane(
+    views: Sequence[np.ndarray],
+    rig: CameraRig,
+    light_m,
+    mask: np.ndarray,
+    initial_plane: Plane,
+    *,
+    centers_uv=None,
+    lobe: str = DEFAULT_LOBE,
+    foreshortening: float | None = None,
+    f0: float = DEFAULT_F0,
+    max_iterations: int = 20,
+) -> PlaneRefinement:
+    """Refine a plane so that a specular lobe model explains the highlight in every view.
+
+    Parameters
+    ----------
+    views : sequence of numpy.ndarray, N x (H, W, 3) or (H, W), uint8 or float in [0, 1]
+        One image per rig camera, in the rig's order, encoded as ``rig.image_encoding``.
+    rig : CameraRig
+        The rectified array; planes and points are in its array frame.
+    light_m : array_like, (3,), metres
+        Position of the point light in the array frame.
+    mask : numpy.ndarray, (H, W), bool
+        The object's pixels in the reference view. Other views use it through the
+        homography of the initial plane.
+    initial_plane : Plane
+        Starting plane, e.g. SRDE's geometric plane.
+    centers_uv : array_like, (N, 2), pixels, optional
+        Highlight centre per view, where the fitting windows go; a row of NaN leaves
+        that view out. By default the initial plane's virtual light projected into
+        every view.
+    lobe : {"gtr", "ggx", "blinn_phong"}
+        Lobe shape fitted (see :data:`LOBES`); ``"gtr"`` fits its tail too.
+    foreshortening : float, optional
+        Exponent ``k`` of the specular term's ``(cos(theta_i) cos(theta_o))^k``; fitted
+        if None (default), else held (0 for a microfacet BRDF, 1 for Phong-style).
+    f0 : float
+        Fresnel reflectance at normal incidence of the Schlick term, in (0, 1].
+    max_iterations : int
+        Cap on the steps of each Levenberg-Marquardt stage.
+
+    Returns
+    -------
+    PlaneRefinement
+        ``status == "refined"`` with the new plane, or ``"kept_initial"`` with the
+        initial plane and a ``reason``: implausible initial plane, no usable highlight
+        samples, fit failed, did not lower its own cost, does not explain the image, or
+        moved the highlight out of its window.
+
+    Raises
+    ------
+    SRDEError
+        Invalid arguments (``rig``, ``initial_plane``, options); ``ImageError``,
+        ``MaskError``, ``LightError`` for views, mask and light.
+
+    Notes
+    -----
+    Cost: mean over the samples of the squared difference between modelled and observed
+    linear luminance; for saturated samples only a model *below* the observation counts.
+    The fit runs in three stages: lobe shape and intensities at the initial plane (the
+    foreshortening exponent held, since it could absorb part of the plane's error); all
+    parameters jointly; and, for the comparison, the photometric parameters alone at the
+    initial plane again. The plane is kept unless the joint cost is lower.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=60.0, image_size=(64, 48))
+    >>> plane = Plane.from_point_normal([0, 0, 1.0], [0, 0, -1.0])
+    >>> dark = [np.zeros((48, 64, 3), np.uint8)] * 9
+    >>> out = refine_plane(dark, rig, [0.1, -0.3, 0.2], np.ones((48, 64), bool), plane)
+    >>> out.status, out.plane == plane
+    ('kept_initial', True)
+    >>> out.reason
+    'samples: no view shows a highlight brighter than the object by 0.02 (linear) inside the mask'
+    """
+    start = time.perf_counter()
+    if not isinstance(rig, CameraRig):
+        raise SRDEError(f"rig: expected a CameraRig, got {type(rig).__name__}")
+    views = check_views(views, rig.n_cameras, rig.image_size)
+    mask = check_mask(mask, (rig.height, rig.width))
+    light = _check_light(light_m)
+    if not isinstance(initial_plane, Plane):
+        raise SRDEError(f"initial_plane: expected a Plane, got {type(initial_plane).__name__}")
+    centers = _check_centers(centers_uv, rig.n_cameras)
+    if lobe not in LOBES:
+        raise SRDEError(f"lobe: expected one of {list(LOBES)}, got {lobe!r}")
+    if foreshortening is not None and not _is_number_in(foreshortening, *_FORESHORTENING_BOUNDS):
+        raise SRDEError(f"foreshortening: expected None or a number in "
+                        f"{list(_FORESHORTENING_BOUNDS)}, got {foreshortening!r}")
+    if not _is_number_in(f0, 0.0, 1.0) or f0 == 0.0:
+        raise SRDEError(f"f0: expected a number in (0, 1], got {f0!r}")
+    if (isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer))
+            or max_iterations < 1):
+        raise SRDEError(f"max_iterations: expected a positive integer, got {max_iterations!r}")
+
+    def kept(reason: str, **fields) -> PlaneRefinement:
+        values = dict(converged=False, iterations=0, cost_initial=math.nan, cost_final=math.nan,
+                      residual=math.nan, params=None, n_samples=0)
+        values.update(fields)
+        return PlaneRefinement(initial_plane, initial_plane, "kept_initial", reason, lobe=lobe,
+                               time_s=time.perf_counter() - start, **values)
+
+    problem = _initial_plane_problem(initial_plane, rig, light)
+    if problem:
+        return kept(problem)
+    if centers is None:
+        virtual = initial_plane.mirror(light)
+        centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
+    samples = _sample_windows(views, rig, mask, initial_plane, centers)
+    if isinstance(samples, str):
+        return kept(samples)
+    model = _LobeModel(samples, rig, mask, light, initial_plane, lobe, f0, foreshortening)
+
+    theta0 = model.initial_guess()
+    if theta0 is None:
+        return kept(f"fit: no lobe width in [{_WIDTH_GRID[0]:g}, {_WIDTH_GRID[-1]:g}] gives a "
+                    f"positive specular term over the {samples.n_samples} samples",
+                    n_samples=samples.n_samples)
+    # Stage 1: the foreshortening exponent could absorb part of the plane's error, so it
+    # is held until the plane is free too.
+    free_start = model.free_photometric[model.free_photometric != _I_FORE]
+    theta_start, _, _, _ = _levenberg_marquardt(model, theta0, free_start, max_iterations,
+                                                cost_rtol=_PHOTOMETRIC_COST_RTOL)
+    # Stage 2: everything.
+    theta, cost_final, iterations, converged = _levenberg_marquardt(
+        model, theta_start, model.free_all, max_iterations, cost_rtol=_COST_RTOL)
+    # Stage 3, the fair reference: the initial plane with every photometric parameter
+    # fitted, starting from the joint solution's.
+    theta_initial = theta.copy()
+    theta_initial[:_N_PLANE] = 0.0
+    theta_initial, cost_initial, _, _ = _levenberg_marquardt(
+        model, theta_initial, model.free_photometric, max_iterations,
+        cost_rtol=_PHOTOMETRIC_COST_RTOL)
+
+    common = dict(converged=converged, iterations=iterations, cost_initial=cost_initial,
+                  cost_final=cost_final, n_samples=samples.n_samples)
+    fallback = dict(residual=math.sqrt(cost_initial), params=model.lobe_fit(theta_initial),
+                    **common)
+    if not (np.all(np.isfinite(theta)) and math.isfinite(cost_final)):
+        return kept("fit: non-finite parameters or cost", **fallback)
+    if not cost_final < cost_initial:
+        return kept(f"fit: cost {cost_final:.4g} does not improve on the initial plane's "
+                    f"{cost_initial:.4g}", **fallback)
+    if not theta[_I_SPEC] > 0.0:
+        return kept(f"fit: specular intensity {theta[_I_SPEC]:.3g} is not positive", **fallback)
+    contrast = float(samples.luminance.max() - _low_quantile(samples.luminance))
+    if math.sqrt(cost_final) > MAX_RELATIVE_RESIDUAL * contrast:
+        return kept(f"fit: RMS residual {math.sqrt(cost_final):.4g} is more than "
+                    f"{MAX_RELATIVE_RESIDUAL:.0%} of the highlight's contrast {contrast:.4g}; "
+                    "the model does not explain the image", **fallback)
+    plane = model.plane(theta)
+    shift_px = _highlight_shift_px(rig, light, initial_plane, plane, samples.view_indices)
+    if not shift_px <= MAX_SHIFT_FRACTION * samples.half_window_px:
+        return kept(f"fit: the highlight moved {shift_px:.1f} px, more than "
+                    f"{MAX_SHIFT_FRACTION:g} x the {samples.half_window_px} px window "
+                    "half-size", **fallback)
+    return PlaneRefinement(plane, initial_plane, "refined", "", lobe=lobe,
+                           residual=math.sqrt(cost_final), params=model.lobe_fit(theta),
+                           time_s=time.perf_counter() - start, **common)
+
+
+# ======================================================================================
+# Input checks and geometric sanity
+# ======================================================================================
+
+
+def _is_number_in(value, low: float, high: float) -> bool:
+    return (not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
+            and low <= float(value) <= high)
+
+
+def _check_light(light_m) -> np.ndarray:
+    try:
+        light = np.asarray(light_m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise LightError(f"light_m: expected 3 numbers (x, y, z) in metres, got {light_m!r}"
+                         ) from None
+    if light.shape != (3,) or not np.all(np.isfinite(light)):
+        raise LightError(f"light_m: expected 3 finite numbers (x, y, z) in metres, got {light_m!r}")
+    return light
+
+
+def _check_centers(centers_uv, n_views: int) -> np.ndarray | None:
+    if centers_uv is None:
+        return None
+    try:
+        centers = np.asarray(centers_uv, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ImageError(f"centers_uv: expected an array ({n_views}, 2) of pixels, "
+                         f"got {type(centers_uv).__name__}") from None
+    if centers.shape != (n_views, 2):
+        raise ImageError(f"centers_uv: expected shape ({n_views}, 2), got {centers.shape}")
+    if np.any(np.isinf(centers)):
+        raise ImageError("centers_uv: expected finite pixels (a NaN row skips a view), got inf")
+    return centers
+
+
+def _initial_plane_problem(plane: Plane, rig: CameraRig, light: np.ndarray) -> str:
+    """Why the initial plane cannot seed a fit, or an empty string."""
+    n = plane.n
+    if not (np.all(np.isfinite(n)) and math.isfinite(plane.offset_m)
+            and abs(np.linalg.norm(n) - 1.0) < 1e-6):
+        return f"initial plane: normal {plane.normal} is not a finite unit vector"
+    behind = [i for i in range(rig.n_cameras) if plane.signed_distance(rig.centers_m[i]) <= 0.0]
+    if behind:
+        return (f"initial plane: camera(s) {behind} lie behind it (the normal must point "
+                "towards the cameras)")
+    if n[2] >= 0.0:
+        return f"initial plane: seen edge-on or from behind (normal z = {n[2]:.3g} >= 0)"
+    light_distance = float(plane.signed_distance(light))
+    if light_distance <= 0.0:
+        return f"initial plane: the light is behind it (signed distance {light_distance:.3g} m)"
+    return ""
+
+
+def _highlight_shift_px(rig: CameraRig, light, before: Plane, after: Plane, views) -> float:
+    """Largest displacement of the virtual light's image between two planes, pixels."""
+    old, new = before.mirror(light), after.mirror(light)
+    return float(max(np.linalg.norm(rig.project(new, i) - rig.project(old, i)) for i in views))
+
+
+# ======================================================================================
+# Sampling the highlight windows
+# ======================================================================================
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """Samples fitted, all views stacked, unsaturated first; arrays ``(P,)`` or ``(P, 3)``.
+
+    A sample is the mean linear luminance of a ``block x block`` pixel square, placed at
+    the square's centre: averaging costs far less than fitting every pixel and keeps
+    nearly all their information (the window spans about six half-maximum radii of the
+    lobe, so a block is a small fraction of the lobe's width).
+    """
+
+    camera_m: np.ndarray  # (P, 3) centre of the sample's camera
+    ray: np.ndarray  # (P, 3) unnormalised ray ((u - cx) / fx, (v - cy) / fy, 1)
+    luminance: np.ndarray  # (P,) linear luminance
+    saturated: np.ndarray  # (P,) bool: some pixel clipped, the mean is a lower bound
+    view_indices: tuple[int, ...]
+    half_window_px: int
+    block_px: int
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.luminance.shape[0])
+
+
+def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray
+                    ) -> _Samples | str:
+    """Block samples around each view's highlight on the object, or why there are none."""
+    eroded = _erode(mask, MASK_MARGIN_PX)
+    w, h = rig.image_size
+    max_half = max(MIN_WINDOW_HALF_PX, int(MAX_WINDOW_FRACTION * min(w, h)))
+    usable = [i for i in range(rig.n_cameras)
+              if np.all(np.isfinite(centers[i]))
+              and -max_half <= centers[i, 0] <= w + max_half
+              and -max_half <= centers[i, 1] <= h + max_half]
+    if not usable:
+        return "samples: no view has a highlight centre inside or near the image"
+    to_ref = {i: None if i == rig.reference else _reference_from_view(rig, plane, i)
+              for i in usable}
+
+    # Size the window from the blob's half-maximum radius, seen on a coarse grid in a few
+    # views (the reference first).
+    stride = _SIZING_STRIDE_PX
+    offsets = np.arange(-max_half, max_half + 1, stride)
+    radii = []
+    for i in sorted(usable, key=lambda j: j != rig.reference):
+        if len(radii) == _SIZING_VIEWS:
+            break
+        uu, vv = np.meshgrid(np.rint(centers[i, 0]) + offsets, np.rint(centers[i, 1]) + offsets)
+        uu, vv = uu.ravel().astype(np.intp), vv.ravel().astype(np.intp)
+        keep = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
+        uu, vv = uu[keep], vv[keep]
+        inside = _object_lookup(eroded, to_ref[i], uu, vv)
+        if inside.sum() < MIN_SAMPLES:
+            continue
+        y = luminance(views[i][vv[inside], uu[inside]][None], rig.image_encoding)[0]
+        background, peak = _low_quantile(y), float(y.max())
+        if peak - background < MIN_HIGHLIGHT_CONTRAST:
+            continue
+        area_px = np.count_nonzero(y > 0.5 * (background + peak)) * stride**2
+        radii.append(math.sqrt(area_px / math.pi))
+    if not radii:
+        return (f"samples: no view shows a highlight brighter than the object by "
+                f"{MIN_HIGHLIGHT_CONTRAST:g} (linear) inside the mask")
+    half = int(np.clip(math.ceil(WINDOW_PER_BLOB_RADIUS * float(np.median(radii))) + 2,
+                       MIN_WINDOW_HALF_PX, max_half))
+    block = max(1, math.ceil((2 * half + 1) / SAMPLES_PER_SIDE))
+
+    block_mask = _erode(mask, MASK_MARGIN_PX + block // 2)
+    cams, rays, lum, sat, used = [], [], [], [], []
+    for i in usable:
+        window = _block_window(views[i], rig, block_mask, to_ref[i], centers[i], half, block)
+        if window is None or not window[3].any():
+            continue
+        uv, y, clipped, inside = window
+        lum.append(y[inside])
+        sat.append(clipped[inside])
+        rays.append(rig.rays(uv[inside]))
+        cams.append(np.broadcast_to(rig.centers_m[i], (int(inside.sum()), 3)))
+        used.append(i)
+    if not used:
+        return "samples: no object pixels in any highlight window"
+    luminance_all = np.concatenate(lum)
+    saturated_all = np.concatenate(sat)
+    if len(luminance_all) < MIN_SAMPLES:
+        return (f"samples: only {len(luminance_all)} object samples near the highlights "
+                f"(< {MIN_SAMPLES})")
+    unsaturated = luminance_all[~saturated_all]
+    background = _low_quantile(unsaturated) if unsaturated.size else 1.0
+    flank = int(np.count_nonzero(unsaturated > background + MIN_HIGHLIGHT_CONTRAST))
+    if flank < MIN_FLANK_SAMPLES:
+        return (f"samples: only {flank} unsaturated samples on the highlight's flanks "
+                f"(< {MIN_FLANK_SAMPLES}; {int(saturated_all.sum())} of "
+                f"{len(saturated_all)} saturated); the lobe cannot be fitted")
+    # Unsaturated samples first: the intensity solve then slices instead of copying.
+    order = np.argsort(saturated_all, kind="stable")
+    return _Samples(np.concatenate(cams)[order], np.concatenate(rays)[order],
+                    luminance_all[order], saturated_all[order], tuple(used), half, block)
+
+
+def _low_quantile(values: np.ndarray) -> float:
+    """Return the background level near the highlight: a low quantile, by partition."""
+    k = int(_BACKGROUND_QUANTILE * (len(values) - 1))
+    return float(np.partition(values, k)[k])
+
+
+def _erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    """Shrink the mask by ``radius_px`` in the chessboard metric."""
+    side = 2 * radius_px + 1
+    return cv2.erode(mask.astype(np.uint8), np.ones((side, side), np.uint8)) > 0
+
+
+def _reference_from_view(rig: CameraRig, plane: Plane, camera: int) -> np.ndarray:
+    """Affine map ``(2, 3)`` from a camera's pixels to the reference pixels on the plane.
+
+    In a rectified rig a point at depth z moves by ``-f (C_j - C_ref) / z`` between the
+    reference view and camera j, and on a plane ``1 / z`` is affine in the pixel: the
+    homography the plane induces is affine.
+    """
+    k = rig.intrinsics
+    n = plane.n
+    base = plane.offset_m - float(n @ rig.reference_center_m)
+    # 1 / z = g . (u, v, 1) at reference pixels (u, v)
+    g = np.array([n[0] / k.fx, n[1] / k.fy, n[2] - n[0] * k.cx / k.fx - n[1] * k.cy / k.fy]) / base
+    d = rig.centers_m[camera] - rig.reference_center_m
+    camera_from_reference = np.eye(3)
+    camera_from_reference[:2] -= np.outer([k.fx * d[0], k.fy * d[1]], g)
+    return np.linalg.inv(camera_from_reference)[:2]
+
+
+def _object_lookup(eroded_ref: np.ndarray, to_ref: np.ndarray | None, uu: np.ndarray,
+                   vv: np.ndarray) -> np.ndarray:
+    """Whether camera pixels ``uu, vv`` (any shape) land on the eroded reference mask."""
+    if to_ref is not None:
+        uu, vv = (to_ref[0, 0] * uu + to_ref[0, 1] * vv + to_ref[0, 2],
+                  to_ref[1, 0] * uu + to_ref[1, 1] * vv + to_ref[1, 2])
+    ru, rv = np.rint(uu).astype(np.intp), np.rint(vv).astype(np.intp)
+    h, w = eroded_ref.shape
+    ok = (ru >= 0) & (ru < w) & (rv >= 0) & (rv < h)
+    inside = np.zeros(ok.shape, dtype=bool)
+    inside[ok] = eroded_ref[rv[ok], ru[ok]]
+    return inside
+
+
+def _block_window(view: np.ndarray, rig: CameraRig, block_mask: np.ndarray, to_ref, center_uv,
+                  half: int, block: int):
+    """Block samples of the window around ``center_uv``, or None if it misses the image.
+
+    Returns block centres ``(M, 2)`` (pixels), mean linear luminance, saturation (a pixel
+    of the block clipped) and object membership ``(M,)``; ``block_mask`` is the
+    reference mask eroded so that a block centred on it lies wholly on the object.
+    """
+    w, h = rig.image_size
+    n_side = (2 * half + 1) // block
+    start = np.rint(np.asarray(center_uv)).astype(int) - (n_side * block) // 2
+    # Keep whole blocks inside the image.
+    lo = np.maximum(0, np.ceil(-start / block)).astype(int)
+    hi = np.minimum(n_side, np.floor((np.array([w, h]) - start) / block)).astype(int)
+    if np.any(hi <= lo):
+        return None
+    u0, v0 = start + lo * block
+    nu, nv = (int(x) for x in hi - lo)
+    crop = view[v0:v0 + nv * block, u0:u0 + nu * block]
+    lum = _linear_luminance(crop, rig.image_encoding)
+    level = SATURATION_LEVEL_U8 if crop.dtype == np.uint8 else SATURATION_LEVEL_U8 / 255.0
+    clipped = (crop >= level).astype(np.float32)
+    if clipped.ndim == 3:
+        clipped = cv2.transform(clipped, np.ones((1, 3), np.float32))
+    if block > 1:
+        # INTER_AREA with an integer factor is the exact block mean.
+        lum = cv2.resize(lum, (nu, nv), interpolation=cv2.INTER_AREA)
+        clipped = cv2.resize(clipped, (nu, nv), interpolation=cv2.INTER_AREA)
+    cu = u0 + block * np.arange(nu) + (block - 1) / 2.0
+    cv = v0 + block * np.arange(nv) + (block - 1) / 2.0
+    uu, vv = np.meshgrid(cu, cv)
+    uu, vv = uu.ravel(), vv.ravel()
+    inside = _object_lookup(block_mask, to_ref, uu, vv)
+    return (np.stack([uu, vv], axis=1), lum.ravel().astype(np.float64),
+            clipped.ravel() > 0.0, inside)
+
+
+def _linear_luminance(image: np.ndarray, encoding: str) -> np.ndarray:
+    """Linear luminance ``(H, W)`` float32 of a crop (cv2 keeps large windows cheap)."""
+    if image.dtype == np.uint8:
+        linear = cv2.LUT(image, _DECODE_LUT[encoding])
+    elif encoding == "srgb":
+        linear = srgb_to_linear(image)
+    else:
+        linear = image.astype(np.float32)
+    if linear.ndim == 3:
+        linear = cv2.transform(linear, REC709_LUMA.reshape(1, 3))
+    return linear
+
+
+# ======================================================================================
+# Shading model
+# ======================================================================================
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """Shading geometry of the samples for one plane, arrays ``(P,)``."""
+
+    cos_h: np.ndarray  # cosine of the half-vector angle
+    sin2_h: np.ndarray
+    log_foreshortening: np.ndarray  # log(cos_i cos_o)
+    diffuse: np.ndarray  # g_d - 1
+    specular: np.ndarray  # F / (cos_o r^2), normalised
+
+
+class _LobeModel:
+    """The highlight rendering of :func:`refine_plane` as a function of 9 parameters.
+
+    ``theta = (tilt_1, tilt_2, offset_m, log_width, tail, foreshortening, specular,
+    diffuse, level)``: the normal is ``normalise(n0 + tilt_1 e1 + tilt_2 e2)`` with
+    ``e1, e2`` orthonormal to the initial normal ``n0``; the offset is ``c0 + offset_m``.
+    The last three (intensities) are linear and solved at every evaluation; the fit
+    moves the others (``free_*`` lists which).
+    """
+
+    def __init__(self, samples: _Samples, rig: CameraRig, mask: np.ndarray, light: np.ndarray,
+                 plane0: Plane, lobe: str, f0: float, foreshortening: float | None) -> None:
+        self.lobe = lobe
+        self.f0 = f0
+        self.light = light
+        self.n0 = plane0.n
+        self.c0 = plane0.offset_m
+        self.foreshortening0 = (_FORESHORTENING_START if foreshortening is None
+                                else float(foreshortening))
+        helper = np.eye(3)[int(np.argmin(np.abs(self.n0)))]
+        e1 = np.cross(self.n0, helper)
+        self.e1 = e1 / np.linalg.norm(e1)
+        self.e2 = np.cross(self.n0, self.e1)
+        # Convergence is judged by the disparity at the corners of the object's box.
+        x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+        corners = np.array([[x, y], [x + w - 1, y], [x, y + h - 1], [x + w - 1, y + h - 1]],
+                           dtype=np.float64)
+        self.probe_rays = rig.rays(corners)
+        self.reference_center_m = rig.reference_center_m
+        self.disparity_scale = rig.intrinsics.fx * rig.baseline_m
+        # Per-sample constants of the ray-plane algebra (see _geometry).
+        k, c = samples.ray, samples.camera_m
+        self.ray_t = np.ascontiguousarray(k.T)
+        self.camera_t = np.ascontiguousarray(c.T)
+        self.q = np.einsum("pi,pi->p", k, k)
+        self.sqrt_q = np.sqrt(self.q)
+        to_light = light - c
+        self.a = np.einsum("pi,pi->p", to_light, to_light)
+        self.b = np.einsum("pi,pi->p", to_light, k)
+        self.y = samples.luminance
+        self.censored = samples.saturated
+        self.n_unclipped = int(np.count_nonzero(~samples.saturated))  # they come first
+        self._cache_key: bytes | None = None
+        self._cache: _Geometry | None = None
+        # Normalise the geometric factors at the initial plane so the intensities read
+        # as luminances at the highlight and the parameters are well scaled.
+        self.diffuse_scale = self.spec_scale = 1.0
+        geometry = self._geometry(np.zeros(_N_PLANE))
+        self.diffuse_scale = 1.0 / float(np.median(geometry.diffuse + 1.0))
+        self.spec_scale = 1.0 / float(np.median(geometry.specular))
+        shape = [_I_WIDTH] + ([_I_TAIL] if lobe == "gtr" else [])
+        shape += [_I_FORE] if foreshortening is None else []
+        self.free_photometric = np.array(shape)
+        self.free_all = np.array(list(range(_N_PLANE)) + shape)
+
+    def start_theta(self) -> np.ndarray:
+        theta = np.zeros(_N_PARAMS)
+        theta[_I_WIDTH] = math.log(0.1)
+        theta[_I_TAIL] = 0.5 if self.lobe != "blinn_phong" else 0.0
+        theta[_I_FORE] = self.foreshortening0
+        return theta
+
+    # ------------------------------------------------------------------ geometry
+    def _planes(self, p: np.ndarray):
+        """Return normals ``(B, 3)`` and offsets ``(B,)`` of plane parameters ``(B, 3)``."""
+        m = self.n0 + p[:, :1] * self.e1 + p[:, 1:2] * self.e2
+        return m / np.linalg.norm(m, axis=1, keepdims=True), self.c0 + p[:, 2]
+
+    def plane(self, theta: np.ndarray) -> Plane:
+        n, c = self._planes(theta[None, :_N_PLANE])
+        return Plane(tuple(float(v) + 0.0 for v in n[0]), float(c[0]))
+
+    def _geometry(self, plane_params: np.ndarray) -> _Geometry:
+        """Shading geometry of the samples for plane parameters ``(3,)``.
+
+        Everything reduces to scalars per sample: with ``X = C + t k`` on the plane,
+        ``|L - X|^2 = a - 2 t b + t^2 q`` and ``n . X = c``. (One plane at a time keeps
+        the temporaries small.)
+        """
+        n, c = self._planes(plane_params[None])
+        n, c = n[0], float(c[0])
+        nk = n @ self.ray_t
+        t = (c - n @ self.camera_t) / nk
+        r2 = self.a - 2.0 * t * self.b + t * t * self.q
+        r = np.sqrt(r2)
+        cos_i = (float(n @ self.light) - c) / r
+        cos_o = -nk / self.sqrt_q
+        cos_io = (t * self.q - self.b) / (self.sqrt_q * r)  # omega_i . omega_o
+        half_norm = np.sqrt(2.0 + 2.0 * cos_io)
+        cos_h = np.minimum((cos_i + cos_o) / half_norm, 1.0)
+        grazing = 1.0 - (1.0 + cos_io) / half_norm  # 1 - omega_i . h
+        grazing2 = grazing * grazing
+        # Schlick; powers by multiplication (numpy's ** 5 is a slow generic pow)
+        fresnel = self.f0 + (1.0 - self.f0) * (grazing2 * grazing2 * grazing)
+        return _Geometry(
+            cos_h=cos_h,
+            sin2_h=1.0 - cos_h * cos_h,
+            log_foreshortening=np.log(cos_i * cos_o),
+            diffuse=cos_i / r2 * self.diffuse_scale - 1.0,
+            specular=fresnel / (cos_o * r2) * self.spec_scale,
+        )
+
+    def _base_geometry(self, theta: np.ndarray) -> _Geometry:
+        """Geometry of ``theta``'s plane, reused while only the photometry changes."""
+        key = theta[:_N_PLANE].tobytes()
+        if self._cache_key != key:
+            self._cache = self._geometry(theta[:_N_PLANE])
+            self._cache_key = key
+        return self._cache
+
+    def _lobe(self, g: _Geometry, theta: np.ndarray) -> np.ndarray:
+        """Specular term ``S(n . h) g_s`` with the peak-normalised lobe ``S``, ``(P,)``."""
+        alpha2 = math.exp(2.0 * theta[_I_WIDTH])
+        if self.lobe == "ggx":
+            ratio = alpha2 / (alpha2 + g.sin2_h * (1.0 - alpha2))
+            shape = ratio * ratio
+        elif self.lobe == "gtr":
+            tail = theta[_I_TAIL]
+            z = g.sin2_h * (2.0 * (1.0 - alpha2) / alpha2)
+            if abs(tail) < 1e-9:
+                shape = np.exp(-z)
+            else:
+                # (1 + t z)^(-1/t); where a light tail (t < 0) ends, the lobe is 0.
+                shape = np.exp(np.log(np.maximum(1.0 + tail * z, 1e-300)) * (-1.0 / tail))
+        else:
+            with np.errstate(divide="ignore"):
+                shape = np.exp((2.0 / alpha2 - 2.0) * np.log(np.maximum(g.cos_h, 0.0)))
+        fore = theta[_I_FORE]
+        if fore != 0.0:
+            return shape * (g.specular * np.exp(fore * g.log_foreshortening))
+        return shape * g.specular
+
+    def _model(self, g: _Geometry, theta: np.ndarray) -> np.ndarray:
+        return theta[_I_SPEC] * self._lobe(g, theta) + theta[_I_DIFF] * g.diffuse + theta[_I_LEVEL]
+
+    # ------------------------------------------------------------------ residuals
+    def _censor(self, r: np.ndarray) -> np.ndarray:
+        """Saturated samples are lower bounds: only a model below them is an error."""
+        return np.where(self.censored, np.minimum(r, 0.0), r)
+
+    def _intensities(self, basis: np.ndarray):
+        """Specular, diffuse and level ``(3,)`` for a basis ``(P, 3)``, by least squares.
+
+        Saturated samples count only where the model falls below them, which depends on
+        the solution: a few active-set passes settle it. Returns the coefficients, the
+        model ``(P,)`` and which samples count ``(P,)`` bool.
+        """
+        k = self.n_unclipped
+        unclipped = basis[:k]
+        normal0 = unclipped.T @ unclipped
+        rhs0 = unclipped.T @ self.y[:k]
+        clipped, clipped_y = basis[k:], self.y[k:]
+        active = np.zeros(len(clipped_y), dtype=bool)
+        for _ in range(_ACTIVE_SET_PASSES):
+            rows = clipped[active]
+            coef = _solve_normal(normal0 + rows.T @ rows, rhs0 + rows.T @ clipped_y[active])
+            now_active = clipped @ coef < clipped_y
+            if np.array_equal(now_active, active):
+                break
+            active = now_active
+        model = basis @ coef
+        return coef, model, ~self.censored | (model < self.y)
+
+    def evaluate(self, theta: np.ndarray):
+        """Residual at ``theta``'s plane and lobe shape with the best intensities.
+
+        Returns the residual ``(P,)`` and ``theta`` with those intensities filled in.
+        """
+        g = self._base_geometry(theta)
+        basis = np.stack([self._lobe(g, theta), g.diffuse, np.ones(self.y.shape)], axis=1)
+        coef, model, _ = self._intensities(basis)
+        out = theta.copy()
+        out[_I_SPEC:] = coef
+        return self._censor(model - self.y), out
+
+    def jacobian(self, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """Jacobian ``(P, len(free))`` of :meth:`evaluate`'s residual.
+
+        Variable projection with Kaufman's approximation: the model's derivative at fixed
+        intensities, with its component in the span of the intensity basis removed.
+        Columns by forward differences; lobe-shape columns reuse the plane's geometry.
+        """
+        g = self._base_geometry(theta)
+        lobe = self._lobe(g, theta)
+        basis = np.stack([lobe, g.diffuse, np.ones(self.y.shape)], axis=1)
+        model = basis @ theta[_I_SPEC:]
+        jac = np.empty((len(model), len(free)))
+        for col, index in enumerate(free):
+            shifted = theta.copy()
+            shifted[index] += _FD_STEPS[index]
+            if index < _N_PLANE:
+                jac[:, col] = self._model(self._geometry(shifted[:_N_PLANE]), theta) - model
+            else:
+                jac[:, col] = theta[_I_SPEC] * (self._lobe(g, shifted) - lobe)
+            jac[:, col] /= _FD_STEPS[index]
+        # A saturated sample above its lower bound contributes nothing, nor does its slope.
+        counted = ~self.censored | (model < self.y)
+        jac[~counted] = 0.0
+        basis[~counted] = 0.0
+        return jac - basis @ _solve_normal(basis.T @ basis, basis.T @ jac)
+
+    # ------------------------------------------------------------------ start and report
+    def initial_guess(self) -> np.ndarray | None:
+        """Parameters at the initial plane: the best lobe shape on a grid.
+
+        Intensities are fitted for every candidate; None if no lobe gives a positive
+        specular term.
+        """
+        g = self._base_geometry(self.start_theta())
+        ones = np.ones(self.y.shape)
+        best_cost, best = math.inf, None
+
+        def consider(width: float, tail: float) -> None:
+            nonlocal best_cost, best
+            theta = self.start_theta()
+            theta[_I_WIDTH], theta[_I_TAIL] = math.log(width), tail
+            lobe = self._lobe(g, theta)
+            if not lobe[:self.n_unclipped].max(initial=0.0) > _MIN_LOBE_ON_UNCLIPPED:
+                return  # so narrow that no unsaturated sample sees it
+            coef, model, _ = self._intensities(np.stack([lobe, g.diffuse, ones], axis=1))
+            if not coef[0] > 0.0:
+                return
+            cost = float(np.mean(self._censor(model - self.y) ** 2))
+            if cost < best_cost:
+                best_cost, best = cost, theta
+                best[_I_SPEC:] = coef
+
+        # Widths first with the default tail, then other tails around the best width.
+        for width in _WIDTH_GRID:
+            consider(width, self.start_theta()[_I_TAIL])
+        if best is not None and _I_TAIL in self.free_all:
+            best_width = math.exp(best[_I_WIDTH])
+            for factor in _WIDTH_REFINE_FACTORS:
+                for tail in _TAIL_GRID[1:]:
+                    consider(best_width * factor, tail)
+        return best
+
+    def clamp(self, theta: np.ndarray) -> np.ndarray:
+        theta[_I_WIDTH] = np.clip(theta[_I_WIDTH], *np.log(_WIDTH_BOUNDS))
+        theta[_I_TAIL] = np.clip(theta[_I_TAIL], *_TAIL_BOUNDS)
+        theta[_I_FORE] = np.clip(theta[_I_FORE], *_FORESHORTENING_BOUNDS)
+        return theta
+
+    def disparity_change_px(self, before: np.ndarray, after: np.ndarray) -> float:
+        """Largest change of the stereo disparity at the probe pixels between two planes."""
+        n, c = self._planes(np.stack([before[:_N_PLANE], after[:_N_PLANE]]))
+        # d = fx B / z with 1 / z = (n . k) / (c - n . C_ref) along reference rays k
+        disparity = self.disparity_scale * (n @ self.probe_rays.T) / (
+            c - n @ self.reference_center_m)[:, None]
+        return float(np.max(np.abs(disparity[1] - disparity[0])))
+
+    def lobe_fit(self, theta: np.ndarray) -> LobeFit:
+        return LobeFit(width=float(np.exp(theta[_I_WIDTH])), tail=float(theta[_I_TAIL]),
+                       foreshortening=float(theta[_I_FORE]), specular=float(theta[_I_SPEC]),
+                       diffuse=float(theta[_I_DIFF]),
+                       ambient=float(theta[_I_LEVEL] - theta[_I_DIFF]))
+
+
+# ======================================================================================
+# Levenberg-Marquardt
+# ======================================================================================
+
+
+def _solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve 3x3 normal equations ``normal x = rhs`` (``rhs`` ``(3,)`` or ``(3, K)``).
+
+    Jacobi scaling keeps the nearly collinear diffuse and level columns solvable; a
+    singular system (a lobe invisible everywhere) falls back to the pseudo-inverse.
+    """
+    scale = 1.0 / np.sqrt(np.maximum(normal.diagonal(), 1e-300))
+    scaled = normal * scale[:, None] * scale[None, :]
+    rhs2 = scale[:, None] * rhs.reshape(3, -1)
+    try:
+        x = np.linalg.solve(scaled, rhs2)
+    except np.linalg.LinAlgError:
+        x = np.linalg.pinv(scaled) @ rhs2
+    return (scale[:, None] * x).reshape(rhs.shape)
+
+
+def _levenberg_marquardt(model: _LobeModel, theta0: np.ndarray, free: np.ndarray,
+                         max_iterations: int, *, cost_rtol: float):
+    """Minimise the mean squared residual over ``theta[free]`` (intensities follow).
+
+    Stops when an accepted step lowers the cost by less than ``cost_rtol`` (relative),
+    or moves the plane's disparity by less than ``_DISPARITY_STEP_TOL_PX`` while
+    lowering the cost by less than ``_PLANE_COST_RTOL``, or when no step lowers it.
+    Returns the parameters, their cost, the number of steps tried (accepted or not) and
+    whether a stopping rule was met.
+    """
+    residual, theta = model.evaluate(theta0)
+    cost = float(np.mean(residual**2))
+    lam = _LAMBDA0
+    converged = False
+    steps = 0
+    moves_plane = bool(np.any(free < _N_PLANE))
+    while steps < max_iterations and not converged:
+        jac = model.jacobian(theta, free)
+        normal = jac.T @ jac
+        gradient = jac.T @ residual
+        # Marquardt's scaling: damping proportional to each parameter's curvature.
+        damping = np.diag(np.maximum(normal.diagonal(), 1e-12 * max(1.0, float(normal.max()))))
+        improved = False
+        while steps < max_iterations:
+            steps += 1
+            try:
+                delta = np.linalg.solve(normal + lam * damping, -gradient)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            trial = theta.copy()
+            trial[free] += delta
+            trial_residual, trial = model.evaluate(model.clamp(trial))
+            trial_cost = float(np.mean(trial_residual**2))
+            if math.isfinite(trial_cost) and trial_cost < cost:
+                decrease = (cost - trial_cost) / max(cost, 1e-300)
+                plane_step_px = model.disparity_change_px(theta, trial) if moves_plane else 0.0
+                theta, cost, residual = trial, trial_cost, trial_residual
+                lam = max(lam / 3.0, 1e-9)
+                improved = True
+                converged = decrease < cost_rtol or (
+                    plane_step_px < _DISPARITY_STEP_TOL_PX and decrease < _PLANE_COST_RTOL)
+                break
+            lam *= 4.0
+            if lam > _LAMBDA_MAX:
+                converged = True  # no step lowers the cost: a local minimum
+                break
+        if not improved:
+            break
+    return theta, cost, steps, converged
