@@ -220,7 +220,7 @@ class SRDE:
                  detector: str | None = None, window: int = 15, k: float = 1.5,
                  min_extent_px: int = 10, blob_center: str = DEFAULT_BLOB_CENTER,
                  min_contrast: float = 0.05, mask_erosion_px: int = 3,
-                 max_residual_px: float = 1.0, min_residual_px: float = 0.1,
+                 max_residual_px: float = 1.0, min_residual_px: float = 0.05,
                  min_views: int = 2,
                  object_depth_m: tuple[float, float] = (0.2, 10.0),
                  max_incidence_deg: float = 85.0, white_references=None) -> None:

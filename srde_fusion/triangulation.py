@@ -41,7 +41,7 @@ _MIN_BASELINE_M = 1e-9
 _ADJACENCY_TOL = 1e-6
 # Refit rounds of the robust solve before it settles on an inlier set.
 _MAX_REFITS = 10
-# Fewest agreeing views from which their residual spread is estimated.
+# Fewest views from which a residual scale is estimated.
 _MIN_VIEWS_FOR_SCALE = 5
 # The adaptive outlier bound, in robust standard deviations of the residuals.
 _OUTLIER_SIGMAS = 4.0
@@ -179,12 +179,14 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float,
     residual over them) wins; the point is refitted on those views and the inlier set
     recomputed until it no longer changes.
 
-    With ``min_residual_px`` and at least five agreeing views, the bound then adapts to
-    the data: it becomes ``4 sigma`` of the agreeing views' residuals (sigma from their
-    median, a robust scale), kept within ``[min_residual_px, max_residual_px]``. A view
-    whose highlight is cut by an object edge misses by a fraction of a pixel, far more
-    than clean views disagree among themselves, but not always more than a fixed bound
-    loose enough for real calibration errors.
+    With ``min_residual_px`` and at least five views, the bound then adapts to the data:
+    it becomes ``4 sigma``, with sigma from the least median of the residuals over all
+    pair proposals (a scale up to half the views cannot inflate), kept within
+    ``[min_residual_px, max_residual_px]``; the views within it of the least-median
+    proposal are refitted as before. A view whose highlight is cut by an object edge
+    misses by a fraction of a pixel, far more than clean views disagree among
+    themselves, but not always more than a fixed bound loose enough for real
+    calibration errors.
 
     Parameters
     ----------
@@ -206,6 +208,7 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float,
     finite = np.all(np.isfinite(centers_uv), axis=1)
     candidates = np.flatnonzero(finite)
     best_use, best_cost = None, None
+    least_median, median_residuals = np.inf, None
     for i, j in combinations(candidates, 2):
         pair = np.zeros(rig.n_cameras, dtype=bool)
         pair[[i, j]] = True
@@ -213,6 +216,9 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float,
         if solution is None:
             continue
         res = _residuals(rig, centers_uv, *solution)
+        median = float(np.median(res[finite]))
+        if median < least_median:
+            least_median, median_residuals = median, res
         inliers = finite & (np.nan_to_num(res, nan=np.inf) <= max_residual_px)
         if inliers.sum() < 2:
             continue
@@ -222,13 +228,17 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float,
     if best_use is None:
         return _result(rig, centers_uv, finite & False, None)
     use = _refit(rig, centers_uv, finite, best_use, max_residual_px)
-    if min_residual_px is not None and use.sum() >= _MIN_VIEWS_FOR_SCALE:
-        solution = _solve(rig, centers_uv, use)
-        res = _residuals(rig, centers_uv, *solution)
-        # Residual norms of isotropic 2D noise are Rayleigh: median = sigma sqrt(2 ln 2).
-        sigma = float(np.median(res[use])) / np.sqrt(2.0 * np.log(2.0))
+    if min_residual_px is not None and finite.sum() >= _MIN_VIEWS_FOR_SCALE:
+        # Least median of squares over the pair proposals: a residual scale that up to
+        # half the views being off cannot inflate. Residual norms of isotropic 2D noise
+        # are Rayleigh distributed, with median sigma * sqrt(2 ln 2).
+        sigma = least_median / np.sqrt(2.0 * np.log(2.0))
         bound = float(np.clip(_OUTLIER_SIGMAS * sigma, min_residual_px, max_residual_px))
-        use = _refit(rig, centers_uv, finite, use, bound)
+        # Start from the least-median proposal's inliers: a fit that already includes the
+        # outliers would pull towards them and hide them.
+        start = finite & (np.nan_to_num(median_residuals, nan=np.inf) <= bound)
+        if start.sum() >= 2:
+            use = _refit(rig, centers_uv, finite, start, bound)
     return _result(rig, centers_uv, use, _solve(rig, centers_uv, use))
 
 
