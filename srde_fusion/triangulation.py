@@ -119,6 +119,37 @@ def _residuals(rig, centers_uv, u_ref, v_ref, w) -> np.ndarray:
     return np.linalg.norm(centers_uv - pred, axis=1)
 
 
+def _pair_residuals(rig, centers_uv: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Residuals of every view for the point proposed by each pair of candidate views.
+
+    For two views the least-squares solve has a closed form: eliminating ``u_ref`` and
+    ``v_ref`` leaves ``min_w (du + dax w)^2 + (dv + day w)^2`` with ``du = u_i - u_j``,
+    ``dax = fx (dX_i - dX_j)`` (and the same in v). Pairs without a baseline are skipped.
+
+    Returns
+    -------
+    numpy.ndarray, (P, N) float64
+        One row per usable pair.
+    """
+    k = rig.intrinsics
+    off = _offsets(rig)
+    ax, ay = k.fx * off[:, 0], k.fy * off[:, 1]
+    pairs = np.array(list(combinations(candidates, 2)), dtype=np.intp).reshape(-1, 2)
+    i, j = pairs[:, 0], pairs[:, 1]
+    dax, day = ax[i] - ax[j], ay[i] - ay[j]
+    norm = dax * dax + day * day
+    spans = norm > (max(k.fx, k.fy) * _MIN_BASELINE_M) ** 2
+    i, j, dax, day, norm = i[spans], j[spans], dax[spans], day[spans], norm[spans]
+    du = centers_uv[i, 0] - centers_uv[j, 0]
+    dv = centers_uv[i, 1] - centers_uv[j, 1]
+    w = -(du * dax + dv * day) / norm                                   # (P,)
+    u_ref = 0.5 * (centers_uv[i, 0] + ax[i] * w + centers_uv[j, 0] + ax[j] * w)
+    v_ref = 0.5 * (centers_uv[i, 1] + ay[i] * w + centers_uv[j, 1] + ay[j] * w)
+    pred_u = u_ref[:, None] - ax[None, :] * w[:, None]                  # (P, N)
+    pred_v = v_ref[:, None] - ay[None, :] * w[:, None]
+    return np.hypot(centers_uv[None, :, 0] - pred_u, centers_uv[None, :, 1] - pred_v)
+
+
 def _result(rig, centers_uv, use, solution) -> Triangulation:
     n = rig.n_cameras
     if solution is None:
@@ -206,27 +237,20 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float,
     """
     centers_uv = np.asarray(centers_uv, dtype=np.float64)
     finite = np.all(np.isfinite(centers_uv), axis=1)
-    candidates = np.flatnonzero(finite)
-    best_use, best_cost = None, None
-    least_median, median_residuals = np.inf, None
-    for i, j in combinations(candidates, 2):
-        pair = np.zeros(rig.n_cameras, dtype=bool)
-        pair[[i, j]] = True
-        solution = _solve(rig, centers_uv, pair)
-        if solution is None:
-            continue
-        res = _residuals(rig, centers_uv, *solution)
-        median = float(np.median(res[finite]))
-        if median < least_median:
-            least_median, median_residuals = median, res
-        inliers = finite & (np.nan_to_num(res, nan=np.inf) <= max_residual_px)
-        if inliers.sum() < 2:
-            continue
-        cost = (-int(inliers.sum()), float(np.sum(res[inliers] ** 2)))
-        if best_cost is None or cost < best_cost:
-            best_use, best_cost = inliers, cost
-    if best_use is None:
+    res = _pair_residuals(rig, centers_uv, np.flatnonzero(finite))   # (P, N), NaN: no centre
+    if res.shape[0] == 0:
         return _result(rig, centers_uv, finite & False, None)
+    inliers = finite & (np.nan_to_num(res, nan=np.inf) <= max_residual_px)
+    count = inliers.sum(axis=1)
+    sse = np.where(inliers, np.nan_to_num(res), 0.0) ** 2
+    # Most inliers first, then the smallest squared residual over them.
+    order = np.lexsort((sse.sum(axis=1), -count))
+    if count[order[0]] < 2:
+        return _result(rig, centers_uv, finite & False, None)
+    best_use = inliers[order[0]]
+    medians = np.median(res[:, finite], axis=1)
+    least = int(np.argmin(medians))
+    least_median, median_residuals = float(medians[least]), res[least]
     use = _refit(rig, centers_uv, finite, best_use, max_residual_px)
     if min_residual_px is not None and finite.sum() >= _MIN_VIEWS_FOR_SCALE:
         # Least median of squares over the pair proposals: a residual scale that up to
