@@ -37,7 +37,7 @@ import numpy as np
 
 from .errors import LightError, RigError, SRDEError
 from .geometry import Plane
-from .imaging import linear_to_srgb
+from .imaging import REC709_LUMA, linear_to_srgb
 from .rig import CameraRig
 from .shading import LOBES, specular_brdf, widened_roughness
 
@@ -559,7 +559,7 @@ def _skimage_texture(name: str) -> np.ndarray:
 
     image = getattr(skimage.data, name)().astype(np.float32) / 255.0
     if image.ndim == 3:
-        image = image @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+        image = image @ REC709_LUMA
     lo, hi = np.percentile(image, [1, 99])
     image = np.clip((image - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
     image.setflags(write=False)
@@ -571,22 +571,18 @@ _SKIMAGE_TEXTURES = ("brick", "gravel", "grass")
 
 
 def _noise_texture(rng: np.random.Generator, size: int = 256) -> np.ndarray:
-    """Fractal value noise, (size, size, 3) float32 in [0, 1], tileable."""
-    from scipy import ndimage
-
-    out = np.zeros((size, size, 3), dtype=np.float32)
-    cells = 4
-    amplitude = 1.0
-    while cells <= size // 2:
-        grid = rng.random((cells, cells, 3)).astype(np.float32)
-        zoomed = ndimage.zoom(
-            grid, (size / cells, size / cells, 1), order=3, mode="grid-wrap", grid_mode=True
-        )
-        out += amplitude * zoomed[:size, :size]
-        cells *= 2
-        amplitude *= 0.6
-    lo, hi = out.min(), out.max()
-    return ((out - lo) / max(hi - lo, 1e-6)).astype(np.float32)
+    """Tileable colour noise with a 1/f amplitude spectrum, (size, size, 3) float32 in [0, 1]."""
+    freq = np.fft.fftfreq(size)
+    radius = np.hypot(freq[:, None], freq[None, :])
+    radius[0, 0] = 1.0  # the mean is removed below; avoid dividing by zero
+    amplitude = radius ** -rng.uniform(0.9, 1.4)
+    amplitude[0, 0] = 0.0
+    # One shared grey pattern plus weaker per-channel patterns: textured, mildly coloured.
+    spectra = np.fft.fft2(rng.standard_normal((4, size, size))) * amplitude
+    fields = np.fft.ifft2(spectra).real
+    out = fields[0][:, :, None] + 0.5 * np.moveaxis(fields[1:], 0, -1)
+    lo, hi = np.percentile(out, [1, 99])
+    return np.clip((out - lo) / max(hi - lo, 1e-12), 0.0, 1.0).astype(np.float32)
 
 
 def _random_texture(rng: np.random.Generator) -> np.ndarray:
@@ -601,78 +597,76 @@ def _random_texture(rng: np.random.Generator) -> np.ndarray:
     return (0.1 + 0.8 * tex).astype(np.float32)
 
 
-def _background_surfaces(scene: Scene, rig: CameraRig) -> list[_Surface]:
-    """Textured back wall, floor and panels behind the objects, from ``background_seed``.
+def _background_surfaces(
+    scene: Scene, rig: CameraRig, *, with_textures: bool = True
+) -> list[_Surface]:
+    """Textured back wall, floor and panels around the objects, from ``background_seed``.
 
-    Everything sits behind the farthest object corner, so objects are never occluded;
-    textures are anchored to each plane's local coordinates, so all views agree.
+    The wall and the panels lie behind the farthest object corner and the floor below
+    the lowest one, so nothing of the background ever hides an object. Textures are
+    anchored to each plane's local coordinates, so all views agree. Layout and textures
+    come from separate random streams: ``with_textures=False`` gives the same layout,
+    untextured, without the cost of making textures.
     """
-    rng = np.random.default_rng([scene.background_seed, 7])
+    layout = np.random.default_rng([scene.background_seed, 7])
+    texturing = np.random.default_rng([scene.background_seed, 8])
     k = rig.intrinsics
     w_px, h_px = rig.image_size
     corners = np.concatenate([o.bounding_corners_m() for o in scene.objects])
     z_far = float(corners[:, 2].max())
     lowest = float(corners[:, 1].max())
-    spread = float(np.max(np.abs(rig.centers_m[:, :2]))) if rig.n_cameras else 0.0
-    z_wall = z_far + rng.uniform(0.4, 1.2)
-    # Half extents of every camera's frustum at the wall depth, padded for the wall's tilt.
+    spread = float(np.max(np.abs(rig.centers_m[:, :2] - rig.reference_center_m[:2])))
+    z_wall = z_far + layout.uniform(0.4, 1.2)
+    # Half extents of every camera's frustum at the wall depth, doubled for the tilt.
     half_w = (max(k.cx, w_px - k.cx) / k.fx * z_wall + spread) * 2.0
     half_h = (max(k.cy, h_px - k.cy) / k.fy * z_wall + spread) * 2.0
     material = Material(diffuse_rgb=(1.0, 1.0, 1.0), specular=0.0)
-    # Texels about 2 px wide at their depth: detail to match without aliasing.
-    texel_at = lambda z: rng.uniform(1.5, 3.0) * z / k.fx  # noqa: E731
-
-    def textured(shape_kw: dict, z_ref: float) -> tuple[PlanarObject, float]:
-        return PlanarObject(material=material, texture=_random_texture(rng), **shape_kw), texel_at(
-            z_ref
-        )
-
     surfaces = []
-    tilt = np.radians(rng.uniform(-12, 12, size=2))
-    wall_normal = (math.sin(tilt[0]), math.sin(tilt[1]), -1.0)
-    wall, texel = textured(
-        dict(
-            shape="rectangle",
-            center_m=(0.0, 0.0, z_wall),
-            normal=wall_normal,
-            size_m=(2 * half_w, 2 * half_h),
-        ),
+
+    def add(z_texel_m: float, **shape_kw: Any) -> PlanarObject:
+        texture = _random_texture(texturing) if with_textures else None
+        # Texels 1.5-3 px wide at their depth: detail to match, without aliasing.
+        texel_m = texturing.uniform(1.5, 3.0) * z_texel_m / k.fx
+        obj = PlanarObject(material=material, texture=texture, **shape_kw)
+        surfaces.append(_surface(obj, 0, texel_m))
+        return obj
+
+    tilt = np.radians(layout.uniform(-12, 12, size=2))
+    add(
         z_wall,
+        shape="rectangle",
+        center_m=(0.0, 0.0, z_wall),
+        normal=(math.sin(tilt[0]), math.sin(tilt[1]), -1.0),
+        size_m=(2 * half_w, 2 * half_h),
     )
-    surfaces.append(_surface(wall, 0, texel))
-    floor_y = lowest + rng.uniform(0.05, 0.3)
-    if rng.random() < 0.7 and floor_y < half_h:
-        depth = z_wall * 2.0
-        floor, texel = textured(
-            dict(
-                shape="rectangle",
-                center_m=(0.0, floor_y, depth / 2),
-                normal=(0.0, -1.0, 0.0),
-                size_m=(2 * half_w, depth),
-            ),
+    floor_y = lowest + layout.uniform(0.05, 0.3)
+    if layout.random() < 0.7:
+        add(
             0.5 * (z_far + z_wall),
+            shape="rectangle",
+            center_m=(0.0, floor_y, z_wall),
+            normal=(0.0, -1.0, 0.0),
+            size_m=(2 * half_w, 2 * z_wall),
         )
-        surfaces.append(_surface(floor, 0, texel))
-    for _ in range(rng.integers(1, 4)):
-        z = rng.uniform(z_far + 0.1, z_wall - 0.1) if z_wall - z_far > 0.25 else z_wall - 0.05
-        size = rng.uniform(0.2, 0.7, size=2)
-        # Panels away from the image centre, where the objects usually are.
-        u = rng.choice([rng.uniform(0, 0.3), rng.uniform(0.7, 1.0)]) * w_px
-        v = rng.uniform(0.1, 0.9) * h_px
+    for _ in range(layout.integers(1, 4)):
+        z = layout.uniform(z_far + 0.1, z_wall - 0.1) if z_wall - z_far > 0.25 else z_wall - 0.05
+        size = layout.uniform(0.2, 0.7, size=2)
+        # Panels towards the image sides; the objects are mostly near the middle.
+        u = (layout.uniform(0.0, 0.3) + layout.integers(0, 2) * 0.7) * w_px
+        v = layout.uniform(0.1, 0.9) * h_px
         center = rig.backproject([u, v], z)
-        normal = (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), -1.0)
-        panel, texel = textured(
-            dict(
+        normal = (layout.uniform(-0.3, 0.3), layout.uniform(-0.3, 0.3), -1.0)
+        rotation = layout.uniform(-0.3, 0.3)
+        probe = PlanarObject("rectangle", tuple(center), normal, tuple(size), rotation)
+        if probe.bounding_corners_m()[:, 2].min() > z_far + 0.02:
+            add(
+                z,
                 shape="rectangle",
                 center_m=tuple(center),
                 normal=normal,
                 size_m=tuple(size),
-                rotation_rad=rng.uniform(-0.3, 0.3),
-            ),
-            z,
-        )
-        if panel.bounding_corners_m()[:, 2].min() > z_far + 0.02:
-            surfaces.append(_surface(panel, 0, texel))
+                rotation_rad=rotation,
+            )
     return surfaces
 
 
@@ -740,11 +734,9 @@ def _sample_bilinear(
     th, tw = texture.shape[:2]
     if tiled:
         # Fold the coordinates into one mirrored period so any distance from the
-        # plane's origin maps into the texture.
-        tu = np.mod(tu + 0.5, 2 * tw)
-        tu = np.where(tu < tw, tu, 2 * tw - tu) - 0.5
-        tv = np.mod(tv + 0.5, 2 * th)
-        tv = np.where(tv < th, tv, 2 * th - tv) - 0.5
+        # plane's origin maps into the texture: m in [0, 2w) -> w - |m - w|.
+        tu = (tw - 0.5) - np.abs(np.mod(tu + 0.5, 2 * tw) - tw)
+        tv = (th - 0.5) - np.abs(np.mod(tv + 0.5, 2 * th) - th)
     # cv2.remap gathers the scattered points as an image of _REMAP_COLS columns (it
     # refuses maps of 32767 or more rows or columns): (M,) -> (rows, _REMAP_COLS).
     m = tu.size
@@ -778,44 +770,63 @@ def _albedo(surf: _Surface, local: np.ndarray) -> np.ndarray:
 
 
 def _shade_points(
-    surf: _Surface, points_m: np.ndarray, eye_m: np.ndarray, scene: Scene
+    surf: _Surface,
+    ray_x: np.ndarray,
+    ray_y: np.ndarray,
+    depth_m: np.ndarray,
+    eye_m: np.ndarray,
+    scene: Scene,
 ) -> np.ndarray:
-    """Linear radiance ``(M, 3)`` float32 leaving surface points ``(M, 3)`` towards ``eye_m``.
+    """Linear radiance ``(M, 3)`` float32 of surface points seen along camera rays.
 
-    Shading runs in float32 (geometry and ground truth stay float64).
+    The points are ``eye + depth * (ray_x, ray_y, 1)`` (all ``(M,)``). Components are
+    kept as separate arrays and the plane's constants folded in (``n . P = c`` on the
+    plane), which keeps the per-pixel work to a few dozen element-wise float32 passes.
     """
     f32 = np.float32
     light = scene.light
-    n = surf.normal.astype(f32)
-    points = points_m.astype(f32)
-    to_light = np.asarray(light.position_m, dtype=f32) - points
-    dist2 = np.einsum("ij,ij->i", to_light, to_light)
+    n = surf.normal
+    lpos = np.asarray(light.position_m)
+    x = ray_x.astype(f32, copy=False)
+    y = ray_y.astype(f32, copy=False)
+    t = depth_m.astype(f32, copy=False)
+    # Surface point relative to the light's centre, and distance to it: (M,) each.
+    to_lx = f32(lpos[0] - eye_m[0]) - t * x
+    to_ly = f32(lpos[1] - eye_m[1]) - t * y
+    to_lz = f32(lpos[2] - eye_m[2]) - t
+    dist2 = to_lx * to_lx + to_ly * to_ly + to_lz * to_lz
     dist = np.sqrt(dist2)
-    l_dir = to_light / dist[:, None]
-    v_dir = eye_m.astype(f32) - points
-    v_dir /= np.sqrt(np.einsum("ij,ij->i", v_dir, v_dir))[:, None]
-    cos_l = l_dir @ n
-    cos_v = v_dir @ n
-    lit = (cos_l > 0.0) & (cos_v > 0.0)
-    irradiance = f32(light.intensity) * np.where(lit, cos_l, f32(0.0)) / dist2
-    rel = points - surf.center_m.astype(f32)
-    albedo = _albedo(surf, np.stack([rel @ surf.e1.astype(f32), rel @ surf.e2.astype(f32)], axis=1))
+    # n . (L - P) = n . L - c on the plane: the light's height above it.
+    height_l = float(n @ lpos) - surf.offset_m
+    height_v = float(n @ eye_m) - surf.offset_m
+    if height_l <= 0.0 or height_v <= 0.0:
+        irradiance = np.zeros_like(t)
+    else:
+        irradiance = f32(light.intensity * height_l) / (dist2 * dist)
+    # Local texture coordinates: e . (P - center) = e . (eye - center) + t e . ray.
+    rel = eye_m - surf.center_m
+    local = np.stack(
+        [
+            f32(rel @ surf.e1) + t * (f32(surf.e1[0]) * x + f32(surf.e1[1]) * y + f32(surf.e1[2])),
+            f32(rel @ surf.e2) + t * (f32(surf.e2[0]) * x + f32(surf.e2[1]) * y + f32(surf.e2[2])),
+        ],
+        axis=1,
+    )
+    albedo = _albedo(surf, local)
     color = np.asarray(light.color_rgb, dtype=f32)
     radiance = albedo * (irradiance[:, None] * (color / f32(np.pi)) + f32(scene.ambient))
     mat = surf.shape.material
-    if mat.specular > 0.0 and np.any(lit):
-        half = l_dir + v_dir
-        half /= np.sqrt(np.einsum("ij,ij->i", half, half))[:, None]
+    if mat.specular > 0.0 and height_l > 0.0 and height_v > 0.0:
+        ray_len = np.sqrt(x * x + y * y + f32(1.0))
+        cos_l = f32(height_l) / dist
+        cos_v = f32(height_v) / (t * ray_len)
+        # l . v with v = -ray / |ray|; then h = (l + v) / |l + v|.
+        cos_lv = -(to_lx * x + to_ly * y + to_lz) / (dist * ray_len)
+        half_len = np.sqrt(np.maximum(f32(2.0) + f32(2.0) * cos_lv, f32(1e-12)))
+        cos_h = (cos_l + cos_v) / half_len
+        cos_vh = (cos_lv + f32(1.0)) / half_len
         alpha = widened_roughness(mat.roughness, light.radius_m, dist).astype(f32)
-        brdf = specular_brdf(
-            np.where(lit, cos_l, f32(1.0)),
-            np.where(lit, cos_v, f32(1.0)),
-            half @ n,
-            np.einsum("ij,ij->i", v_dir, half),
-            alpha,
-            lobe=mat.lobe,
-            f0=mat.f0,
-        )
+        brdf = specular_brdf(cos_l, cos_v, cos_h, cos_vh, alpha, lobe=mat.lobe, f0=mat.f0)
         radiance += (f32(mat.specular) * brdf * irradiance)[:, None] * color
     return radiance.astype(f32, copy=False)
 
@@ -837,14 +848,15 @@ def _render_view(
     radiance = np.full((h * w, 3), sky, dtype=np.float32)
     eye = rig.centers_m[camera]
     flat_index, flat_depth = index.ravel(), depth.ravel()
+    grid_x = np.broadcast_to(xs.astype(np.float32), (h, w)).ravel()
+    grid_y = np.repeat(ys.astype(np.float32), w)
     for s, surf in enumerate(surfaces):
         pixels = np.flatnonzero(flat_index == s)
         if pixels.size == 0:
             continue
-        rows, cols = np.divmod(pixels, w)
-        rays = np.column_stack([xs[cols], ys[rows], np.ones(pixels.size)])
-        points = eye + rays * flat_depth[pixels][:, None]
-        radiance[pixels] = _shade_points(surf, points, eye, scene)
+        radiance[pixels] = _shade_points(
+            surf, grid_x[pixels], grid_y[pixels], flat_depth[pixels], eye, scene
+        )
     return radiance.reshape(h, w, 3), depth, index
 
 
@@ -1045,18 +1057,26 @@ def _diffuse_unit(
     to_light = np.asarray(light.position_m) - point_m
     dist2 = float(to_light @ to_light)
     cos_l = max(0.0, float(to_light @ np.asarray(obj.normal)) / math.sqrt(dist2))
-    albedo = float(np.dot(obj.material.diffuse_rgb, [0.2126, 0.7152, 0.0722]))
-    color = float(np.dot(light.color_rgb, [0.2126, 0.7152, 0.0722]))
+    albedo = float(np.dot(obj.material.diffuse_rgb, REC709_LUMA))
+    color = float(np.dot(light.color_rgb, REC709_LUMA))
     return albedo / np.pi * light.intensity * cos_l / dist2 * color, ambient * albedo
 
 
 def _specular_peak(obj: PlanarObject, light: Light, rig: CameraRig) -> float:
     """Luminance of the specular lobe at the reference mirror point, per unit exposure."""
     local = _mirror_points_local(obj, np.asarray(light.position_m), rig)
-    point = obj.to_world(local[rig.reference])[None]
+    eye = rig.reference_center_m
+    rel = obj.to_world(local[rig.reference]) - eye
     surf = _surface(replace(obj, material=replace(obj.material, diffuse_rgb=(0.0, 0.0, 0.0))), 1)
-    radiance = _shade_points(surf, point, rig.reference_center_m, Scene((obj,), light, ambient=0.0))
-    return float(radiance[0] @ np.array([0.2126, 0.7152, 0.0722]))
+    radiance = _shade_points(
+        surf,
+        np.array([rel[0] / rel[2]]),
+        np.array([rel[1] / rel[2]]),
+        np.array([rel[2]]),
+        eye,
+        Scene((obj,), light, ambient=0.0),
+    )
+    return float(radiance[0] @ REC709_LUMA)
 
 
 def random_scene(
@@ -1311,7 +1331,7 @@ def random_scene(
     if background == "textured":
         # Solve exposure and ambient so that objects sit at `target` and the textured
         # background around 1.5-3x brighter: a stereo network needs to see its texture.
-        wall = _background_surfaces(base, rig)[0]
+        wall = _background_surfaces(base, rig, with_textures=False)[0]
         wall_obj = replace(wall.shape, material=Material(diffuse_rgb=(0.5, 0.5, 0.5), specular=0.0))
         direct_b, amb_b = _diffuse_unit(wall_obj, wall.center_m, light, 1.0)
         target_b = target * rng.uniform(1.5, 3.0)
