@@ -542,6 +542,7 @@ class _Surface:
     corners_m: np.ndarray  # (K, 3) convex hull bound, for the pixel bounding box
     label: int  # k for objects[k - 1], 0 for background
     tile_m: float = 0.0  # > 0: texture tiled (mirrored) with this texel size, metres
+    mips: dict = field(default_factory=dict)  # level -> texture shrunk 2**level times
 
 
 def _surface(obj: PlanarObject, label: int, tile_m: float = 0.0) -> _Surface:
@@ -753,20 +754,49 @@ def _sample_bilinear(
     return out.reshape(-1, 3)[:m]
 
 
-def _albedo(surf: _Surface, local: np.ndarray) -> np.ndarray:
-    """Diffuse albedo ``(M, 3)`` (or ``(3,)`` if untextured) at local points ``(M, 2)``."""
+def _mip(surf: _Surface, level: int) -> np.ndarray:
+    """Return the surface's texture averaged down ``2**level`` times (cached per surface)."""
+    tex = surf.shape.texture
+    if level == 0:
+        return tex
+    if level not in surf.mips:
+        th, tw = tex.shape[:2]
+        size = (max(1, round(tw / 2**level)), max(1, round(th / 2**level)))
+        surf.mips[level] = cv2.resize(tex, size, interpolation=cv2.INTER_AREA).reshape(
+            size[1], size[0], 3
+        )
+    return surf.mips[level]
+
+
+def _albedo(surf: _Surface, local: np.ndarray, footprint_m: float) -> np.ndarray:
+    """Diffuse albedo ``(M, 3)`` (or ``(3,)`` if untextured) at local points ``(M, 2)``.
+
+    ``footprint_m`` is the size of one image sample on the surface. Where a texel is
+    much smaller, the lookup uses a texture averaged down to about that size (a mip
+    level), so fine print such as marker boards does not alias.
+    """
     base = np.asarray(surf.shape.material.diffuse_rgb, dtype=np.float32)
     tex = surf.shape.texture
     if tex is None:
         return base
     th, tw = tex.shape[:2]
     if surf.tile_m > 0:
-        tu, tv = local[:, 0] / surf.tile_m, local[:, 1] / surf.tile_m
-        return base * _sample_bilinear(tex, tu, tv, tiled=True)
-    w, h = surf.shape.size_m
-    tu = (local[:, 0] / w + 0.5) * tw - 0.5
-    tv = (local[:, 1] / h + 0.5) * th - 0.5
-    return base * _sample_bilinear(tex, tu, tv, tiled=False)
+        texel_u = texel_v = surf.tile_m
+        tu, tv = local[:, 0] / texel_u, local[:, 1] / texel_v
+    else:
+        w, h = surf.shape.size_m
+        texel_u, texel_v = w / tw, h / th
+        tu = local[:, 0] / texel_u + (tw / 2 - 0.5)
+        tv = local[:, 1] / texel_v + (th / 2 - 0.5)
+    texels_per_sample = footprint_m / min(texel_u, texel_v)
+    level = int(math.floor(math.log2(texels_per_sample))) if texels_per_sample >= 2.0 else 0
+    level = min(level, int(math.log2(max(tw, th))))
+    mip = _mip(surf, level)
+    if mip is not tex:
+        # Texel centres stay at integer coordinates: (t + 0.5) scales, then - 0.5.
+        tu = (tu + 0.5) * (mip.shape[1] / tw) - 0.5
+        tv = (tv + 0.5) * (mip.shape[0] / th) - 0.5
+    return base * _sample_bilinear(mip, tu, tv, tiled=surf.tile_m > 0)
 
 
 def _shade_points(
@@ -776,12 +806,14 @@ def _shade_points(
     depth_m: np.ndarray,
     eye_m: np.ndarray,
     scene: Scene,
+    sample_angle_rad: float = 0.0,
 ) -> np.ndarray:
     """Linear radiance ``(M, 3)`` float32 of surface points seen along camera rays.
 
     The points are ``eye + depth * (ray_x, ray_y, 1)`` (all ``(M,)``). Components are
     kept as separate arrays and the plane's constants folded in (``n . P = c`` on the
     plane), which keeps the per-pixel work to a few dozen element-wise float32 passes.
+    ``sample_angle_rad`` is the angular spacing of the image samples (texture filtering).
     """
     f32 = np.float32
     light = scene.light
@@ -812,7 +844,13 @@ def _shade_points(
         ],
         axis=1,
     )
-    albedo = _albedo(surf, local)
+    footprint_m = 0.0
+    if surf.shape.texture is not None and sample_angle_rad > 0 and height_v > 0:
+        # Sample footprint on the surface, (distance^2 / height) * angle, at a typical point.
+        step = max(1, t.size // 512)
+        distance2 = np.square(t[::step]) * (np.square(x[::step]) + np.square(y[::step]) + 1.0)
+        footprint_m = float(np.median(distance2)) / height_v * sample_angle_rad
+    albedo = _albedo(surf, local, footprint_m)
     color = np.asarray(light.color_rgb, dtype=f32)
     radiance = albedo * (irradiance[:, None] * (color / f32(np.pi)) + f32(scene.ambient))
     mat = surf.shape.material
@@ -837,10 +875,16 @@ def _render_view(
     rig: CameraRig,
     camera: int,
     offset_px: tuple[float, float],
+    supersample: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Linear radiance ``(H, W, 3)`` float32 of one camera, plus its depth and index."""
+    """Linear radiance ``(H, W, 3)`` float32 of one camera, plus its depth and index.
+
+    ``offset_px`` shifts the samples within the pixel; ``supersample`` says how many
+    samples per pixel side are averaged (textures are filtered to the sample spacing).
+    """
     k = rig.intrinsics
     w, h = rig.image_size
+    sample_angle = 1.0 / (math.sqrt(k.fx * k.fy) * supersample)
     xs = (np.arange(w) + offset_px[0] - k.cx) / k.fx
     ys = (np.arange(h) + offset_px[1] - k.cy) / k.fy
     depth, index = _cast(surfaces, rig, camera, xs, ys)
@@ -855,7 +899,7 @@ def _render_view(
         if pixels.size == 0:
             continue
         radiance[pixels] = _shade_points(
-            surf, grid_x[pixels], grid_y[pixels], flat_depth[pixels], eye, scene
+            surf, grid_x[pixels], grid_y[pixels], flat_depth[pixels], eye, scene, sample_angle
         )
     return radiance.reshape(h, w, 3), depth, index
 
@@ -947,7 +991,7 @@ def render(
     for cam in range(rig.n_cameras):
         total = None
         for off in offsets:
-            radiance, depth, index = _render_view(surfaces, scene, rig, cam, off)
+            radiance, depth, index = _render_view(surfaces, scene, rig, cam, off, supersample)
             total = radiance if total is None else total + radiance
             if cam == rig.reference and supersample == 1:
                 ref_depth, ref_index = depth, index

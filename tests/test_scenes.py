@@ -249,6 +249,32 @@ def test_texture_orientation_row0_is_top_col0_is_left(small_rig):
     assert tr > 0.1 and bl > 0.1
 
 
+def test_fine_texture_is_filtered_not_aliased(small_rig):
+    # One-texel checkerboard, ~10 texels per pixel: the image must show its mean, grey.
+    checker = (np.indices((1024, 1024)).sum(axis=0) % 2).astype(np.float32)
+    plate = PlanarObject(
+        "rectangle",
+        (0.0, 0.0, 1.0),
+        (0.1, 0.0, -1.0),
+        (0.3, 0.3),
+        material=Material(diffuse_rgb=(1.0, 1.0, 1.0), specular=0.0),
+        texture=checker,
+    )
+    half = PlanarObject(
+        "rectangle",
+        (0.0, 0.0, 1.0),
+        (0.1, 0.0, -1.0),
+        (0.3, 0.3),
+        material=Material(diffuse_rgb=(0.5, 0.5, 0.5), specular=0.0),
+    )
+    light = Light((0.5, 0.0, -0.1))
+    textured = luminance(render(Scene((plate,), light, ambient=0.3), small_rig).views[4])
+    uniform = luminance(render(Scene((half,), light, ambient=0.3), small_rig).views[4])
+    inner = np.zeros(textured.shape, dtype=bool)
+    inner[100:140, 140:180] = True
+    assert np.abs(textured[inner] - uniform[inner]).max() < 0.03
+
+
 def test_textured_background_has_ground_truth_and_is_view_consistent(small_rig):
     obj = _tilted_plate()
     scene = Scene(
