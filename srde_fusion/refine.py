@@ -112,9 +112,9 @@ _BACKGROUND_QUANTILE = 0.2
 
 # --- optimisation ---------------------------------------------------------------------
 # Start: lobe widths scanned with a GGX tail, then other tails around the best width.
-_WIDTH_GRID = np.geomspace(0.002, 0.4, 16)
+_WIDTH_GRID = np.geomspace(0.002, 0.4, 11)
 _TAIL_GRID = (0.5, 0.25, 0.0)
-_WIDTH_REFINE_FACTORS = (0.8, 1.0, 1.25)
+_WIDTH_REFINE_FACTORS = (0.85, 1.0, 1.2)
 # A start whose lobe stays below this (relative to its peak) on every unsaturated sample
 # is invisible: skipped.
 _MIN_LOBE_ON_UNCLIPPED = 1e-3
@@ -138,6 +138,10 @@ _COST_RTOL = 1e-7
 _DISPARITY_STEP_TOL_PX = 1e-4
 _PLANE_COST_RTOL = 1e-4
 _PHOTOMETRIC_COST_RTOL = 1e-4
+# Below this determinant the Jacobi-scaled 3x3 normal equations count as singular.
+_MIN_SCALED_DETERMINANT = 1e-12
+# The first stage only has to bring the plane near; the joint stage finishes.
+_START_ITERATIONS = 6
 # Passes of the active-set solve for the intensities (saturated samples in or out).
 _ACTIVE_SET_PASSES = 4
 
@@ -367,10 +371,11 @@ def refine_plane(
         return kept(f"fit: no lobe width in [{_WIDTH_GRID[0]:g}, {_WIDTH_GRID[-1]:g}] gives a "
                     f"positive specular term over the {samples.n_samples} samples",
                     n_samples=samples.n_samples)
-    # Stage 1: the foreshortening exponent could absorb part of the plane's error, so it
-    # is held until the plane is free too.
-    free_start = model.free_photometric[model.free_photometric != _I_FORE]
-    theta_start, _, _, _ = _levenberg_marquardt(model, theta0, free_start, max_iterations,
+    # Stage 1: plane and lobe shape with the foreshortening exponent held, since it
+    # could otherwise absorb part of the initial plane's error.
+    free_start = model.free_all[model.free_all != _I_FORE]
+    theta_start, _, _, _ = _levenberg_marquardt(model, theta0, free_start,
+                                                min(max_iterations, _START_ITERATIONS),
                                                 cost_rtol=_PHOTOMETRIC_COST_RTOL)
     # Stage 2: everything.
     theta, cost_final, iterations, converged = _levenberg_marquardt(
@@ -394,6 +399,10 @@ def refine_plane(
                     f"{cost_initial:.4g}", **fallback)
     if not theta[_I_SPEC] > 0.0:
         return kept(f"fit: specular intensity {theta[_I_SPEC]:.3g} is not positive", **fallback)
+    at_bound = model.parameters_at_bounds(theta)
+    if at_bound:
+        return kept(f"fit: {at_bound} at the bound of its range; the lobe model does not "
+                    "describe this highlight", **fallback)
     contrast = float(samples.luminance.max() - _low_quantile(samples.luminance))
     if math.sqrt(cost_final) > MAX_RELATIVE_RESIDUAL * contrast:
         return kept(f"fit: RMS residual {math.sqrt(cost_final):.4g} is more than "
@@ -598,9 +607,12 @@ def _reference_from_view(rig: CameraRig, plane: Plane, camera: int) -> np.ndarra
     # 1 / z = g . (u, v, 1) at reference pixels (u, v)
     g = np.array([n[0] / k.fx, n[1] / k.fy, n[2] - n[0] * k.cx / k.fx - n[1] * k.cy / k.fy]) / base
     d = rig.centers_m[camera] - rig.reference_center_m
-    camera_from_reference = np.eye(3)
-    camera_from_reference[:2] -= np.outer([k.fx * d[0], k.fy * d[1]], g)
-    return np.linalg.inv(camera_from_reference)[:2]
+    # camera pixel = A (u, v) + t with A = I - s g[:2]^T, t = -s g[2], s = f * dXY
+    s = np.array([k.fx * d[0], k.fy * d[1]])
+    a = np.eye(2) - np.outer(s, g[:2])
+    a_inv = np.array([[a[1, 1], -a[0, 1]], [-a[1, 0], a[0, 0]]]) / (a[0, 0] * a[1, 1]
+                                                                    - a[0, 1] * a[1, 0])
+    return np.hstack([a_inv, (a_inv @ (s * g[2]))[:, None]])
 
 
 def _object_lookup(eroded_ref: np.ndarray, to_ref: np.ndarray | None, uu: np.ndarray,
@@ -920,11 +932,24 @@ class _LobeModel:
                     consider(best_width * factor, tail)
         return best
 
+    def _bounds(self):
+        return {_I_WIDTH: np.log(_WIDTH_BOUNDS), _I_TAIL: _TAIL_BOUNDS,
+                _I_FORE: _FORESHORTENING_BOUNDS}
+
     def clamp(self, theta: np.ndarray) -> np.ndarray:
-        theta[_I_WIDTH] = np.clip(theta[_I_WIDTH], *np.log(_WIDTH_BOUNDS))
-        theta[_I_TAIL] = np.clip(theta[_I_TAIL], *_TAIL_BOUNDS)
-        theta[_I_FORE] = np.clip(theta[_I_FORE], *_FORESHORTENING_BOUNDS)
+        for index, (low, high) in self._bounds().items():
+            theta[index] = min(max(theta[index], low), high)
         return theta
+
+    def parameters_at_bounds(self, theta: np.ndarray) -> str:
+        """Name and value of fitted shape parameters stuck at a bound ("" if none)."""
+        names = {_I_WIDTH: "width", _I_TAIL: "tail", _I_FORE: "foreshortening"}
+        stuck = []
+        for index, (low, high) in self._bounds().items():
+            if index in self.free_all and min(theta[index] - low, high - theta[index]) < 1e-9:
+                value = math.exp(theta[index]) if index == _I_WIDTH else theta[index]
+                stuck.append(f"{names[index]} {value:.4g}")
+        return ", ".join(stuck)
 
     def disparity_change_px(self, before: np.ndarray, after: np.ndarray) -> float:
         """Largest change of the stereo disparity at the probe pixels between two planes."""
@@ -949,16 +974,22 @@ class _LobeModel:
 def _solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """Solve 3x3 normal equations ``normal x = rhs`` (``rhs`` ``(3,)`` or ``(3, K)``).
 
-    Jacobi scaling keeps the nearly collinear diffuse and level columns solvable; a
-    singular system (a lobe invisible everywhere) falls back to the pseudo-inverse.
+    Jacobi scaling keeps the nearly collinear diffuse and level columns solvable. The
+    inverse is written out (cofactors): this runs hundreds of times per fit, where
+    ``numpy.linalg.solve``'s call overhead would dominate. A singular system (a lobe
+    invisible everywhere) falls back to the pseudo-inverse.
     """
     scale = 1.0 / np.sqrt(np.maximum(normal.diagonal(), 1e-300))
-    scaled = normal * scale[:, None] * scale[None, :]
-    rhs2 = scale[:, None] * rhs.reshape(3, -1)
-    try:
-        x = np.linalg.solve(scaled, rhs2)
-    except np.linalg.LinAlgError:
-        x = np.linalg.pinv(scaled) @ rhs2
+    (a, b, c), (d, e, f), (g, h, i) = (normal * scale[:, None] * scale[None, :]).tolist()
+    cofactors = [[e * i - f * h, c * h - b * i, b * f - c * e],
+                 [f * g - d * i, a * i - c * g, c * d - a * f],
+                 [d * h - e * g, b * g - a * h, a * e - b * d]]
+    det = a * cofactors[0][0] + b * cofactors[1][0] + c * cofactors[2][0]
+    if abs(det) > _MIN_SCALED_DETERMINANT:
+        inverse = np.array(cofactors) / det
+    else:
+        inverse = np.linalg.pinv(normal * scale[:, None] * scale[None, :])
+    x = inverse @ (scale[:, None] * rhs.reshape(3, -1))
     return (scale[:, None] * x).reshape(rhs.shape)
 
 
