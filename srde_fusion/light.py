@@ -11,6 +11,13 @@ reflected rays, ``L = argmin sum_i |(L - H_i) x r_i / |r_i||^2``, a 3x3 linear s
 plate differently make the rays cross at wider angles and pin the light down along
 the rays, which a single pose seen by a small array does poorly.
 
+The markers of a small plate fix its normal to a few tenths of a milliradian, and each
+pose's error turns its whole bundle of rays; bundles turned differently meet away from
+the light. So the intersection is followed by a joint refinement: light and plate poses
+together, reproducing the marker corners and the highlight centres (the images of the
+light mirrored across each plate) in pixels. The benchmark
+``benchmarks/light_calibration.py`` compares both.
+
 Everything that would make the light silently wrong is an error: too few views with
 markers, no usable highlight (absent, under a marker, clipped by the plate edge), a
 plate seen nearly edge-on, rays that do not meet, a light behind the plate.
@@ -947,6 +954,7 @@ def _calibrate_light_command(args) -> int:
         args.rig,
         write=not args.dry_run,
         method=args.method,
+        refine=not args.no_refine,
         min_views=args.min_views,
         max_incidence_deg=args.max_incidence_deg,
         max_residual_m=args.max_residual_mm / 1000.0,
@@ -1003,6 +1011,11 @@ def register_cli(subparsers) -> None:
         default=DEFAULT_MAX_RESIDUAL_M * 1000.0,
         help="reject rays whose mean distance to the light exceeds this "
         f"(default {DEFAULT_MAX_RESIDUAL_M * 1000:g})",
+    )
+    p.add_argument(
+        "--no-refine",
+        action="store_true",
+        help="keep the ray intersection (the paper's estimate), skip the joint refinement",
     )
     p.add_argument("--dry-run", action="store_true", help="print the light, do not write rig.json")
     p.set_defaults(func=_calibrate_light_command)

@@ -367,6 +367,24 @@ def test_calibrate_light_dry_run_and_errors(capture_dirs, tmp_path, capsys):
     )
     assert rig.light_position_m is not None
     assert "light" not in json.loads((root / "rig.json").read_text())
+    assert np.linalg.norm(estimate.position_m - LIGHT_M) < DETECTED_TOL_M
+    code = main(
+        [
+            "calibrate-light",
+            str(dirs[0]),
+            "--board",
+            str(root / "board.json"),
+            "--rig",
+            str(root / "rig.json"),
+            "--dry-run",
+            "--no-refine",
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "left unchanged (--dry-run)" in out and "(1 sigma, ray intersection)" in out
+    assert "light" not in json.loads((root / "rig.json").read_text())
+    assert not (root / "rig.json.bak").exists()
     code = main(
         [
             "calibrate-light",
