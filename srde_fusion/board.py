@@ -42,9 +42,14 @@ __all__ = [
     "BoardMarker",
     "MarkerDetection",
     "PlatePose",
+    "aruco_dictionary",
     "detect_markers",
     "estimate_plate_pose",
+    "pose_from_detections",
+    "project_points",
     "render_board_image",
+    "rotation_from_vector",
+    "rotation_to_vector",
     "write_board",
 ]
 
