@@ -201,19 +201,21 @@ def test_lobes_differ_in_shape(small_rig):
     assert np.abs(views["ggx"] - views["blinn_phong"]).max() > 0.01
 
 
-def test_light_radius_widens_and_dims_the_highlight(small_rig):
-    obj = _tilted_plate(material=Material(roughness=0.005))
-    peaks, areas = [], []
+def test_light_radius_widens_and_dims_the_highlight_keeping_its_energy(small_rig):
+    obj = _tilted_plate(material=Material(diffuse_rgb=(0.0, 0.0, 0.0), roughness=0.01))
+    peaks, areas, energies = [], [], []
     for radius in (0.0, 0.03):
-        out = render(
-            Scene((obj,), Light(_light_reflected_at(obj), radius_m=radius), exposure=0.02),
-            small_rig,
-        )
+        light = Light(_light_reflected_at(obj), radius_m=radius)
+        out = render(Scene((obj,), light, ambient=0.0, exposure=0.02), small_rig)
         grey = luminance(out.views[small_rig.reference])
+        assert grey.max() < 0.99  # nothing clips, so sums are energies
         peaks.append(grey.max())
         areas.append(int((grey > 0.5 * grey.max()).sum()))
-    assert peaks[1] < peaks[0]
-    assert areas[1] > areas[0]
+        energies.append(grey.sum())
+    assert peaks[1] < 0.8 * peaks[0]
+    assert areas[1] > 1.2 * areas[0]
+    # Widening redistributes the lobe; 8-bit quantisation of the dim tail costs a little.
+    assert energies[1] == pytest.approx(energies[0], rel=0.05)
 
 
 def test_nearest_object_wins(small_rig):
