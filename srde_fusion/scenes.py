@@ -53,6 +53,7 @@ __all__ = [
     "default_rig",
     "render_dataset",
     "scene_to_dict",
+    "scene_from_dict",
     "register_cli",
     "SHAPES",
     "BACKGROUNDS",
@@ -277,7 +278,8 @@ class PlanarObject:
         length = float(np.linalg.norm(normal))
         if length < 1e-12:
             raise SceneError(f"normal: expected a non-zero vector, got {self.normal!r}")
-        normal /= length
+        if abs(length - 1.0) > 1e-15:  # unit normals stay bit-exact (round trips compare equal)
+            normal /= length
         if np.dot(normal, -np.asarray(center)) < 0:
             normal = -normal
         object.__setattr__(self, "center_m", center)
@@ -443,8 +445,9 @@ class Scene:
         White ambient radiance per unit albedo (linear, before exposure).
     background : {"none", "textured"}
         "none": nothing behind the objects (at infinity, nearly black, disparity 0).
-        "textured": textured walls, floor and panels at finite depth behind the objects,
-        generated from ``background_seed`` (see :func:`render`).
+        "textured": a textured back wall and panels behind the objects and often a floor
+        below them, at finite depth, generated from ``background_seed``; they never
+        hide an object.
     background_seed : int
         Seed of the textured background (and of the default sensor noise).
     exposure : float
@@ -1016,8 +1019,6 @@ def render(
     light = np.asarray(scene.light.position_m)
     virtual = np.array([p.mirror(light) for p in planes])
     uv = np.stack([rig.project(virtual, camera=i) for i in range(rig.n_cameras)], axis=1)
-    for array in (disparity, instance):
-        array.setflags(write=False)
     return Rendering(
         tuple(views), disparity, ref_depth.astype(np.float32), instance, planes, virtual, uv
     )
@@ -1454,6 +1455,58 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
         "exposure": scene.exposure,
         "noise_std": scene.noise_std,
     }
+
+
+def scene_from_dict(data: Any) -> Scene:
+    """Rebuild a scene from :func:`scene_to_dict` output (object textures are not stored).
+
+    Raises
+    ------
+    SceneError
+        Missing keys or values of the wrong kind.
+
+    Examples
+    --------
+    >>> plate = PlanarObject("ellipse", (0.0, 0.0, 1.0), (0.1, 0.0, -1.0), (0.2, 0.1))
+    >>> scene = Scene((plate,), Light((0.3, 0.0, 0.0)))
+    >>> scene_from_dict(scene_to_dict(scene)) == scene
+    True
+    """
+    try:
+        objects = tuple(
+            PlanarObject(
+                shape=o["shape"],
+                center_m=tuple(o["center_m"]),
+                normal=tuple(o["normal"]),
+                size_m=tuple(o["size_m"]),
+                rotation_rad=o["rotation_rad"],
+                vertices_m=None if o["vertices_m"] is None else tuple(map(tuple, o["vertices_m"])),
+                material=Material(
+                    **{**o["material"], "diffuse_rgb": tuple(o["material"]["diffuse_rgb"])}
+                ),
+            )
+            for o in data["objects"]
+        )
+        light = data["light"]
+        return Scene(
+            objects,
+            Light(
+                tuple(light["position_m"]),
+                light["radius_m"],
+                tuple(light["color_rgb"]),
+                light["intensity"],
+            ),
+            ambient=data["ambient"],
+            background=data["background"],
+            background_seed=data["background_seed"],
+            exposure=data["exposure"],
+            noise_std=data["noise_std"],
+        )
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise SceneError(
+            f"scene: expected a dict as written by scene_to_dict, got one that fails with "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
 
 
 def render_dataset(

@@ -15,6 +15,8 @@ from srde_fusion.scenes import (
     SceneError,
     random_scene,
     render,
+    scene_from_dict,
+    scene_to_dict,
 )
 
 # Tolerances (one table): float32 ground truth against float64 geometry.
@@ -440,6 +442,17 @@ def test_random_scene_is_deterministic_and_seed_dependent(small_rig):
     assert a != random_scene(8, small_rig, background="textured")
     rig_light = small_rig.with_light(a.light.position_m)
     assert rig_light.light_position_m == a.light.position_m
+
+
+def test_scene_dict_round_trip(small_rig):
+    scene = random_scene(3, small_rig, n_objects=2, background="textured", size_m=(0.12, 0.2))
+    data = json.loads(json.dumps(scene_to_dict(scene)))
+    assert scene_from_dict(data) == scene
+    with pytest.raises(SceneError, match="scene: expected a dict as written by scene_to_dict"):
+        scene_from_dict({"objects": []})
+    data["objects"][0]["shape"] = "disc"
+    with pytest.raises(SceneError, match="shape: expected one of"):
+        scene_from_dict(data)
 
 
 def test_random_scene_options(small_rig):
