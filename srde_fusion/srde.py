@@ -331,7 +331,13 @@ class SRDE:
                 # One level for all views: an asymmetric lobe's centroid depends on it.
                 level = None if np.isnan(ref_det.level) else ref_det.level
                 region_j = self._search_region(views, j, ref_det, search)
-                detections.append(self._detect_view(views, j, region_j, level))
+                if region_j.any():
+                    detections.append(self._detect_view(views, j, region_j, level))
+                else:
+                    detections.append(HighlightDetection.missing(
+                        f"no position along the baseline (object depth "
+                        f"{self.object_depth_m[0]:g}-{self.object_depth_m[1]:g} m) lies on the "
+                        "object"))
         centers = np.full((rig.n_cameras, 2), np.nan)
         for j, det in enumerate(detections):
             if det:
@@ -357,7 +363,7 @@ class SRDE:
         if r == 0:
             return mask
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        return cv2.erode(mask.view(np.uint8), kernel).view(bool)
+        return cv2.erode(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
 
     def _detect_view(self, views, j: int, region: np.ndarray, level: float | None = None
                      ) -> HighlightDetection:

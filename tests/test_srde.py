@@ -165,6 +165,18 @@ def test_no_highlight_in_too_many_views(rig):
                                     "view 0 (cam0): no bright blob")
 
 
+def test_other_views_are_searched_only_over_the_object_depth_range(rig):
+    centers = centers_of(rig, PLANE.mirror(LIGHT))
+    u, v = np.rint(centers[4]).astype(int)
+    mask = box_mask(u - 20, v - 20, u + 21, v + 21)
+    # An object this near would move ~100 px between views: off this small mask.
+    result = status_of(rig, LIGHT, centers, mask=mask, object_depth_m=(0.2, 0.25))
+    assert result.status == "no_highlight"
+    assert ("view 0 (cam0): no position along the baseline (object depth 0.2-0.25 m) lies on "
+            "the object") in result.reason
+    assert SRDE(rig, LIGHT).estimate(render_highlights(centers), mask).ok
+
+
 def test_inconsistent_centres():
     stereo = CameraRig.stereo(0.1, fx=300.0, image_size=(W, H))
     centers = centers_of(stereo, PLANE.mirror(LIGHT))
