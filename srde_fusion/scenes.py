@@ -713,18 +713,45 @@ def _cast(
             continue
         r0, r1, c0, c1 = box
         x, y = xs[None, c0:c1], ys[r0:r1, None]
-        n = surf.normal
-        denom = n[0] * x + n[1] * y + n[2]
-        front = denom < 0.0
-        t = num / np.where(front, denom, -1.0)
-        rel = center - surf.center_m
-        lx = rel @ surf.e1 + t * (surf.e1[0] * x + surf.e1[1] * y + surf.e1[2])
-        ly = rel @ surf.e2 + t * (surf.e2[0] * x + surf.e2[1] * y + surf.e2[2])
+        corner_x = np.array([[xs[c0], xs[c1 - 1]]])
+        corner_y = np.array([[ys[r0]], [ys[r1 - 1]]])
         depth_box = depth[r0:r1, c0:c1]
-        hit = front & (t < depth_box) & _inside(surf.shape, lx, ly)
+        if _covers(surf, center, num, corner_x, corner_y).all():
+            # Outlines are convex and the rays' footprint on the plane is a convex
+            # quadrilateral: if its corners are inside, every ray of the box hits.
+            t = num / (surf.normal[0] * x + surf.normal[1] * y + surf.normal[2])
+            hit = t < depth_box
+        else:
+            front, t, inside = _hits(surf, center, num, x, y)
+            hit = front & (t < depth_box) & inside
         depth_box[hit] = t[hit]
         index[r0:r1, c0:c1][hit] = s
     return depth, index
+
+
+def _hits(
+    surf: _Surface, center_m: np.ndarray, num: float, x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Front-facing flag, depth and inside-outline flag of rays ``(x, y, 1)`` from a camera.
+
+    ``num = c - n . C`` (< 0: the camera faces the plane's front). Arrays broadcast.
+    """
+    n = surf.normal
+    denom = n[0] * x + n[1] * y + n[2]
+    front = denom < 0.0
+    t = num / np.where(front, denom, -1.0)
+    rel = center_m - surf.center_m
+    lx = rel @ surf.e1 + t * (surf.e1[0] * x + surf.e1[1] * y + surf.e1[2])
+    ly = rel @ surf.e2 + t * (surf.e2[0] * x + surf.e2[1] * y + surf.e2[2])
+    return front, t, _inside(surf.shape, lx, ly)
+
+
+def _covers(
+    surf: _Surface, center_m: np.ndarray, num: float, x: np.ndarray, y: np.ndarray
+) -> np.ndarray:
+    """Whether rays ``(x, y, 1)`` hit the surface's front inside its outline."""
+    front, _, inside = _hits(surf, center_m, num, x, y)
+    return front & inside
 
 
 def _sample_bilinear(
