@@ -42,6 +42,7 @@ __all__ = [
     "postprocess",
     "HybridStereo",
     "SOURCE_BACKBONE",
+    "DEFAULT_BORDER_CHECK",
 ]
 
 #: Value of :attr:`FusionResult.source` where the backbone's disparity is kept.
@@ -103,6 +104,10 @@ class BorderCheck:
             raise ValueError(f"max_ratio: expected a finite number > 1, got {self.max_ratio!r}")
         if int(self.min_px) != self.min_px or self.min_px < 1:
             raise ValueError(f"min_px: expected a positive integer, got {self.min_px!r}")
+
+
+#: The outline check :func:`fuse` runs unless told otherwise.
+DEFAULT_BORDER_CHECK = BorderCheck()
 
 
 @dataclass(frozen=True)
@@ -334,7 +339,7 @@ def _border_stats(result: Any, rig: CameraRig, backbone: np.ndarray, mask: np.nd
 
 
 def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
-         masks: Any, srde: Any = None, *, border_check: BorderCheck | None = BorderCheck()
+         masks: Any, srde: Any = None, *, border_check: BorderCheck | None = DEFAULT_BORDER_CHECK
          ) -> FusionResult:
     """Fuse a backbone disparity map with SRDE inside the object masks.
 
@@ -469,7 +474,7 @@ def _rig_with_light(rig: CameraRig, light: Any) -> CameraRig:
 
 def postprocess(disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
                 masks: Any = None, *, light: Any = None, srde_method: str = "default",
-                border_check: BorderCheck | None = BorderCheck()) -> FusionResult:
+                border_check: BorderCheck | None = DEFAULT_BORDER_CHECK) -> FusionResult:
     """Fix a disparity map an existing pipeline produced, on flat glossy objects.
 
     Parameters
@@ -543,7 +548,7 @@ class HybridStereo:
 
     def __init__(self, backbone: Backbone, rig: CameraRig, light: Any = None,
                  masker: Any = None, *, srde_method: str = "default",
-                 border_check: BorderCheck | None = BorderCheck()) -> None:
+                 border_check: BorderCheck | None = DEFAULT_BORDER_CHECK) -> None:
         if not callable(backbone):
             raise TypeError(f"backbone: expected a callable backbone(left, right), got "
                             f"{type(backbone).__name__}")

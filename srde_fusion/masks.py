@@ -223,9 +223,11 @@ class HighlightSegmenter:
        other view has a bright blob at such a place, for a common ``z``.
     3. **Growth** — over the textureless surface around the seed. Texture and edges are
        measured as fine-scale contrast, ``max_c |G_s1 * I_c - G_s2 * I_c|`` (a difference
-       of Gaussians per encoded colour channel), which stays low on the highlight's
-       smooth fall-off but not on a step. The threshold is ``noise_factor`` times the
-       surface's own noise level, read near the seed; rings around the seed are passable
+       of Gaussians per encoded colour channel, averaged over a small box), which stays
+       low on the highlight's smooth fall-off but not on a step. The threshold is
+       ``noise_factor`` times the surface's own noise level, read near the seed (scales
+       are set for objects of a few hundred pixels across in 640x480 images; scale the
+       pixel options with the image); rings around the seed are passable
        until the first few quiet ones, so the clipped core's sharp rim does not wall the
        seed in. The region is the seed's 8-connected component of passable pixels,
        opened (cuts thin leaks through gaps in the outline) and with holes filled.
@@ -242,6 +244,10 @@ class HighlightSegmenter:
         Smallest seed blob, pixels.
     contrast_sigmas_px : (float, float)
         The two Gaussian scales of the fine-scale contrast, pixels.
+    texture_window_px : int
+        Side of the box the contrast is averaged over (texture energy), pixels; faint
+        background texture rises above the noise floor on average where single pixels
+        do not.
     noise_factor : float
         Threshold on the contrast, in multiples of the surface's noise level.
     min_threshold, max_threshold : float
@@ -280,7 +286,8 @@ class HighlightSegmenter:
     """
 
     def __init__(self, *, seed_luminance: float = 0.8, min_seed_area_px: int = 6,
-                 contrast_sigmas_px: tuple[float, float] = (1.0, 3.0), noise_factor: float = 4.0,
+                 contrast_sigmas_px: tuple[float, float] = (1.0, 3.0),
+                 texture_window_px: int = 3, noise_factor: float = 2.5,
                  min_threshold: float = 0.002, max_threshold: float = 0.04,
                  lobe_max_radius_px: int = 40, opening_radius_px: int = 2,
                  refine_band_px: int = 8, min_region_px: int = 200,
@@ -302,6 +309,7 @@ class HighlightSegmenter:
         self.seed_luminance = float(seed_luminance)
         self.min_seed_area_px = int(min_seed_area_px)
         self.contrast_sigmas_px = (s1, s2)
+        self.texture_window_px = int(texture_window_px)
         self.noise_factor = float(noise_factor)
         self.min_threshold = float(min_threshold)
         self.max_threshold = float(max_threshold)
@@ -411,7 +419,12 @@ class HighlightSegmenter:
         f = to_float(image)
         s1, s2 = self.contrast_sigmas_px
         dog = np.abs(cv2.GaussianBlur(f, (0, 0), s1) - cv2.GaussianBlur(f, (0, 0), s2))
-        return dog.max(axis=2) if dog.ndim == 3 else dog
+        contrast = dog.max(axis=2) if dog.ndim == 3 else dog
+        if self.texture_window_px > 1:
+            # Texture energy: faint texture stays above the noise floor on average even
+            # where single pixels dip below it.
+            contrast = cv2.blur(contrast, (self.texture_window_px, self.texture_window_px))
+        return contrast
 
     def _gradient(self, image: np.ndarray) -> np.ndarray:
         f = cv2.GaussianBlur(to_float(image), (0, 0), self.contrast_sigmas_px[0])

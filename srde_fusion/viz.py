@@ -38,6 +38,8 @@ BACKBONE_RGB = (0.15, 0.15, 0.15)
 # The error colour scale ends at this percentile of the errors shown, so a few gross
 # outliers do not wash out the rest.
 _ERROR_PERCENTILE = 98.0
+# Width of the colour-bar column relative to a panel.
+_COLORBAR_WIDTH = 0.05
 # Lowest upper end of the error scale, px (a perfect map would otherwise get a 0-wide scale).
 _MIN_ERROR_SCALE_PX = 0.05
 
@@ -154,13 +156,20 @@ def comparison_figure(image: np.ndarray, disparities: Mapping[str, np.ndarray], 
     n_cols = len(top)
     n_rows = 2 if (gt_disparity is not None or source is not None) else 1
     panel_h = panel_width_in * h / w
-    fig = Figure(figsize=(panel_width_in * n_cols + 0.9, (panel_h + 0.45) * n_rows + 0.3),
-                 layout="constrained")
+    # One extra narrow column holds each row's colour bar, so every panel is the same size.
+    fig = Figure(figsize=(panel_width_in * n_cols + 1.2, (panel_h + 0.5) * n_rows + 0.4))
     FigureCanvasAgg(fig)
-    axes = np.atleast_2d(fig.subplots(n_rows, n_cols, squeeze=False))
+    grid = fig.add_gridspec(n_rows, n_cols + 1, width_ratios=[1.0] * n_cols + [_COLORBAR_WIDTH],
+                            left=0.01, right=0.94, bottom=0.03,
+                            top=0.90 if title else 0.95, wspace=0.04, hspace=0.15)
+    axes = np.array([[fig.add_subplot(grid[r, c]) for c in range(n_cols)]
+                     for r in range(n_rows)])
     for ax in axes.ravel():
         ax.set_axis_off()
 
+    # Invalid pixels (NaN) are drawn grey, not left blank.
+    disparity_cmap = colormaps[DISPARITY_CMAP].with_extremes(bad=INVALID_RGB)
+    error_cmap = colormaps[ERROR_CMAP].with_extremes(bad=INVALID_RGB)
     disp_maps = [d for _, d in top[1:]]
     vmin, vmax = _finite_range(
         [np.asarray(gt_disparity, dtype=np.float64)] if gt_disparity is not None
@@ -173,12 +182,11 @@ def comparison_figure(image: np.ndarray, disparities: Mapping[str, np.ndarray], 
     disp_im = None
     for col, (name, d) in enumerate(top[1:], start=1):
         d = np.asarray(d, dtype=np.float64)
-        disp_im = axes[0, col].imshow(np.ma.masked_invalid(d), cmap=DISPARITY_CMAP,
+        disp_im = axes[0, col].imshow(np.ma.masked_invalid(d), cmap=disparity_cmap,
                                       vmin=vmin, vmax=vmax)
-        axes[0, col].set_facecolor(INVALID_RGB)
         axes[0, col].set_title(name)
     if disp_im is not None:
-        fig.colorbar(disp_im, ax=axes[0, :].tolist(), shrink=0.9, label="disparity [px]")
+        fig.colorbar(disp_im, cax=fig.add_subplot(grid[0, n_cols]), label="disparity [px]")
 
     if n_rows == 2:
         if source is not None:
@@ -193,12 +201,13 @@ def comparison_figure(image: np.ndarray, disparities: Mapping[str, np.ndarray], 
             err_max = (max(float(np.percentile(finite, _ERROR_PERCENTILE)), _MIN_ERROR_SCALE_PX)
                        if finite.size else 1.0)
             err_im = None
-            for col, (name, e) in enumerate(errors.items(), start=2):
-                err_im = axes[1, col].imshow(np.ma.masked_invalid(e), cmap=ERROR_CMAP,
+            first = n_cols - len(errors)
+            for col, (name, e) in enumerate(errors.items(), start=first):
+                err_im = axes[1, col].imshow(np.ma.masked_invalid(e), cmap=error_cmap,
                                              vmin=0.0, vmax=err_max)
                 axes[1, col].set_title(f"|{name} - gt|")
             if err_im is not None:
-                fig.colorbar(err_im, ax=axes[1, :].tolist(), shrink=0.9, extend="max",
+                fig.colorbar(err_im, cax=fig.add_subplot(grid[1, n_cols]), extend="max",
                              label="abs. error [px]")
     if title:
         fig.suptitle(title)
