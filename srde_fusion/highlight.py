@@ -3,7 +3,7 @@
 Two detectors share one result type:
 
 ``method="paper"``
-    The paper's adaptive gradient thresholding (DESIGN §3.1): Sobel gradient magnitude
+    The paper's adaptive gradient thresholding (Methods, eqs. 1-4): Sobel gradient magnitude
     ``G`` of the luminance, a local threshold ``mu + k * sigma`` of ``G`` over a square
     window, 8-connected components of ``G > threshold`` with a minimum bounding-box
     extent, the largest one kept; the centre is the centroid of that component, which is

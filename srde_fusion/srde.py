@@ -4,7 +4,7 @@ A planar glossy surface mirrors the light L; every camera sees the highlight as 
 image of the same virtual light V, L's mirror image across the plane. Triangulating V
 from the highlight centres and knowing L fixes the plane (normal along V - L, through
 (V + L) / 2), and casting the reference camera's pixel rays onto it gives the disparity
-of every pixel of the object (DESIGN §3).
+of every pixel of the object (Kossira et al., Methods).
 
 Two methods:
 
@@ -21,7 +21,7 @@ Two methods:
 Both search for the highlight only inside the object's eroded mask in the reference
 view, and in every other view only where the reference highlight can appear: along the
 camera's baseline, over the plausible depth range of V, within the reference blob's
-size (DESIGN §3.1). What cannot be trusted is reported, never raised: the result's
+size. What cannot be trusted is reported, never raised: the result's
 ``status`` and ``reason`` say which step failed, in which view, with which numbers.
 """
 
@@ -379,7 +379,7 @@ class SRDE:
 
         A virtual light seen at ``c_ref`` in the reference view appears in camera j at
         ``c_ref + step * w`` with ``step = (-fx dX_j, -fy dY_j)`` and ``w = 1 / z`` its
-        inverse depth (DESIGN §3.1); over V's plausible depth range that is a segment.
+        inverse depth; over V's plausible depth range that is a segment.
         Each candidate V also fixes the depth of the mirror point on the object, hence
         how far the object moves between the views: a candidate counts only if it lands
         on the reference search region moved by that shift. The brightest candidate
