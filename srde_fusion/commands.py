@@ -396,7 +396,9 @@ def _cli_srde(args: argparse.Namespace) -> int:
 
 def _cli_eval(args: argparse.Namespace) -> int:
     from .evaluation import evaluate_dataset
+    from .io import list_scenes
 
+    list_scenes(args.dataset_dir)  # a missing dataset is reported before a model is loaded
     evaluation = evaluate_dataset(args.dataset_dir, _load_backbone(args.backbone, args.preset),
                                   masks=args.masks, progress=not args.quiet,
                                   srde_method=args.method)
