@@ -45,6 +45,7 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=3, help="random scenes per case")
     args = parser.parse_args()
     rig = default_rig()
+    load_before = os.getloadavg()[0]
     rows = []
     for name, options, supersample in CASES:
         render_s, sample_s = [], []
@@ -66,7 +67,9 @@ def main() -> None:
         f"# Render speed: {rig.n_cameras} views at {rig.width}x{rig.height}",
         "",
         f"{os.cpu_count()} CPU(s), {platform.processor() or platform.machine()}, "
-        f"numpy {np.__version__}; {args.scenes} scenes x {args.repeats} repeats per case.",
+        f"numpy {np.__version__}; {args.scenes} scenes x {args.repeats} repeats per case; "
+        f"1-min load average {load_before:.1f} before, {os.getloadavg()[0]:.1f} after "
+        "(other work on the machine slows every number).",
         "",
         "| case | render best (s) | render mean ± std (s) | per view (ms) | random_scene (s) |",
         "|---|---:|---:|---:|---:|",
