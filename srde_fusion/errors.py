@@ -18,6 +18,7 @@ __all__ = [
     "LightError",
     "BackboneError",
     "BoardError",
+    "SceneError",
 ]
 
 
@@ -55,3 +56,7 @@ class BackboneError(SRDEError):
 
 class BoardError(SRDEError):
     """A calibration board description is invalid."""
+
+
+class SceneError(SRDEError):
+    """A synthetic scene description (object, material, background, option) is invalid."""

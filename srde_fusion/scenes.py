@@ -35,7 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .errors import LightError, RigError, SRDEError
+from .errors import LightError, RigError, SceneError, SRDEError
 from .geometry import Plane
 from .imaging import REC709_LUMA, linear_to_srgb
 from .rig import CameraRig
@@ -74,10 +74,6 @@ _ENCODE_LUT_SIZE = 1 << 16
 _REMAP_COLS = 1024
 #: Largest supersampling factor accepted (k x k samples per pixel).
 MAX_SUPERSAMPLE = 8
-
-
-class SceneError(SRDEError):
-    """A scene description (object, material, background, sampling option) is invalid."""
 
 
 # ---------------------------------------------------------------------------------- checks
