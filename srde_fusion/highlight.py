@@ -34,7 +34,7 @@ import numpy as np
 
 from ._checks import check_image, check_mask
 from .errors import SRDEError
-from .imaging import luminance, saturation_mask
+from .imaging import SATURATION_LEVEL_U8, luminance, saturation_mask
 
 __all__ = [
     "HighlightDetection",
@@ -251,7 +251,9 @@ def _detect(image, region, *, method, encoding, window, k, min_extent_px, blob_c
     if method == "paper":
         det = _detect_paper(lum, sub_region, window=window, k=k, min_extent_px=min_extent_px)
     else:
-        det = _detect_blob(lum, saturation_mask(image[crop]), sub_region, center=blob_center,
+        # Only the core and lobe centres look at clipping.
+        saturated = None if blob_center == "weighted" else _saturated(image[crop])
+        det = _detect_blob(lum, saturated, sub_region, center=blob_center,
                            min_contrast=min_contrast, min_area_px=min_area_px, level=level)
     if not det.found:
         return det
@@ -259,6 +261,18 @@ def _detect(image, region, *, method, encoding, window, k, min_extent_px, blob_c
     return HighlightDetection(True, det.center_uv + np.array([u0, v0], dtype=np.float64),
                               det.area_px, (bu0 + u0, bv0 + v0, bu1 + u0, bv1 + v0), det.score, "",
                               det.level)
+
+
+def _saturated(image: np.ndarray) -> np.ndarray:
+    """:func:`~srde_fusion.imaging.saturation_mask` of a crop, ``(h, w)`` bool.
+
+    For 8-bit colour, OpenCV's range test gives the same mask an order of magnitude
+    faster than numpy's ``any(axis=2)`` over a strided crop.
+    """
+    if image.dtype == np.uint8 and image.ndim == 3:
+        below = (SATURATION_LEVEL_U8 - 1,) * image.shape[2]
+        return cv2.inRange(image, (0,) * image.shape[2], below) == 0
+    return saturation_mask(image)
 
 
 def _components(binary: np.ndarray):
