@@ -51,7 +51,7 @@ import numpy as np
 
 from ._checks import check_mask, check_views
 from .errors import ImageError, LightError, SRDEError
-from .geometry import Plane
+from .geometry import Plane, plane_from_lights
 from .imaging import REC709_LUMA, SATURATION_LEVEL_U8, luminance, srgb_to_linear
 from .rig import CameraRig
 
@@ -138,6 +138,9 @@ _COST_RTOL = 1e-7
 _DISPARITY_STEP_TOL_PX = 1e-4
 _PLANE_COST_RTOL = 1e-4
 _PHOTOMETRIC_COST_RTOL = 1e-4
+# Restart shifts (px) of the virtual light's image in the farthest camera, tried when a
+# fit from the initial plane fails.
+_RESTART_SHIFTS_PX = (-16.0, -8.0, -4.0, -2.0, 2.0, 4.0, 8.0, 16.0)
 # Below this determinant the Jacobi-scaled 3x3 normal equations count as singular.
 _MIN_SCALED_DETERMINANT = 1e-12
 # The first stage only has to bring the plane near; the joint stage finishes.
@@ -311,10 +314,17 @@ def refine_plane(
     -----
     Cost: mean over the samples of the squared difference between modelled and observed
     linear luminance; for saturated samples only a model *below* the observation counts.
-    The fit runs in three stages: lobe shape and intensities at the initial plane (the
-    foreshortening exponent held, since it could absorb part of the plane's error); all
-    parameters jointly; and, for the comparison, the photometric parameters alone at the
-    initial plane again. The plane is kept unless the joint cost is lower.
+    A fit starts from the best lobe shape on a grid at the initial plane and runs in two
+    Levenberg-Marquardt stages: plane and lobe shape with the foreshortening exponent
+    held (it could otherwise absorb part of the plane's error), then everything. Its
+    reference is the initial plane with every photometric parameter fitted on the same
+    samples. The plane is kept unless the fit lowers that cost, keeps its shape
+    parameters inside their ranges, explains the samples (RMS residual at most
+    :data:`MAX_RELATIVE_RESIDUAL` of the highlight's contrast) and keeps the highlight
+    inside its window. A failed fit is retried once from the virtual-light depth whose
+    start explains the samples best (a wrong centre in one view puts the initial plane's
+    virtual light at the wrong depth); a plane that moved by more than the mask margin in
+    some view is fitted again on samples placed for it.
 
     Examples
     --------
@@ -361,16 +371,149 @@ def refine_plane(
     if centers is None:
         virtual = initial_plane.mirror(light)
         centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
-    samples = _sample_windows(views, rig, mask, initial_plane, centers)
-    if isinstance(samples, str):
-        return kept(samples)
-    model = _LobeModel(samples, rig, mask, light, initial_plane, lobe, f0, foreshortening)
+    setup = _Setup(views, rig, mask, light, initial_plane, centers, lobe, f0, foreshortening,
+                   max_iterations)
+    attempt = _attempt(setup, initial_plane)
+    if isinstance(attempt, str):
+        return kept(attempt)
+    if attempt.problem:
+        # A start far from the truth (a wrong centre in one view puts the virtual light
+        # at the wrong depth) can end in a wrong basin: retry once from the best depth.
+        plane = _restart_plane(setup, attempt.samples)
+        retry = _attempt(setup, plane) if plane is not None else None
+        if isinstance(retry, _Attempt):
+            if retry.problem:
+                retry = _resampled(setup, retry, keep_photometry=False) or retry
+            if not retry.problem:
+                attempt = retry
+    if not attempt.problem:
+        attempt = _resampled(setup, attempt, keep_photometry=True) or attempt
 
-    theta0 = model.initial_guess()
-    if theta0 is None:
-        return kept(f"fit: no lobe width in [{_WIDTH_GRID[0]:g}, {_WIDTH_GRID[-1]:g}] gives a "
-                    f"positive specular term over the {samples.n_samples} samples",
-                    n_samples=samples.n_samples)
+    fit, model = attempt.fit, attempt.model
+    common = dict(converged=fit.converged, iterations=fit.iterations,
+                  cost_initial=attempt.cost_initial, cost_final=fit.cost,
+                  n_samples=attempt.samples.n_samples)
+    if attempt.problem:
+        return kept(attempt.problem, residual=math.sqrt(attempt.cost_initial),
+                    params=attempt.params_initial, **common)
+    return PlaneRefinement(model.plane(fit.theta), initial_plane, "refined", "", lobe=lobe,
+                           residual=math.sqrt(fit.cost), params=model.lobe_fit(fit.theta),
+                           time_s=time.perf_counter() - start, **common)
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """The validated arguments of one :func:`refine_plane` call."""
+
+    views: list
+    rig: CameraRig
+    mask: np.ndarray
+    light: np.ndarray
+    initial_plane: Plane
+    centers: np.ndarray
+    lobe: str
+    f0: float
+    foreshortening: float | None
+    max_iterations: int
+
+    def model(self, samples: _Samples, plane: Plane) -> _LobeModel:
+        return _LobeModel(samples, self.rig, self.mask, self.light, plane, self.lobe, self.f0,
+                          self.foreshortening)
+
+
+@dataclass(frozen=True)
+class _Fit:
+    theta: np.ndarray
+    cost: float
+    iterations: int
+    converged: bool
+
+
+@dataclass(frozen=True)
+class _Attempt:
+    """One fit, on samples placed for ``sample_plane``, and its verdict."""
+
+    sample_plane: Plane
+    samples: _Samples
+    model: _LobeModel
+    fit: _Fit
+    cost_initial: float  # the initial plane's best cost on the same samples
+    params_initial: LobeFit | None
+    problem: str  # why the fit's plane must not be used ("" if it may)
+
+
+def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None = None
+             ) -> _Attempt | str:
+    """Sample for ``sample_plane``, fit from it, and judge against the initial plane.
+
+    Returns why no fit could run (a string) when the samples or the start fail.
+    ``photometry``: parameters whose lobe shape to start from instead of a grid search.
+    """
+    samples = _sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers)
+    if isinstance(samples, str):
+        return samples
+    model = setup.model(samples, sample_plane)
+    if not model.valid:
+        return ("initial plane: some fitted samples see it from behind or lie where the "
+                "light is behind it")
+    if photometry is None:
+        theta0 = model.initial_guess()
+        if theta0 is None:
+            return (f"fit: no lobe width in [{_WIDTH_GRID[0]:g}, {_WIDTH_GRID[-1]:g}] gives a "
+                    f"positive specular term over the {samples.n_samples} samples")
+    else:
+        theta0 = photometry.copy()
+        theta0[:_N_PLANE] = 0.0
+    fit = _fit(model, theta0, setup.max_iterations)
+    # The fair reference: the initial plane with every photometric parameter fitted,
+    # starting from the joint solution's, on the same samples.
+    reference = model if sample_plane is setup.initial_plane else setup.model(
+        samples, setup.initial_plane)
+    if reference.valid:
+        theta_ref, cost_ref = _profile_at_start(reference, fit.theta, setup.max_iterations)
+        params_ref = reference.lobe_fit(theta_ref)
+    else:  # the initial plane cannot even be evaluated on these samples
+        cost_ref, params_ref = math.inf, None
+    problem = _judge(fit, cost_ref, model, samples, setup.rig, setup.light, setup.initial_plane)
+    return _Attempt(sample_plane, samples, model, fit, cost_ref, params_ref, problem)
+
+
+def _resampled(setup: _Setup, attempt: _Attempt, *, keep_photometry: bool) -> _Attempt | None:
+    """Fit again on samples placed for the plane an attempt found, if it moved far.
+
+    Samples are placed (the object's region in the other views) for the plane a fit
+    starts from; a plane that moves by more than the mask margin there leaves some of
+    them off the object. Returns the new attempt if it passes, else None.
+    """
+    plane = attempt.model.plane(attempt.fit.theta)
+    if not _warp_change_px(setup.rig, attempt.sample_plane, plane, setup.mask) > MASK_MARGIN_PX:
+        return None
+    again = _attempt(setup, plane, photometry=attempt.fit.theta if keep_photometry else None)
+    return again if isinstance(again, _Attempt) and not again.problem else None
+
+
+def _warp_change_px(rig: CameraRig, before: Plane, after: Plane, mask: np.ndarray) -> float:
+    """Largest move (px) of the object box's corners, mapped into any other camera.
+
+    Compares where the mappings that two planes induce send the reference mask.
+    """
+    x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+    corners = np.array([[x, x + w - 1, x, x + w - 1], [y, y, y + h - 1, y + h - 1],
+                        [1.0, 1.0, 1.0, 1.0]])
+    worst = 0.0
+    for camera in range(rig.n_cameras):
+        if camera == rig.reference:
+            continue
+        # reference -> camera is the inverse of camera -> reference
+        mapped = [np.linalg.solve(np.vstack([_reference_from_view(rig, p, camera),
+                                             [0.0, 0.0, 1.0]]), corners)[:2]
+                  for p in (before, after)]
+        worst = max(worst, float(np.max(np.abs(mapped[1] - mapped[0]))))
+    return worst
+
+
+def _fit(model: _LobeModel, theta0: np.ndarray, max_iterations: int) -> _Fit:
+    """Fit plane and photometry from ``theta0`` (parameters of ``model``)."""
     # Stage 1: plane and lobe shape with the foreshortening exponent held, since it
     # could otherwise absorb part of the initial plane's error.
     free_start = model.free_all[model.free_all != _I_FORE]
@@ -378,45 +521,75 @@ def refine_plane(
                                                 min(max_iterations, _START_ITERATIONS),
                                                 cost_rtol=_PHOTOMETRIC_COST_RTOL)
     # Stage 2: everything.
-    theta, cost_final, iterations, converged = _levenberg_marquardt(
+    theta, cost, iterations, converged = _levenberg_marquardt(
         model, theta_start, model.free_all, max_iterations, cost_rtol=_COST_RTOL)
-    # Stage 3, the fair reference: the initial plane with every photometric parameter
-    # fitted, starting from the joint solution's.
-    theta_initial = theta.copy()
-    theta_initial[:_N_PLANE] = 0.0
-    theta_initial, cost_initial, _, _ = _levenberg_marquardt(
-        model, theta_initial, model.free_photometric, max_iterations,
-        cost_rtol=_PHOTOMETRIC_COST_RTOL)
+    return _Fit(theta, cost, iterations, converged)
 
-    common = dict(converged=converged, iterations=iterations, cost_initial=cost_initial,
-                  cost_final=cost_final, n_samples=samples.n_samples)
-    fallback = dict(residual=math.sqrt(cost_initial), params=model.lobe_fit(theta_initial),
-                    **common)
-    if not (np.all(np.isfinite(theta)) and math.isfinite(cost_final)):
-        return kept("fit: non-finite parameters or cost", **fallback)
-    if not cost_final < cost_initial:
-        return kept(f"fit: cost {cost_final:.4g} does not improve on the initial plane's "
-                    f"{cost_initial:.4g}", **fallback)
+
+def _profile_at_start(model: _LobeModel, photometry_from: np.ndarray, max_iterations: int):
+    """Best photometric parameters and cost with ``model``'s own starting plane."""
+    theta = photometry_from.copy()
+    theta[:_N_PLANE] = 0.0
+    theta, cost, _, _ = _levenberg_marquardt(model, theta, model.free_photometric,
+                                             max_iterations, cost_rtol=_PHOTOMETRIC_COST_RTOL)
+    return theta, cost
+
+
+def _judge(fit: _Fit, cost_initial: float, model: _LobeModel, samples: _Samples,
+           rig: CameraRig, light: np.ndarray, initial_plane: Plane) -> str:
+    """Why a fit's plane must not replace the initial plane ("" if it may)."""
+    theta, cost = fit.theta, fit.cost
+    if not (np.all(np.isfinite(theta)) and math.isfinite(cost)):
+        return "fit: non-finite parameters or cost"
+    if not cost < cost_initial:
+        return f"fit: cost {cost:.4g} does not improve on the initial plane's {cost_initial:.4g}"
     if not theta[_I_SPEC] > 0.0:
-        return kept(f"fit: specular intensity {theta[_I_SPEC]:.3g} is not positive", **fallback)
+        return f"fit: specular intensity {theta[_I_SPEC]:.3g} is not positive"
     at_bound = model.parameters_at_bounds(theta)
     if at_bound:
-        return kept(f"fit: {at_bound} at the bound of its range; the lobe model does not "
-                    "describe this highlight", **fallback)
+        return (f"fit: {at_bound} at the bound of its range; the lobe model does not "
+                "describe this highlight")
     contrast = float(samples.luminance.max() - _low_quantile(samples.luminance))
-    if math.sqrt(cost_final) > MAX_RELATIVE_RESIDUAL * contrast:
-        return kept(f"fit: RMS residual {math.sqrt(cost_final):.4g} is more than "
-                    f"{MAX_RELATIVE_RESIDUAL:.0%} of the highlight's contrast {contrast:.4g}; "
-                    "the model does not explain the image", **fallback)
-    plane = model.plane(theta)
-    shift_px = _highlight_shift_px(rig, light, initial_plane, plane, samples.view_indices)
+    if math.sqrt(cost) > MAX_RELATIVE_RESIDUAL * contrast:
+        return (f"fit: RMS residual {math.sqrt(cost):.4g} is more than "
+                f"{MAX_RELATIVE_RESIDUAL:.0%} of the highlight's contrast {contrast:.4g}; "
+                "the model does not explain the image")
+    shift_px = _highlight_shift_px(rig, light, initial_plane, model.plane(theta),
+                                   samples.view_indices)
     if not shift_px <= MAX_SHIFT_FRACTION * samples.half_window_px:
-        return kept(f"fit: the highlight moved {shift_px:.1f} px, more than "
-                    f"{MAX_SHIFT_FRACTION:g} x the {samples.half_window_px} px window "
-                    "half-size", **fallback)
-    return PlaneRefinement(plane, initial_plane, "refined", "", lobe=lobe,
-                           residual=math.sqrt(cost_final), params=model.lobe_fit(theta),
-                           time_s=time.perf_counter() - start, **common)
+        return (f"fit: the highlight moved {shift_px:.1f} px, more than {MAX_SHIFT_FRACTION:g} "
+                f"x the {samples.half_window_px} px window half-size")
+    return ""
+
+
+def _restart_plane(setup: _Setup, samples: _Samples) -> Plane | None:
+    """Find the virtual-light depth whose start explains the images best; return its plane.
+
+    The virtual light slides along the reference camera's ray through it, so that its
+    image in the farthest used camera moves by each of ``_RESTART_SHIFTS_PX``. The cost
+    of each candidate plane's best lobe start, all on the same samples so that the costs
+    compare, ranks them. None if no candidate starts better than the initial plane.
+    """
+    rig, light = setup.rig, setup.light
+    virtual = setup.initial_plane.mirror(light)
+    ref = rig.reference_center_m
+    inverse_depth = 1.0 / (virtual[2] - ref[2])
+    # Disparity of the virtual light across the farthest camera, per unit inverse depth.
+    span_px = rig.intrinsics.fx * float(np.max(np.linalg.norm(
+        (rig.centers_m - ref)[list(samples.view_indices)], axis=1)))
+    best_cost, best_plane = math.inf, None
+    for shift in (0.0, *_RESTART_SHIFTS_PX):
+        w = inverse_depth + shift / span_px
+        if w <= 0.0:
+            continue
+        plane = plane_from_lights(light, ref + (virtual - ref) * (inverse_depth / w), ref)
+        if _initial_plane_problem(plane, rig, light):
+            continue
+        candidate = setup.model(samples, plane)
+        if candidate.valid and candidate.initial_guess() is not None \
+                and candidate.initial_cost < best_cost:
+            best_cost, best_plane = candidate.initial_cost, (plane if shift else None)
+    return best_plane
 
 
 # ======================================================================================
@@ -739,16 +912,20 @@ class _LobeModel:
         self.n_unclipped = int(np.count_nonzero(~samples.saturated))  # they come first
         self._cache_key: bytes | None = None
         self._cache: _Geometry | None = None
-        # Normalise the geometric factors at the initial plane so the intensities read
-        # as luminances at the highlight and the parameters are well scaled.
-        self.diffuse_scale = self.spec_scale = 1.0
-        geometry = self._geometry(np.zeros(_N_PLANE))
-        self.diffuse_scale = 1.0 / float(np.median(geometry.diffuse + 1.0))
-        self.spec_scale = 1.0 / float(np.median(geometry.specular))
+        self.initial_cost = math.inf  # cost of the start found by initial_guess
         shape = [_I_WIDTH] + ([_I_TAIL] if lobe == "gtr" else [])
         shape += [_I_FORE] if foreshortening is None else []
         self.free_photometric = np.array(shape)
         self.free_all = np.array(list(range(_N_PLANE)) + shape)
+        # Normalise the geometric factors at the initial plane so the intensities read
+        # as luminances at the highlight and the parameters are well scaled.
+        self.diffuse_scale = self.spec_scale = 1.0
+        geometry = self._geometry(np.zeros(_N_PLANE))
+        self.valid = geometry is not None
+        if not self.valid:
+            return
+        self.diffuse_scale = 1.0 / float(np.median(geometry.diffuse + 1.0))
+        self.spec_scale = 1.0 / float(np.median(geometry.specular))
 
     def start_theta(self) -> np.ndarray:
         theta = np.zeros(_N_PARAMS)
@@ -767,21 +944,27 @@ class _LobeModel:
         n, c = self._planes(theta[None, :_N_PLANE])
         return Plane(tuple(float(v) + 0.0 for v in n[0]), float(c[0]))
 
-    def _geometry(self, plane_params: np.ndarray) -> _Geometry:
+    def _geometry(self, plane_params: np.ndarray) -> _Geometry | None:
         """Shading geometry of the samples for plane parameters ``(3,)``.
 
         Everything reduces to scalars per sample: with ``X = C + t k`` on the plane,
         ``|L - X|^2 = a - 2 t b + t^2 q`` and ``n . X = c``. (One plane at a time keeps
-        the temporaries small.)
+        the temporaries small.) None if the plane is invalid for some sample: seen from
+        behind, behind a camera, or with the light behind it.
         """
         n, c = self._planes(plane_params[None])
         n, c = n[0], float(c[0])
         nk = n @ self.ray_t
+        cos_o = -nk / self.sqrt_q
+        light_height = float(n @ self.light) - c
+        if not (cos_o.min() > 0.0 and light_height > 0.0):
+            return None  # some samples see the plane from behind, or the light is behind it
         t = (c - n @ self.camera_t) / nk
+        if not t.min() > 0.0:
+            return None
         r2 = self.a - 2.0 * t * self.b + t * t * self.q
         r = np.sqrt(r2)
-        cos_i = (float(n @ self.light) - c) / r
-        cos_o = -nk / self.sqrt_q
+        cos_i = light_height / r
         cos_io = (t * self.q - self.b) / (self.sqrt_q * r)  # omega_i . omega_o
         half_norm = np.sqrt(2.0 + 2.0 * cos_io)
         cos_h = np.minimum((cos_i + cos_o) / half_norm, 1.0)
@@ -797,7 +980,7 @@ class _LobeModel:
             specular=fresnel / (cos_o * r2) * self.spec_scale,
         )
 
-    def _base_geometry(self, theta: np.ndarray) -> _Geometry:
+    def _base_geometry(self, theta: np.ndarray) -> _Geometry | None:
         """Geometry of ``theta``'s plane, reused while only the photometry changes."""
         key = theta[:_N_PLANE].tobytes()
         if self._cache_key != key:
@@ -864,6 +1047,8 @@ class _LobeModel:
         Returns the residual ``(P,)`` and ``theta`` with those intensities filled in.
         """
         g = self._base_geometry(theta)
+        if g is None:
+            return np.full(self.y.shape, np.inf), theta.copy()
         basis = np.stack([self._lobe(g, theta), g.diffuse, np.ones(self.y.shape)], axis=1)
         coef, model, _ = self._intensities(basis)
         out = theta.copy()
@@ -886,7 +1071,9 @@ class _LobeModel:
             shifted = theta.copy()
             shifted[index] += _FD_STEPS[index]
             if index < _N_PLANE:
-                jac[:, col] = self._model(self._geometry(shifted[:_N_PLANE]), theta) - model
+                moved = self._geometry(shifted[:_N_PLANE])
+                # (at the edge of validity a plane direction is left out of this step)
+                jac[:, col] = 0.0 if moved is None else self._model(moved, theta) - model
             else:
                 jac[:, col] = theta[_I_SPEC] * (self._lobe(g, shifted) - lobe)
             jac[:, col] /= _FD_STEPS[index]
@@ -930,6 +1117,7 @@ class _LobeModel:
             for factor in _WIDTH_REFINE_FACTORS:
                 for tail in _TAIL_GRID[1:]:
                     consider(best_width * factor, tail)
+        self.initial_cost = best_cost
         return best
 
     def _bounds(self):

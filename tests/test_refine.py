@@ -17,7 +17,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from srde_fusion.errors import ImageError, LightError, MaskError, SRDEError
-from srde_fusion.geometry import Plane, plane_disparity
+from srde_fusion.geometry import Plane, plane_disparity, plane_from_lights
 from srde_fusion.refine import (
     LOBES,
     PlaneRefinement,
@@ -125,6 +125,23 @@ def test_sharp_lobes_do_not_get_worse(rig, seed, lobe):
     before = _epe(case, case["plane"])
     result = _refine(case)
     assert _epe(case, result.plane) <= before + SHARP_SLACK_PX
+
+
+@pytest.mark.parametrize("shift_px", [-6.0, 10.0])
+def test_recovers_from_a_virtual_light_at_the_wrong_depth(rough_ggx, shift_px):
+    # Slide the true virtual light along the reference ray so that its image in the
+    # farthest camera moves by shift_px: a plane off by 9-16 px of disparity.
+    rig, light = rough_ggx["rig"], rough_ggx["light"]
+    virtual = rough_ggx["truth"].mirror(light)
+    ref = rig.reference_center_m
+    span_px = rig.intrinsics.fx * np.max(np.linalg.norm(rig.centers_m - ref, axis=1))
+    w0 = 1.0 / (virtual[2] - ref[2])
+    wrong = plane_from_lights(light, ref + (virtual - ref) * w0 / (w0 + shift_px / span_px), ref)
+    assert _epe(rough_ggx, wrong) > 5.0
+    result = refine_plane(rough_ggx["views"], rig, light, rough_ggx["mask"], wrong,
+                          centers_uv=rough_ggx["centers"])
+    assert result.ok
+    assert _epe(rough_ggx, result.plane) < ROUGH_REFINED_EPE_PX
 
 
 def test_a_stereo_pair_is_enough():
