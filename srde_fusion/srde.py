@@ -422,7 +422,7 @@ class SRDE:
         center = centers[best]
         bu0, bv0 = np.maximum(np.floor(center - radius).astype(int), 0)
         bu1, bv1 = np.minimum(np.ceil(center + radius).astype(int) + 1, [w, h])
-        vv, uu = np.mgrid[bv0:bv1, bu0:bu1]
+        vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
         disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
         # Moved with the highlight, the reference region clips the blob the same way in
         # every view, so the clip biases all centroids alike. The paper detector is also
@@ -431,10 +431,7 @@ class SRDE:
         if self.detector == "paper":
             moves.append(shift[best])
         for moved in moves:
-            su, sv = uu - moved[0], vv - moved[1]
-            inside = (su >= 0) & (su < w) & (sv >= 0) & (sv < h)
-            disc[inside] &= search[sv[inside], su[inside]]
-            disc[~inside] = False
+            disc &= _shifted_window(search, moved, (bu0, bv0, bu1, bv1))
         region = empty
         region[bv0:bv1, bu0:bu1] = disc
         return region
@@ -606,6 +603,24 @@ class SRDE:
             np.full((n, 2), np.nan) if centers is None else centers,
             np.zeros(n, dtype=bool) if used is None else used, residual, self.method, (),
             tuple(detections))
+
+
+def _shifted_window(mask: np.ndarray, shift_uv, box: tuple[int, int, int, int]) -> np.ndarray:
+    """``mask`` moved by ``shift_uv`` pixels, read over ``box = (u0, v0, u1, v1)``.
+
+    Pixel ``(u, v)`` of the result is ``mask[v - dv, u - du]``, False where that falls
+    outside the image; a slice copy, not a per-pixel gather.
+    """
+    du, dv = (int(s) for s in shift_uv)
+    u0, v0, u1, v1 = box
+    h, w = mask.shape
+    out = np.zeros((v1 - v0, u1 - u0), dtype=bool)
+    src_v0, src_v1 = max(v0 - dv, 0), min(v1 - dv, h)
+    src_u0, src_u1 = max(u0 - du, 0), min(u1 - du, w)
+    if src_v1 > src_v0 and src_u1 > src_u0:
+        out[src_v0 + dv - v0:src_v1 + dv - v0, src_u0 + du - u0:src_u1 + du - u0] = \
+            mask[src_v0:src_v1, src_u0:src_u1]
+    return out
 
 
 def _mask_uv(mask: np.ndarray) -> np.ndarray:
