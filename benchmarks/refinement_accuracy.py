@@ -62,6 +62,7 @@ METHODS = (NONE, GAUSSIAN, *REFINE_METHODS)
 MATCHES = {"refine: ggx, k=0": "ggx", "refine: blinn_phong, k=1": "blinn_phong"}
 TARGET_EPE_PX = {"3x3": 0.01, "2-camera": 0.03}
 TARGET_MS = 20.0
+REPEATS = 3
 STEREO_BASELINE_M = 0.085
 
 
@@ -95,12 +96,16 @@ def run_scene(rig: CameraRig, seed: int, lobe: str, roughness: tuple[float, floa
         record["runs"][GAUSSIAN] = metrics(gaussian.plane)
     centers = np.where(base.used_views[:, None], base.highlight_centers, np.nan)
     for name, options in REFINE_METHODS.items():
-        wall, cpu = time.perf_counter(), time.process_time()
-        result = refine_plane(out.views, lit, lit.light, mask, base.plane, centers_uv=centers,
-                              **options)
+        walls, cpus = [], []
+        for _ in range(REPEATS):  # best of three, as the paper times its runs
+            wall, cpu = time.perf_counter(), time.process_time()
+            result = refine_plane(out.views, lit, lit.light, mask, base.plane,
+                                  centers_uv=centers, **options)
+            walls.append(time.perf_counter() - wall)
+            cpus.append(time.process_time() - cpu)
         run = metrics(result.plane)
-        run.update(time_ms=1000 * (time.perf_counter() - wall),
-                   cpu_ms=1000 * (time.process_time() - cpu), status=result.status,
+        run.update(time_ms=1000 * min(walls), cpu_ms=1000 * min(cpus),
+                   first_call_ms=1000 * walls[0], status=result.status,
                    reason=result.reason, iterations=result.iterations,
                    n_samples=result.n_samples, residual=result.residual)
         if result.params is not None:
@@ -154,8 +159,10 @@ def timing(records: list[dict], method: str) -> dict:
     cpu = [r["runs"][method]["cpu_ms"] for r in records if method in r["runs"]]
     if not wall:
         return {}
+    first = [r["runs"][method]["first_call_ms"] for r in records if method in r["runs"]]
     return {"median_ms": float(np.median(wall)), "p90_ms": float(np.percentile(wall, 90)),
-            "median_cpu_ms": float(np.median(cpu)), "n": len(wall)}
+            "median_cpu_ms": float(np.median(cpu)), "median_first_call_ms": float(np.median(first)),
+            "n": len(wall)}
 
 
 def target_lines(numbers: dict, rig_name: str) -> list[str]:
@@ -212,18 +219,20 @@ def main(argv: list[str] | None = None) -> int:
         lines += [f"## {rig_name} rig ({views} views)", "", table,
                   f"SRDE failed on {failed} of {len(records)} scenes.", "",
                   *target_lines(numbers, rig_name), "",
-                  "Refinement time per frame (wall median / p90, CPU median, ms):", ""]
+                  "Refinement time per frame, best of three calls (median and p90 over "
+                  "frames, wall; median CPU; median of the first call alone), ms:", ""]
         for method, t in times.items():
             if t:
                 lines.append(f"- {method}: {t['median_ms']:.1f} / {t['p90_ms']:.1f} wall, "
-                             f"{t['median_cpu_ms']:.1f} CPU (n = {t['n']})")
+                             f"{t['median_cpu_ms']:.1f} CPU, first call "
+                             f"{t['median_first_call_ms']:.1f} (n = {t['n']})")
         lines.append("")
     t9 = summary["3x3"]["timing"]["refine: gtr (default)"]
     lines += [
         "## Time target",
         "",
-        f"- 9 views, 640 x 480, default lobe: median {t9['median_ms']:.1f} ms wall, "
-        f"{t9['median_cpu_ms']:.1f} ms CPU (target <= {TARGET_MS:g} ms): "
+        f"- 9 views, 640 x 480, default lobe, best of three: median {t9['median_ms']:.1f} ms "
+        f"wall, {t9['median_cpu_ms']:.1f} ms CPU (target <= {TARGET_MS:g} ms): "
         + ("met" if t9["median_ms"] <= TARGET_MS else "NOT met on this run"),
         f"- machine: {os.cpu_count()} CPU(s), {platform.machine()}, Python "
         f"{platform.python_version()}; 1-min load average {load_before:.1f} before, "

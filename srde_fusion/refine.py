@@ -1060,7 +1060,8 @@ class _LobeModel:
 
         Variable projection with Kaufman's approximation: the model's derivative at fixed
         intensities, with its component in the span of the intensity basis removed.
-        Columns by forward differences; lobe-shape columns reuse the plane's geometry.
+        Columns by forward differences (lobe-shape columns reuse the plane's geometry),
+        except the foreshortening exponent's, which is exact.
         """
         g = self._base_geometry(theta)
         lobe = self._lobe(g, theta)
@@ -1068,6 +1069,9 @@ class _LobeModel:
         model = basis @ theta[_I_SPEC:]
         jac = np.empty((len(model), len(free)))
         for col, index in enumerate(free):
+            if index == _I_FORE:  # exact: the exponent multiplies log(cos_i cos_o)
+                jac[:, col] = theta[_I_SPEC] * lobe * g.log_foreshortening
+                continue
             shifted = theta.copy()
             shifted[index] += _FD_STEPS[index]
             if index < _N_PLANE:
