@@ -8,11 +8,16 @@ plane grossly contradicts the backbone where the backbone can be trusted.
 Where can it be trusted? Not inside the object: there is nothing to match. Along the
 object's outline the backbone matches the silhouette against the background, but an
 occluding edge mixes both depths: right at the edge a network or SGBM reports the
-object's disparity on some pixels and the background's on others. The check therefore
-looks at the ratio ``backbone / srde`` on the textured band around the outline: the
-object is the nearest thing along its own edge, so the ratio's upper quantiles should be
-close to 1 and its bulk should not lie above 1. Only a large factor rejects SRDE
-(``benchmarks/fusion_eval.py`` records what was measured and what was tried).
+object's disparity on some pixels and the background's on others, and sometimes only the
+background's. What holds whatever the matcher does is the occlusion order: the object
+occludes what lies around its outline, so the backbone there is not much *nearer* than
+the object. The check looks at the ratio ``backbone / srde`` on the textured band around
+the outline and rejects SRDE when the bulk of that band lies clearly above 1 (SRDE puts
+the object behind its own surroundings), or when even its top is far below 1 (SRDE puts
+the object several times nearer than anything seen along its outline). An object nearer
+than SRDE says, but not absurdly so, cannot be told from a backbone that only sees the
+background there. ``benchmarks/fusion_eval.py`` records what was measured and the rules
+tried before this one.
 
 The fused map never loses a valid backbone pixel: a pixel is either the backbone's value,
 bit for bit, or a finite SRDE value.
@@ -62,10 +67,10 @@ class BorderCheck:
     is valid. There the ratio ``backbone / srde`` is formed, with SRDE's plane extended
     beyond the mask. At an occluding edge the backbone reports the object's disparity
     (ratio 1) or the background's (ratio < 1), rarely more (something in front of the
-    object). SRDE is rejected when the ``high_quantile`` of the ratio is below
-    ``1 / max_ratio`` (SRDE puts the object far in front of anything seen along its
-    outline) or when the ``low_quantile`` is above ``max_ratio`` (SRDE puts it far
-    behind what is seen there).
+    object). SRDE is rejected when the ``low_quantile`` of the ratio is above
+    ``max_behind_ratio`` (SRDE puts the object behind what surrounds it) or when the
+    ``high_quantile`` is below ``min_front_ratio`` (SRDE puts it several times nearer
+    than anything seen along its outline).
 
     Parameters
     ----------
@@ -76,8 +81,10 @@ class BorderCheck:
         counts as textured.
     low_quantile, high_quantile : float
         The quantiles of ``backbone / srde`` over the band that are tested, in (0, 1).
-    max_ratio : float
-        Largest accepted factor between a tested quantile and 1 (> 1).
+    max_behind_ratio : float
+        Largest accepted ``low_quantile`` of the ratio (> 1).
+    min_front_ratio : float
+        Smallest accepted ``high_quantile`` of the ratio, in (0, 1).
     min_px : int
         Fewest band pixels for the check to run; with fewer, SRDE is accepted
         unchecked and the report says so.
@@ -87,7 +94,8 @@ class BorderCheck:
     min_gradient: float = 0.08
     low_quantile: float = 0.75
     high_quantile: float = 0.95
-    max_ratio: float = 1.5
+    max_behind_ratio: float = 1.25
+    min_front_ratio: float = 0.25
     min_px: int = 30
 
     def __post_init__(self) -> None:
@@ -100,8 +108,14 @@ class BorderCheck:
         if not 0.0 < self.low_quantile <= self.high_quantile < 1.0:
             raise ValueError(f"low_quantile, high_quantile: expected 0 < low <= high < 1, got "
                              f"{self.low_quantile!r}, {self.high_quantile!r}")
-        if not (isinstance(self.max_ratio, (int, float)) and 1.0 < self.max_ratio < math.inf):
-            raise ValueError(f"max_ratio: expected a finite number > 1, got {self.max_ratio!r}")
+        if not (isinstance(self.max_behind_ratio, (int, float))
+                and 1.0 < self.max_behind_ratio < math.inf):
+            raise ValueError(f"max_behind_ratio: expected a finite number > 1, got "
+                             f"{self.max_behind_ratio!r}")
+        if not (isinstance(self.min_front_ratio, (int, float))
+                and 0.0 < self.min_front_ratio < 1.0):
+            raise ValueError(f"min_front_ratio: expected a number in (0, 1), got "
+                             f"{self.min_front_ratio!r}")
         if int(self.min_px) != self.min_px or self.min_px < 1:
             raise ValueError(f"min_px: expected a positive integer, got {self.min_px!r}")
 
@@ -419,14 +433,14 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
                       border_median_diff_px=stats.median_diff_px)
         checked = border_check is not None and stats.n_px >= border_check.min_px
         contradiction = ""
-        if checked and stats.ratio_high < 1.0 / border_check.max_ratio:
+        if checked and stats.ratio_low > border_check.max_behind_ratio:
+            contradiction = (f"it puts the object behind what the backbone sees around it "
+                             f"(q{border_check.low_quantile:g} of backbone/srde = "
+                             f"{stats.ratio_low:.2f} > {border_check.max_behind_ratio:g}")
+        elif checked and stats.ratio_high < border_check.min_front_ratio:
             contradiction = (f"it puts the object far in front of anything the backbone sees "
                              f"there (q{border_check.high_quantile:g} of backbone/srde = "
-                             f"{stats.ratio_high:.2f} < {1.0 / border_check.max_ratio:.2f}")
-        elif checked and stats.ratio_low > border_check.max_ratio:
-            contradiction = (f"it puts the object far behind what the backbone sees there "
-                             f"(q{border_check.low_quantile:g} of backbone/srde = "
-                             f"{stats.ratio_low:.2f} > {border_check.max_ratio:.2f}")
+                             f"{stats.ratio_high:.2f} < {border_check.min_front_ratio:g}")
         if contradiction:
             reports.append(ObjectReport(
                 k, "fallback", f"SRDE contradicts the backbone around the object's outline: "

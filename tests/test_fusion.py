@@ -230,14 +230,15 @@ def test_srde_that_agrees_with_the_outline_is_used(rig):
     np.testing.assert_array_equal(result.disparity[mask], truth[mask])
 
 
-@pytest.mark.parametrize("factor, where", [(2.0, "in front of"), (0.5, "behind")])
+@pytest.mark.parametrize("factor, where", [(5.0, "far in front of"), (0.5, "behind"),
+                                           (1 / 1.4, "behind")])
 def test_srde_that_grossly_contradicts_the_outline_falls_back(rig, factor, where):
     views, mask, plane, backbone = flat_object_scene(rig)
     result = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, factor)], rig))
     obj = result.objects[0]
     assert obj.status == "fallback"
     assert obj.reason.startswith("SRDE contradicts the backbone around the object's outline")
-    assert f"far {where}" in obj.reason
+    assert f"puts the object {where}" in obj.reason
     tested = obj.border_ratio_high if factor > 1 else obj.border_ratio_low
     assert tested == pytest.approx(1.0 / factor, rel=1e-4)
     assert np.array_equal(result.disparity, backbone)
@@ -249,11 +250,14 @@ def test_srde_that_grossly_contradicts_the_outline_falls_back(rig, factor, where
     assert "disabled" in unchecked.objects[0].reason
 
 
-def test_moderate_disagreement_is_not_gross(rig):
+@pytest.mark.parametrize("factor", [1.2, 2.0, 3.5, 1 / 1.2])
+def test_what_the_outline_cannot_refute_is_kept(rig, factor):
+    # Nearer than the backbone's outline says (up to 4x) is what an object in front of
+    # its background looks like to a backbone that only sees the background there.
     views, mask, plane, backbone = flat_object_scene(rig)
-    result = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, 1.2)], rig))
-    assert result.objects[0].status == "srde"
-    assert result.objects[0].border_ratio_high == pytest.approx(1 / 1.2, rel=1e-4)
+    result = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, factor)], rig))
+    assert result.objects[0].status == "srde", result.objects[0].reason
+    assert result.objects[0].border_ratio_high == pytest.approx(1 / factor, rel=1e-4)
 
 
 def test_outline_without_texture_is_not_checked(rig):
@@ -321,8 +325,10 @@ def test_bad_views_raise(rig):
 def test_border_check_options_are_validated():
     with pytest.raises(ValueError, match=r"width_px: expected a positive integer"):
         BorderCheck(width_px=0)
-    with pytest.raises(ValueError, match=r"max_ratio: expected a finite number > 1"):
-        BorderCheck(max_ratio=1.0)
+    with pytest.raises(ValueError, match=r"max_behind_ratio: expected a finite number > 1"):
+        BorderCheck(max_behind_ratio=1.0)
+    with pytest.raises(ValueError, match=r"min_front_ratio: expected a number in \(0, 1\)"):
+        BorderCheck(min_front_ratio=0.0)
     with pytest.raises(ValueError, match=r"low_quantile, high_quantile: expected 0 < low"):
         BorderCheck(low_quantile=0.9, high_quantile=0.5)
 
