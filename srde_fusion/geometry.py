@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import SRDEError
+
 __all__ = [
     "Plane",
     "mirror_point",
@@ -90,7 +92,26 @@ def plane_from_lights(light_m, virtual_light_m, towards_m=(0.0, 0.0, 0.0)) -> Pl
                                    towards_m)
 
 
-def plane_depth(plane: Plane, rig, uv=None) -> np.ndarray:
+def _grid_rays(rig, window) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised ray coordinates ``x (W',)`` and ``y (H',)`` of a pixel window's grid.
+
+    The rays of a grid are separable, ``k = (x[u], y[v], 1)``: working on the two axes
+    and broadcasting costs far less than a ray per pixel.
+    """
+    k = rig.intrinsics
+    w, h = rig.image_size
+    u0, v0, u1, v1 = (0, 0, w, h) if window is None else window
+    x = (np.arange(u0, u1, dtype=np.float64) - k.cx) / k.fx
+    y = (np.arange(v0, v1, dtype=np.float64) - k.cy) / k.fy
+    return x, y
+
+
+def _check_window(uv, window) -> None:
+    if window is not None and uv is not None:
+        raise SRDEError("window: expected either uv or window, got both")
+
+
+def plane_depth(plane: Plane, rig, uv=None, *, window=None) -> np.ndarray:
     """Depth (z, metres, from the reference camera) where pixel rays hit the plane.
 
     ``z = n · (s - C_ref) / (n · k)`` with ``k = ((u - cx)/fx, (v - cy)/fy, 1)``
@@ -103,14 +124,15 @@ def plane_depth(plane: Plane, rig, uv=None) -> np.ndarray:
     rig : CameraRig
     uv : array_like (..., 2), optional
         Pixels; the full reference image grid ``(H, W)`` by default.
+    window : (int, int, int, int), optional
+        ``(u0, v0, u1, v1)``, inclusive-exclusive: the grid of this pixel window
+        instead, ``(v1 - v0, u1 - u0)`` (e.g. an object's bounding box). Not with ``uv``.
     """
-    k = rig.intrinsics
+    _check_window(uv, window)
     n = plane.n
     num = plane.offset_m - float(np.dot(n, rig.reference_center_m))
     if uv is None:
-        w, h = rig.image_size
-        u = (np.arange(w, dtype=np.float64) - k.cx) / k.fx
-        v = (np.arange(h, dtype=np.float64) - k.cy) / k.fy
+        u, v = _grid_rays(rig, window)
         denom = n[0] * u[None, :] + n[1] * v[:, None] + n[2]
     else:
         denom = rig.rays(uv) @ n
@@ -119,12 +141,15 @@ def plane_depth(plane: Plane, rig, uv=None) -> np.ndarray:
     return np.where(np.isfinite(z) & (z > 0), z, np.nan)
 
 
-def plane_disparity(plane: Plane, rig, uv=None) -> np.ndarray:
-    """Stereo-pair disparity (pixels) of the plane at the reference pixels, ``fx B / z``."""
-    return rig.depth_to_disparity(plane_depth(plane, rig, uv))
+def plane_disparity(plane: Plane, rig, uv=None, *, window=None) -> np.ndarray:
+    """Stereo-pair disparity (pixels) of the plane at the reference pixels, ``fx B / z``.
+
+    ``uv`` and ``window`` as in :func:`plane_depth`.
+    """
+    return rig.depth_to_disparity(plane_depth(plane, rig, uv, window=window))
 
 
-def incidence_angle_deg(plane: Plane, rig, uv=None) -> np.ndarray:
+def incidence_angle_deg(plane: Plane, rig, uv=None, *, window=None) -> np.ndarray:
     """Angle between reference-camera pixel rays and the plane's normal, degrees.
 
     Measured against the normal flipped to face the ray, so 0 is a ray hitting the plane
@@ -139,10 +164,13 @@ def incidence_angle_deg(plane: Plane, rig, uv=None) -> np.ndarray:
     rig : CameraRig
     uv : array_like (..., 2), optional
         Pixels; the full reference image grid ``(H, W)`` by default.
+    window : (int, int, int, int), optional
+        ``(u0, v0, u1, v1)``: the grid of this pixel window instead (see
+        :func:`plane_depth`).
 
     Returns
     -------
-    numpy.ndarray, (...) or (H, W), float64
+    numpy.ndarray, (...), (H, W) or (v1 - v0, u1 - u0), float64
         Angles in [0, 180].
 
     Examples
@@ -153,11 +181,15 @@ def incidence_angle_deg(plane: Plane, rig, uv=None) -> np.ndarray:
     >>> float(incidence_angle_deg(plane, rig, [[rig.intrinsics.cx, rig.intrinsics.cy]])[0])
     0.0
     """
+    _check_window(uv, window)
+    n = plane.n
     if uv is None:
-        w, h = rig.image_size
-        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-        uv = np.stack([u, v], axis=-1)
-    rays = rig.rays(uv)
+        x, y = _grid_rays(rig, window)
+        dot = n[0] * x[None, :] + n[1] * y[:, None] + n[2]
+        length = np.sqrt(x[None, :] ** 2 + y[:, None] ** 2 + 1.0)
+    else:
+        rays = rig.rays(uv)
+        dot, length = rays @ n, np.linalg.norm(rays, axis=-1)
     # The normal faces the cameras, so a ray that meets the plane in front has k · n < 0.
-    cos = -(rays @ plane.n) / np.linalg.norm(rays, axis=-1)
+    cos = -dot / length
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))

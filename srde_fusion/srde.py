@@ -531,14 +531,13 @@ class SRDE:
         result = self._finish(mask, point, w, used, centers, detections, tuple(notes))
         if not result.ok:
             return result
-        uv = _mask_uv(mask)
+        box, inside = _mask_box(mask)
         planes = [plane_from_lights(self.light_m, p, rig.reference_center_m) for p in pair_points]
-        stack = np.stack([plane_disparity(plane, rig, uv) for plane in planes])
+        stack = np.stack([plane_disparity(plane, rig, window=box)[inside] for plane in planes])
         with warnings.catch_warnings():  # pixels every pair's plane misses stay NaN
             warnings.simplefilter("ignore", RuntimeWarning)
             median = np.nanmedian(stack, axis=0)
-        disparity = np.full(mask.shape, np.nan, dtype=np.float32)
-        disparity[mask] = median
+        disparity = _paste(median, box, inside, mask.shape)
         return SRDEResult("ok", "", disparity, result.plane, result.virtual_light_m, centers,
                           used, result.residual_px, self.method, result.notes, detections)
 
@@ -574,18 +573,20 @@ class SRDE:
                 "inconsistent", "plane: the estimated plane leaves "
                 + ", ".join(self._view(j) for j in behind)
                 + " on its far side, where its highlight cannot be seen", **fail)
-        uv = _mask_uv(mask)
-        angle = incidence_angle_deg(plane, rig, uv)
+        # Rays of the mask's bounding box are separable; a ray per mask pixel costs more.
+        box, inside = _mask_box(mask)
+        angle = incidence_angle_deg(plane, rig, window=box)[inside]
         steep = angle > self.max_incidence_deg
         if steep.any():
             worst = int(np.argmax(angle))
+            uv = _mask_uv(mask)
             return self._failed(
                 "grazing", f"plane: {int(steep.sum())} of {uv.shape[0]} mask pixels see it at more "
                 f"than {self.max_incidence_deg:g} deg incidence (worst {angle[worst]:.1f} deg at "
                 f"pixel ({uv[worst, 0]:.0f}, {uv[worst, 1]:.0f}))", plane=plane, point=point,
                 **fail)
-        disparity = np.full(mask.shape, np.nan, dtype=np.float32)
-        disparity[mask] = plane_disparity(plane, rig, uv)
+        disparity = _paste(plane_disparity(plane, rig, window=box)[inside], box, inside,
+                           mask.shape)
         residual = _rms_residual(rig, point, centers, used)
         return SRDEResult("ok", "", disparity, plane, np.asarray(point, dtype=np.float64),
                           centers, used, residual, self.method, tuple(notes), detections)
@@ -620,6 +621,22 @@ def _shifted_window(mask: np.ndarray, shift_uv, box: tuple[int, int, int, int]) 
     if src_v1 > src_v0 and src_u1 > src_u0:
         out[src_v0 + dv - v0:src_v1 + dv - v0, src_u0 + du - u0:src_u1 + du - u0] = \
             mask[src_v0:src_v1, src_u0:src_u1]
+    return out
+
+
+def _mask_box(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
+    """Return the mask's bounding box ``(u0, v0, u1, v1)`` and the mask cropped to it."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    v0, v1, u0, u1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (u0, v0, u1, v1), mask[v0:v1, u0:u1]
+
+
+def _paste(values: np.ndarray, box, inside: np.ndarray, shape) -> np.ndarray:
+    """Return an ``(H, W)`` float32 map, NaN except ``values`` at the box's ``inside`` pixels."""
+    u0, v0, u1, v1 = box
+    out = np.full(shape, np.nan, dtype=np.float32)
+    out[v0:v1, u0:u1][inside] = values
     return out
 
 
