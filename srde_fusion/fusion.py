@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from ._checks import check_disparity, check_mask, check_views
-from .errors import LightError, MaskError
+from .errors import BackboneError, LightError, MaskError, RigError, SRDEError
 from .geometry import plane_disparity
 from .imaging import REC709_LUMA, saturation_mask, to_float
 from .rig import CameraRig
@@ -100,24 +100,24 @@ class BorderCheck:
 
     def __post_init__(self) -> None:
         if int(self.width_px) != self.width_px or self.width_px < 1:
-            raise ValueError(f"width_px: expected a positive integer, got {self.width_px!r}")
+            raise SRDEError(f"width_px: expected a positive integer, got {self.width_px!r}")
         if not (isinstance(self.min_gradient, (int, float)) and math.isfinite(self.min_gradient)
                 and self.min_gradient >= 0):
-            raise ValueError(f"min_gradient: expected a finite number >= 0, got "
+            raise SRDEError(f"min_gradient: expected a finite number >= 0, got "
                              f"{self.min_gradient!r}")
         if not 0.0 < self.low_quantile <= self.high_quantile < 1.0:
-            raise ValueError(f"low_quantile, high_quantile: expected 0 < low <= high < 1, got "
+            raise SRDEError(f"low_quantile, high_quantile: expected 0 < low <= high < 1, got "
                              f"{self.low_quantile!r}, {self.high_quantile!r}")
         if not (isinstance(self.max_behind_ratio, (int, float))
                 and 1.0 < self.max_behind_ratio < math.inf):
-            raise ValueError(f"max_behind_ratio: expected a finite number > 1, got "
+            raise SRDEError(f"max_behind_ratio: expected a finite number > 1, got "
                              f"{self.max_behind_ratio!r}")
         if not (isinstance(self.min_front_ratio, (int, float))
                 and 0.0 < self.min_front_ratio < 1.0):
-            raise ValueError(f"min_front_ratio: expected a number in (0, 1), got "
+            raise SRDEError(f"min_front_ratio: expected a number in (0, 1), got "
                              f"{self.min_front_ratio!r}")
         if int(self.min_px) != self.min_px or self.min_px < 1:
-            raise ValueError(f"min_px: expected a positive integer, got {self.min_px!r}")
+            raise SRDEError(f"min_px: expected a positive integer, got {self.min_px!r}")
 
 
 #: The outline check :func:`fuse` runs unless told otherwise.
@@ -477,7 +477,7 @@ def _resolve_masker(masks: Any) -> Masker:
 
 def _rig_with_light(rig: CameraRig, light: Any) -> CameraRig:
     if not isinstance(rig, CameraRig):
-        raise TypeError(f"rig: expected a CameraRig, got {type(rig).__name__}")
+        raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
     if light is not None:
         return rig.with_light(light)
     if rig.light_position_m is None:
@@ -564,7 +564,7 @@ class HybridStereo:
                  masker: Any = None, *, srde_method: str = "default",
                  border_check: BorderCheck | None = DEFAULT_BORDER_CHECK) -> None:
         if not callable(backbone):
-            raise TypeError(f"backbone: expected a callable backbone(left, right), got "
+            raise BackboneError(f"backbone: expected a callable backbone(left, right), got "
                             f"{type(backbone).__name__}")
         self.rig = _rig_with_light(rig, light)
         self.backbone = backbone

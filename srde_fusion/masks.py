@@ -23,7 +23,7 @@ import numpy as np
 from scipy import ndimage
 
 from ._checks import check_views
-from .errors import BackboneError, FileFormatError, MaskError
+from .errors import BackboneError, FileFormatError, MaskError, SRDEError
 from .imaging import luminance, saturation_mask, to_float
 from .io import masks_from_labels, read_mask
 from .rig import CameraRig
@@ -295,16 +295,16 @@ class HighlightSegmenter:
                  consistency_tol_px: float = 2.0, consistency_tol_rel: float = 0.25,
                  min_consistent_views: int | None = None) -> None:
         if not 0.0 < seed_luminance <= 1.0:
-            raise ValueError(f"seed_luminance: expected a value in (0, 1], got {seed_luminance!r}")
+            raise SRDEError(f"seed_luminance: expected a value in (0, 1], got {seed_luminance!r}")
         if not 0.0 < max_region_fraction <= 1.0:
-            raise ValueError(f"max_region_fraction: expected a value in (0, 1], got "
+            raise SRDEError(f"max_region_fraction: expected a value in (0, 1], got "
                              f"{max_region_fraction!r}")
         s1, s2 = (float(s) for s in contrast_sigmas_px)
         if not 0.0 < s1 < s2:
-            raise ValueError(f"contrast_sigmas_px: expected 0 < s1 < s2, got "
+            raise SRDEError(f"contrast_sigmas_px: expected 0 < s1 < s2, got "
                              f"{contrast_sigmas_px!r}")
         if not 0.0 <= min_threshold <= max_threshold:
-            raise ValueError(f"min_threshold, max_threshold: expected 0 <= min <= max, got "
+            raise SRDEError(f"min_threshold, max_threshold: expected 0 <= min <= max, got "
                              f"{min_threshold!r}, {max_threshold!r}")
         self.seed_luminance = float(seed_luminance)
         self.min_seed_area_px = int(min_seed_area_px)
@@ -573,11 +573,11 @@ class OnnxMasker:
                  mean: Sequence[float] = (0.0, 0.0, 0.0), std: Sequence[float] = (1.0, 1.0, 1.0),
                  min_area_px: int = 64, providers: Sequence[str] | None = None) -> None:
         if output not in ("logits", "probabilities"):
-            raise ValueError(f"output: expected 'logits' or 'probabilities', got {output!r}")
+            raise SRDEError(f"output: expected 'logits' or 'probabilities', got {output!r}")
         if layout not in ("classes", "instances"):
-            raise ValueError(f"layout: expected 'classes' or 'instances', got {layout!r}")
+            raise SRDEError(f"layout: expected 'classes' or 'instances', got {layout!r}")
         if not 0.0 < threshold < 1.0:
-            raise ValueError(f"threshold: expected a probability in (0, 1), got {threshold!r}")
+            raise SRDEError(f"threshold: expected a probability in (0, 1), got {threshold!r}")
         path = Path(path)
         if not path.is_file():
             raise FileFormatError(f"segmentation model: expected an existing .onnx file, got "

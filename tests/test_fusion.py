@@ -9,8 +9,15 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from srde_fusion.errors import DisparityError, ImageError, LightError, MaskError
-from srde_fusion.fusion import BorderCheck, FusionResult, HybridStereo, fuse
+from srde_fusion.errors import (
+    BackboneError,
+    DisparityError,
+    ImageError,
+    LightError,
+    MaskError,
+    SRDEError,
+)
+from srde_fusion.fusion import BorderCheck, FusionResult, HybridStereo, fuse, postprocess
 from srde_fusion.geometry import Plane, plane_disparity
 from srde_fusion.rig import CameraRig
 
@@ -323,13 +330,13 @@ def test_bad_views_raise(rig):
 
 
 def test_border_check_options_are_validated():
-    with pytest.raises(ValueError, match=r"width_px: expected a positive integer"):
+    with pytest.raises(SRDEError, match=r"width_px: expected a positive integer"):
         BorderCheck(width_px=0)
-    with pytest.raises(ValueError, match=r"max_behind_ratio: expected a finite number > 1"):
+    with pytest.raises(SRDEError, match=r"max_behind_ratio: expected a finite number > 1"):
         BorderCheck(max_behind_ratio=1.0)
-    with pytest.raises(ValueError, match=r"min_front_ratio: expected a number in \(0, 1\)"):
+    with pytest.raises(SRDEError, match=r"min_front_ratio: expected a number in \(0, 1\)"):
         BorderCheck(min_front_ratio=0.0)
-    with pytest.raises(ValueError, match=r"low_quantile, high_quantile: expected 0 < low"):
+    with pytest.raises(SRDEError, match=r"low_quantile, high_quantile: expected 0 < low"):
         BorderCheck(low_quantile=0.9, high_quantile=0.5)
 
 
@@ -359,3 +366,34 @@ def test_hybrid_stereo_rejects_a_backbone_of_the_wrong_size(rig):
                          masker=lambda views, rig: [])
     with pytest.raises(DisparityError, match=r"expected shape \(48, 64\), got \(24, 32\)"):
         model(textured_views())
+
+
+def test_hybrid_stereo_rejects_a_backbone_that_is_not_callable(rig):
+    with pytest.raises(BackboneError, match=r"backbone: expected a callable"):
+        HybridStereo("model.onnx", rig)
+
+
+# ---------------------------------------------------------------- with real SRDE
+def test_postprocess_fixes_the_objects_of_a_rendered_scene():
+    from srde_fusion.metrics import evaluate
+    from srde_fusion.scenes import default_rig, random_scene, render
+
+    rig = default_rig().scaled(0.5)
+    scene = random_scene(2, rig, n_objects=2, background="textured")
+    rig = rig.with_light(scene.light.position_m)
+    capture = render(scene, rig, noise_seed=2)
+    gt = capture.disparity_px
+    # A pipeline that is right on the background and lost on the objects.
+    pipeline = gt.copy()
+    objects = capture.instance_mask > 0
+    pipeline[objects] = np.float32(5.0)
+    before = pipeline.copy()
+
+    result = postprocess(pipeline, capture.views, rig, masks=capture.instance_mask)
+
+    assert np.array_equal(pipeline, before)
+    assert [o.status for o in result.objects] == ["srde", "srde"], [
+        o.reason for o in result.objects]
+    assert evaluate(result.disparity, gt, objects)["epe"] < 0.2
+    assert np.array_equal(result.disparity[~objects], gt[~objects])
+    assert all(o.srde.ok and o.replaced_px == o.pixel_count for o in result.objects)

@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from srde_fusion.errors import FileFormatError, MaskError
+from srde_fusion.errors import FileFormatError, MaskError, SRDEError
 from srde_fusion.io import write_mask
 from srde_fusion.masks import HighlightSegmenter, OnnxMasker, UserMasks
 from srde_fusion.rig import CameraRig
@@ -203,7 +203,7 @@ def test_onnx_dynamic_model_runs_at_image_size(rig, tmp_path):
 ])
 def test_onnx_bad_options(tmp_path, kwargs, match):
     path = export(brightness_model(), tmp_path / "m.onnx")
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(SRDEError, match=match):
         OnnxMasker(path, **kwargs)
 
 
@@ -304,9 +304,9 @@ def test_segmenter_on_a_rendered_scene():
 
 
 def test_segmenter_options_are_validated():
-    with pytest.raises(ValueError, match=r"seed_luminance: expected a value in \(0, 1\]"):
+    with pytest.raises(SRDEError, match=r"seed_luminance: expected a value in \(0, 1\]"):
         HighlightSegmenter(seed_luminance=0.0)
-    with pytest.raises(ValueError, match=r"contrast_sigmas_px: expected 0 < s1 < s2"):
+    with pytest.raises(SRDEError, match=r"contrast_sigmas_px: expected 0 < s1 < s2"):
         HighlightSegmenter(contrast_sigmas_px=(3.0, 1.0))
-    with pytest.raises(ValueError, match=r"max_region_fraction: expected a value in \(0, 1\]"):
+    with pytest.raises(SRDEError, match=r"max_region_fraction: expected a value in \(0, 1\]"):
         HighlightSegmenter(max_region_fraction=2.0)
