@@ -79,7 +79,7 @@ def run_scene(rig: CameraRig, seed: int, lobe: str, roughness: tuple[float, floa
     lit = rig.with_light(scene.light.position_m)
     record = {"seed": seed, "lobe": lobe, "roughness": scene.objects[0].material.roughness,
               "light_radius_m": scene.light.radius_m, "mask_px": int(mask.sum()), "runs": {}}
-    base = SRDE(lit).estimate(out.views, mask)
+    base = SRDE(lit, refine=False).estimate(out.views, mask)
     record["srde_status"] = base.status
     if not base.ok:
         return record
@@ -91,7 +91,7 @@ def run_scene(rig: CameraRig, seed: int, lobe: str, roughness: tuple[float, floa
         return {"epe": float(m["epe"]), "bmp0.1": float(m["bmp0.1"])}
 
     record["runs"][NONE] = metrics(base.plane)
-    gaussian = SRDE(lit, blob_center="lobe").estimate(out.views, mask)
+    gaussian = SRDE(lit, blob_center="lobe", refine=False).estimate(out.views, mask)
     if gaussian.ok:
         record["runs"][GAUSSIAN] = metrics(gaussian.plane)
     centers = np.where(base.used_views[:, None], base.highlight_centers, np.nan)

@@ -12,7 +12,10 @@ Two methods:
     Sub-pixel blob centres on linear intensity; one least-squares triangulation of V
     from all views (linear in the reference image of V and its inverse depth, residuals
     in pixels); views whose centre does not fit one 3D point are dropped and named.
-    Works on any rectified rig of two or more cameras.
+    The plane is then refined photometrically (:func:`~srde_fusion.refine.refine_plane`:
+    a lobe model fitted to the highlights of all views removes the centroid bias of
+    rough surfaces); if the refinement fails, the geometric plane is kept and a note says
+    why. Works on any rectified rig of two or more cameras.
 ``method="paper"``
     The paper as published: edge-ring centroids; V triangulated separately for every
     pair of neighbouring cameras; one disparity map per pair; their pixel-wise median.
@@ -39,6 +42,7 @@ from .errors import LightError, RigError, SRDEError
 from .geometry import Plane, incidence_angle_deg, plane_disparity, plane_from_lights
 from .highlight import DEFAULT_BLOB_CENTER, HighlightDetection, _check_options, _detect
 from .imaging import luminance
+from .refine import DEFAULT_LOBE, LOBES, PlaneRefinement, refine_plane
 from .rig import CameraRig
 from .triangulation import (
     adjacent_pairs,
@@ -114,6 +118,10 @@ class SRDEResult:
         dropped as outliers, pairs dropped by the paper method).
     detections : tuple of HighlightDetection
         The per-view detections (empty if the reference view already failed).
+    refinement : PlaneRefinement or None
+        The photometric refinement of the plane (default method), refined or not; None
+        if it did not run. ``virtual_light_m`` is the light mirrored across the returned
+        plane; ``residual_px`` stays the triangulation's.
     """
 
     status: str
@@ -127,6 +135,7 @@ class SRDEResult:
     method: str
     notes: tuple[str, ...] = ()
     detections: tuple[HighlightDetection, ...] = field(default=(), repr=False)
+    refinement: PlaneRefinement | None = field(default=None, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -193,6 +202,12 @@ class SRDE:
         Images of a white reference target, one per camera (same size and encoding as
         the views). Each view's linear intensity is divided by its camera's smoothed
         white image before detection (the paper normalises with reflection standards).
+    refine : bool, optional
+        Refine the plane photometrically (:func:`~srde_fusion.refine.refine_plane`) after
+        triangulation; by default on for ``method="default"``, off for ``"paper"``
+        (which stays the paper's). Only the default method's joint solve is refined.
+    refine_lobe : {"gtr", "ggx", "blinn_phong"}
+        Lobe model of the refinement (see :data:`~srde_fusion.refine.LOBES`).
 
     Raises
     ------
@@ -223,7 +238,8 @@ class SRDE:
                  max_residual_px: float = 1.0, min_residual_px: float = 0.05,
                  min_views: int = 2,
                  object_depth_m: tuple[float, float] = (0.2, 10.0),
-                 max_incidence_deg: float = 85.0, white_references=None) -> None:
+                 max_incidence_deg: float = 85.0, white_references=None,
+                 refine: bool | None = None, refine_lobe: str = DEFAULT_LOBE) -> None:
         if not isinstance(rig, CameraRig):
             raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
         if method not in SRDE_METHODS:
@@ -264,9 +280,16 @@ class SRDE:
         if not (0.0 < z_near < z_far < math.inf):
             raise SRDEError(f"object_depth_m: expected 0 < near < far < inf (metres), got "
                             f"{object_depth_m!r}")
+        if refine is not None and not isinstance(refine, bool):
+            raise SRDEError(f"refine: expected True, False or None, got {refine!r}")
+        if refine_lobe not in LOBES:
+            raise SRDEError(f"refine_lobe: expected one of {list(LOBES)}, got {refine_lobe!r}")
         self.rig = rig
         self.light_m = light_m
         self.method = method
+        # The paper's method stays the paper's unless asked otherwise.
+        self.refine = (method == "default") if refine is None else refine
+        self.refine_lobe = refine_lobe
         self.detector = detector
         self.window, self.k, self.min_extent_px = int(window), float(k), int(min_extent_px)
         self.blob_center = blob_center
@@ -351,7 +374,7 @@ class SRDE:
                 centers=centers, detections=tuple(detections))
         if self.method == "paper":
             return self._solve_paper(mask, centers, tuple(detections), missing)
-        return self._solve_joint(mask, centers, tuple(detections), missing)
+        return self._solve_joint(views, mask, centers, tuple(detections), missing)
 
     # ------------------------------------------------------------------ steps
     def _view(self, j: int) -> str:
@@ -469,7 +492,7 @@ class SRDE:
         t = (distance ** 2 - light @ light) / (2.0 * (distance - unit @ light))
         return 1.0 / (t * unit[2])
 
-    def _solve_joint(self, mask, centers, detections, missing) -> SRDEResult:
+    def _solve_joint(self, views, mask, centers, detections, missing) -> SRDEResult:
         rig = self.rig
         tri = robust_triangulate(rig, centers, max_residual_px=self.max_residual_px,
                                  min_residual_px=self.min_residual_px)
@@ -491,7 +514,7 @@ class SRDE:
                 f"(min_views {self.min_views}); " + "; ".join(notes),
                 centers=centers, used=tri.used, detections=detections)
         return self._finish(mask, tri.point_m, tri.inverse_depth_per_m, tri.used, centers,
-                            detections, notes)
+                            detections, notes, views=views)
 
     def _solve_paper(self, mask, centers, detections, missing) -> SRDEResult:
         """Per-pair virtual lights, per-pair disparity maps, pixel-wise median."""
@@ -541,8 +564,9 @@ class SRDE:
         return SRDEResult("ok", "", disparity, result.plane, result.virtual_light_m, centers,
                           used, result.residual_px, self.method, result.notes, detections)
 
-    def _finish(self, mask, point, w, used, centers, detections, notes) -> SRDEResult:
-        """Check the virtual light and the plane; compute the disparity."""
+    def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None
+                ) -> SRDEResult:
+        """Check the virtual light and the plane, refine it (given views); disparity."""
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}
         shift = max_shift_px(rig, w, used) if np.isfinite(w) else 0.0
@@ -573,6 +597,17 @@ class SRDE:
                 "inconsistent", "plane: the estimated plane leaves "
                 + ", ".join(self._view(j) for j in behind)
                 + " on its far side, where its highlight cannot be seen", **fail)
+        residual = _rms_residual(rig, point, centers, used)
+        refinement = None
+        if views is not None and self.refine:
+            refinement = refine_plane(views, rig, light, mask, plane,
+                                      centers_uv=np.where(used[:, None], centers, np.nan),
+                                      lobe=self.refine_lobe)
+            if refinement.ok:
+                plane = refinement.plane
+                point = plane.mirror(light)
+            else:
+                notes = (*notes, f"refinement: kept the geometric plane; {refinement.reason}")
         # Rays of the mask's bounding box are separable; a ray per mask pixel costs more.
         box, inside = _mask_box(mask)
         angle = incidence_angle_deg(plane, rig, window=box)[inside]
@@ -587,9 +622,9 @@ class SRDE:
                 **fail)
         disparity = _paste(plane_disparity(plane, rig, window=box)[inside], box, inside,
                            mask.shape)
-        residual = _rms_residual(rig, point, centers, used)
         return SRDEResult("ok", "", disparity, plane, np.asarray(point, dtype=np.float64),
-                          centers, used, residual, self.method, tuple(notes), detections)
+                          centers, used, residual, self.method, tuple(notes), detections,
+                          refinement)
 
     def _failed(self, status: str, reason: str, *, centers=None, used=None, detections=(),
                 plane=None, point=None) -> SRDEResult:

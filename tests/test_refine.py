@@ -49,7 +49,7 @@ def _case(rig: CameraRig, seed: int, lobe: str, roughness: float):
     out = render(scene, rig)
     mask = out.instance_mask == 1
     lit_rig = rig.with_light(scene.light.position_m)
-    est = SRDE(lit_rig).estimate(out.views, mask)
+    est = SRDE(lit_rig, refine=False).estimate(out.views, mask)
     assert est.ok, est.reason
     centers = np.where(est.used_views[:, None], est.highlight_centers, np.nan)
     return dict(views=out.views, rig=lit_rig, light=np.array(scene.light.position_m), mask=mask,
