@@ -52,6 +52,7 @@ from .io import (
 )
 from .light import LightEstimate, estimate_light
 from .metrics import METRIC_KEYS, evaluate, format_markdown_table, summarize
+from .refine import PlaneRefinement, refine_plane
 from .rig import Camera, CameraRig, Intrinsics
 from .scenes import Light, Material, PlanarObject, Rendering, Scene, random_scene, render
 from .srde import SRDE, SRDEResult
@@ -87,6 +88,8 @@ __all__ = [
     "HighlightDetection",
     "SRDE",
     "SRDEResult",
+    "refine_plane",
+    "PlaneRefinement",
     # light calibration
     "Board",
     "BoardMarker",
