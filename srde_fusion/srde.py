@@ -88,6 +88,28 @@ _MIN_BLOB_AREA_PX = 3
 
 
 @dataclass(frozen=True)
+class _Candidates:
+    """Positions along a baseline where a view can show the reference highlight.
+
+    ``centers`` ``(n, 2)`` float: the reference centre moved by ``step * w_v`` (inverse
+    depths ``w_v`` of V); ``pix`` their pixels; ``shift`` ``(n, 2)`` int: the object's
+    image shift for each; ``ok`` those that land on the object. ``lo``/``hi``: the
+    ``(u, v)`` crop, inclusive-exclusive, that smoothing at ``sigma_px`` reads.
+    """
+
+    step: np.ndarray
+    w_v: np.ndarray
+    centers: np.ndarray
+    pix: np.ndarray
+    shift: np.ndarray
+    ok: np.ndarray
+    sigma_px: float
+    half_diagonal_px: float
+    lo: tuple[int, int]
+    hi: tuple[int, int]
+
+
+@dataclass(frozen=True)
 class SRDEResult:
     """The outcome of one SRDE estimate.
 
@@ -329,8 +351,13 @@ class SRDE:
         MaskError
             ``mask`` (or ``region``) has the wrong shape or dtype, or is empty.
         """
+        views = check_views(views, self.rig.n_cameras, self.rig.image_size)
+        return self._estimate(views, mask, region)
+
+    # ------------------------------------------------------------------ steps
+    def _estimate(self, views, mask, region) -> SRDEResult:
+        """:meth:`estimate` on validated views (in whatever form the detection steps take)."""
         rig = self.rig
-        views = check_views(views, rig.n_cameras, rig.image_size)
         shape = (rig.height, rig.width)
         mask = check_mask(mask, shape)
         if region is not None:
@@ -346,21 +373,7 @@ class SRDE:
         if not ref_det:
             return self._failed("no_highlight", f"{self._view(ref)}: {ref_det.reason}",
                                 detections=(ref_det,))
-        detections: list[HighlightDetection] = []
-        for j in range(rig.n_cameras):
-            if j == ref:
-                detections.append(ref_det)
-            else:
-                # One level for all views: an asymmetric lobe's centroid depends on it.
-                level = None if np.isnan(ref_det.level) else ref_det.level
-                region_j = self._search_region(views, j, ref_det, search)
-                if region_j.any():
-                    detections.append(self._detect_view(views, j, region_j, level))
-                else:
-                    detections.append(HighlightDetection.missing(
-                        f"no position along the baseline (object depth "
-                        f"{self.object_depth_m[0]:g}-{self.object_depth_m[1]:g} m) lies on the "
-                        "object"))
+        detections = self._detect_others(views, ref_det, search)
         centers = np.full((rig.n_cameras, 2), np.nan)
         for j, det in enumerate(detections):
             if det:
@@ -376,7 +389,6 @@ class SRDE:
             return self._solve_paper(mask, centers, tuple(detections), missing)
         return self._solve_joint(views, mask, centers, tuple(detections), missing)
 
-    # ------------------------------------------------------------------ steps
     def _view(self, j: int) -> str:
         ref = ", reference" if j == self.rig.reference else ""
         return f"view {j} ({self.rig.cameras[j].name}{ref})"
@@ -396,6 +408,28 @@ class SRDE:
                        blob_center=self.blob_center, min_contrast=self.min_contrast,
                        min_area_px=_MIN_BLOB_AREA_PX, level=level, white_reference=white)
 
+    def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray
+                       ) -> list[HighlightDetection]:
+        """Every view's detection: the reference's as given, the others where it can appear."""
+        detections: list[HighlightDetection] = []
+        for j in range(self.rig.n_cameras):
+            if j == self.rig.reference:
+                detections.append(ref_det)
+            else:
+                # One level for all views: an asymmetric lobe's centroid depends on it.
+                level = None if np.isnan(ref_det.level) else ref_det.level
+                region_j = self._search_region(views, j, ref_det, search)
+                if region_j.any():
+                    detections.append(self._detect_view(views, j, region_j, level))
+                else:
+                    detections.append(self._off_object())
+        return detections
+
+    def _off_object(self) -> HighlightDetection:
+        return HighlightDetection.missing(
+            f"no position along the baseline (object depth {self.object_depth_m[0]:g}-"
+            f"{self.object_depth_m[1]:g} m) lies on the object")
+
     def _search_region(self, views, j: int, ref_det: HighlightDetection, search: np.ndarray
                        ) -> np.ndarray:
         """Where view j can show the highlight found in the reference view.
@@ -411,10 +445,22 @@ class SRDE:
         by V's shift (and, for the paper detector, also by the object's shift, so that
         object edges, which sit at the object's disparity and not at V's, stay out).
         """
+        cand = self._candidates(j, ref_det, search)
+        if cand is None:
+            return np.zeros((self.rig.height, self.rig.width), dtype=bool)
+        (u0, v0), (u1, v1) = cand.lo, cand.hi
+        lum = luminance(views[j][v0:v1, u0:u1], self.rig.image_encoding)
+        lum = cv2.GaussianBlur(lum, (0, 0), cand.sigma_px, borderType=cv2.BORDER_REFLECT)
+        brightness = np.full(cand.w_v.size, -np.inf)
+        brightness[cand.ok] = lum[cand.pix[cand.ok, 1] - v0, cand.pix[cand.ok, 0] - u0]
+        return self._region_at(cand, int(np.argmax(brightness)), search)
+
+    def _candidates(self, j: int, ref_det: HighlightDetection, search: np.ndarray
+                    ) -> _Candidates | None:
+        """Where along its baseline view j can show the reference highlight; None if nowhere."""
         rig = self.rig
         k = rig.intrinsics
         h, w = rig.height, rig.width
-        empty = np.zeros((h, w), dtype=bool)
         offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
         step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
         c = ref_det.center_uv
@@ -429,20 +475,21 @@ class SRDE:
               & (src[:, 0] >= 0) & (src[:, 0] < w) & (src[:, 1] >= 0) & (src[:, 1] < h))
         ok[ok] = search[src[ok, 1], src[ok, 0]]
         if not ok.any():
-            return empty
+            return None
         u0, v0, u1, v1 = ref_det.bbox
         half_diagonal = 0.5 * math.hypot(u1 - u0, v1 - v0)
         sigma = max(1.0, 0.5 * half_diagonal)
         pad = int(math.ceil(3 * sigma))
         lo = np.maximum(pix[ok].min(axis=0) - pad, 0)
         hi = np.minimum(pix[ok].max(axis=0) + pad + 1, [w, h])
-        lum = luminance(views[j][lo[1]:hi[1], lo[0]:hi[0]], rig.image_encoding)
-        lum = cv2.GaussianBlur(lum, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-        brightness = np.full(n, -np.inf)
-        brightness[ok] = lum[pix[ok, 1] - lo[1], pix[ok, 0] - lo[0]]
-        best = int(np.argmax(brightness))
-        radius = _CAPSULE_SCALE * half_diagonal + _CAPSULE_MARGIN_PX
-        center = centers[best]
+        return _Candidates(step, w_v, centers, pix, shift, ok, sigma, half_diagonal,
+                           (int(lo[0]), int(lo[1])), (int(hi[0]), int(hi[1])))
+
+    def _region_at(self, cand: _Candidates, best: int, search: np.ndarray) -> np.ndarray:
+        """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool."""
+        h, w = self.rig.height, self.rig.width
+        radius = _CAPSULE_SCALE * cand.half_diagonal_px + _CAPSULE_MARGIN_PX
+        center = cand.centers[best]
         bu0, bv0 = np.maximum(np.floor(center - radius).astype(int), 0)
         bu1, bv1 = np.minimum(np.ceil(center + radius).astype(int) + 1, [w, h])
         vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
@@ -450,12 +497,12 @@ class SRDE:
         # Moved with the highlight, the reference region clips the blob the same way in
         # every view, so the clip biases all centroids alike. The paper detector is also
         # kept inside the object as it appears in view j: its edges would be gradient rings.
-        moves = [np.rint(step * w_v[best]).astype(int)]
+        moves = [np.rint(cand.step * cand.w_v[best]).astype(int)]
         if self.detector == "paper":
-            moves.append(shift[best])
+            moves.append(cand.shift[best])
         for moved in moves:
             disc &= _shifted_window(search, moved, (bu0, bv0, bu1, bv1))
-        region = empty
+        region = np.zeros((h, w), dtype=bool)
         region[bv0:bv1, bu0:bu1] = disc
         return region
 
