@@ -93,9 +93,18 @@ _PLAUSIBLE_BASELINE_M = 5.0
 
 
 # ---------------------------------------------------------------------- helpers
+def _exists(path: Path, kind: str) -> bool:
+    # A path the OS refuses to look up (name too long, no permission on a parent folder)
+    # is reported like a missing one, as a FileFormatError, not as an OSError.
+    try:
+        return path.is_dir() if kind == "dir" else path.is_file()
+    except OSError:
+        return False
+
+
 def _existing_file(path: str | os.PathLike, what: str) -> Path:
     p = Path(path)
-    if not p.is_file():
+    if not _exists(p, "file"):
         raise FileFormatError(f"{p}: expected an existing {what} file, got no such file")
     return p
 
@@ -122,10 +131,16 @@ def _decode_image(path: Path, what: str) -> np.ndarray:
     # and gives us one place to turn a failed decode into a FileFormatError.
     image = None
     if data:
+        # OpenCV logs its decoder's complaints straight to stderr; the FileFormatError
+        # below says it once, so a command's failure stays one line.
+        log_level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
         try:
             image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
         except cv2.error:
             image = None
+        finally:
+            cv2.utils.logging.setLogLevel(log_level)
     if image is None:
         raise FileFormatError(f"{path}: expected a readable {what}, got undecodable data")
     return image
@@ -1118,7 +1133,7 @@ def read_scene(folder: str | os.PathLike) -> SceneData:
         An invalid ``rig.json`` (the message names the file).
     """
     path = Path(folder)
-    if not path.is_dir():
+    if not _exists(path, "dir"):
         raise FileFormatError(f"{path}: expected a scene folder, got no such directory")
     rig_path = path / RIG_FILE
     if not rig_path.is_file():
@@ -1220,7 +1235,7 @@ def list_scenes(dataset_dir: str | os.PathLike) -> list[Path]:
         The folder does not exist or holds no scene folder.
     """
     root = Path(dataset_dir)
-    if not root.is_dir():
+    if not _exists(root, "dir"):
         raise FileFormatError(f"{root}: expected a dataset folder, got no such directory")
     scenes = sorted(p for p in root.iterdir() if p.is_dir() and (p / RIG_FILE).is_file())
     if not scenes:
