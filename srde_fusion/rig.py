@@ -473,9 +473,16 @@ class CameraRig:
         text: str
         if isinstance(source, os.PathLike) or (isinstance(source, str) and not source.lstrip().startswith("{")):
             path = Path(source)
-            if not path.is_file():
+            try:
+                found = path.is_file()
+            except OSError:  # a name the OS refuses to look up (too long, say)
+                found = False
+            if not found:
                 raise RigError(f"rig file: expected an existing rig.json, got {str(path)!r}")
-            text = path.read_text(errors="replace")
+            try:
+                text = path.read_text(errors="replace")
+            except OSError as exc:
+                raise RigError(f"{path}: expected a readable rig.json, got {exc}") from None
             where = str(path)
         else:
             text, where = str(source), "rig JSON"
