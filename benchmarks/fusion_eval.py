@@ -241,6 +241,16 @@ def main() -> None:
                          f"| {rejected:.1%} ({len(kinds.get('gross', []))}) |")
             study_json.setdefault(bname, {})[rule] = {"correct_kept": kept,
                                                       "gross_rejected": rejected}
+    lines += ["", " ".join([
+        "A compared SRDE with the backbone just inside the outline, where a matcher mixes the",
+        "object's and the background's depth: it rejects most correct planes. B and C test",
+        "the band's upper quantiles against 1 from both sides, which needs the backbone to",
+        "report the object's own disparity somewhere along the outline; some matchers only",
+        "ever report the background there. D keeps only what holds for any matcher, the",
+        "occlusion order (the object is not behind what surrounds it, and not many times",
+        "nearer than everything there): it keeps every correct plane and rejects most planes",
+        "that are too far, but cannot tell a plane that is too near from a backbone that sees",
+        "only the background."])]
     times = {k: float(np.mean(v)) for k, v in data["times"].items()}
     lines += ["", "Mean time per scene: " + ", ".join(f"{k} {v:.2f} s" for k, v in times.items()),
               "", f"Machine: {platform.processor() or platform.machine()}, "
