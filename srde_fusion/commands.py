@@ -9,6 +9,7 @@ arguments and print a summary.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -254,6 +255,18 @@ def _load_backbone(source: Any, preset: str | None = None) -> Any:
     return load_backbone(source, preset)
 
 
+def _worker_backbone(source: str, preset: str | None, threads: int) -> Any:
+    """Load a backbone in an evaluation worker, its ONNX session on ``threads`` threads."""
+    import onnxruntime as ort
+
+    from .adapters import load_backbone
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    return load_backbone(source, preset, session_options=options)
+
+
 def _scene_masks(scene: SceneData, mask: Any, auto: bool) -> tuple[Any, str]:
     if mask is not None:
         return UserMasks(mask), f"user ({mask})"
@@ -395,15 +408,25 @@ def _cli_srde(args: argparse.Namespace) -> int:
 
 
 def _cli_eval(args: argparse.Namespace) -> int:
-    from .evaluation import evaluate_dataset
+    from .evaluation import BackboneLoader, evaluate_dataset
     from .io import list_scenes
 
-    list_scenes(args.dataset_dir)  # a missing dataset is reported before a model is loaded
-    evaluation = evaluate_dataset(args.dataset_dir, _load_backbone(args.backbone, args.preset),
-                                  masks=args.masks, progress=not args.quiet,
-                                  srde_method=args.method)
+    jobs = (os.cpu_count() or 1) if args.jobs is None else args.jobs
+    if jobs < 1:
+        raise SRDEError(f"--jobs: expected a positive number of worker processes, got {jobs}")
+    jobs = min(jobs, len(list_scenes(args.dataset_dir)))  # a missing dataset is reported first
+    if jobs > 1:
+        threads = max(1, (os.cpu_count() or 1) // jobs)
+        backbone = BackboneLoader(functools.partial(_worker_backbone, args.backbone, args.preset,
+                                                    threads))
+    else:
+        backbone = _load_backbone(args.backbone, args.preset)
+    evaluation = evaluate_dataset(args.dataset_dir, backbone, masks=args.masks,
+                                  progress=not args.quiet, jobs=jobs, srde_method=args.method)
     text = evaluation.to_markdown()
     print(text, end="")
+    print(f"\n{len(evaluation.scenes)} scene(s) in {evaluation.wall_s:.1f} s: "
+          f"{evaluation.scenes_per_second:.2f} scenes/s with {evaluation.jobs} process(es)")
     if args.out is not None:
         out = Path(args.out)
         try:
@@ -513,5 +536,7 @@ def register_cli(subparsers: Any) -> None:
     p.add_argument("--method", choices=("default", "paper"), default="default",
                    help="SRDE variant")
     p.add_argument("--out", default=None, help="folder for eval.md and eval.json")
+    p.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="worker processes, each loading the model once (default: one per core)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cli_eval)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 import os
+import pickle
+import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -33,6 +35,7 @@ __all__ = [
     "mask_iou",
     "SceneEvaluation",
     "DatasetEvaluation",
+    "BackboneLoader",
     "evaluate_scene",
     "evaluate_dataset",
 ]
@@ -170,9 +173,20 @@ class DatasetEvaluation:
     Attributes
     ----------
     scenes : tuple of SceneEvaluation
+    jobs : int
+        Processes that evaluated the scenes (1: in the calling process).
+    wall_s : float
+        Wall-clock time of the whole evaluation, seconds (NaN if not measured).
     """
 
     scenes: tuple[SceneEvaluation, ...]
+    jobs: int = 1
+    wall_s: float = math.nan
+
+    @property
+    def scenes_per_second(self) -> float:
+        """Scenes evaluated per second of wall-clock time (NaN if not measured)."""
+        return len(self.scenes) / self.wall_s if self.wall_s > 0 else math.nan
 
     def summary(self) -> dict[str, dict[str, dict[str, tuple[float, float]]]]:
         """Mean and standard deviation over scenes, ``summary[method][region][key]``."""
@@ -213,11 +227,57 @@ class DatasetEvaluation:
         """Return a JSON-serialisable view: summary, counts and every scene."""
         summary = {m: {r: {k: {"mean": v[0], "std": v[1]} for k, v in keys.items()}
                        for r, keys in regions.items()} for m, regions in self.summary().items()}
+        run = {"jobs": self.jobs, "wall_s": self.wall_s,
+               "scenes_per_second": self.scenes_per_second}
         return _json_safe({"counts": self.counts(), "mask_iou_mean": self.mean_mask_iou(),
-                           "summary": summary, "scenes": [s.to_dict() for s in self.scenes]})
+                           "summary": summary, "run": run,
+                           "scenes": [s.to_dict() for s in self.scenes]})
 
 
 Backbone = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class BackboneLoader:
+    """A backbone that each worker process of :func:`evaluate_dataset` loads for itself.
+
+    Model sessions usually cannot be pickled, so parallel evaluation sends this recipe
+    to the workers instead; ``load()`` runs once in each.
+
+    Attributes
+    ----------
+    load : callable
+        ``load() -> backbone``. It is pickled, so a module-level function or a
+        ``functools.partial`` of one.
+    """
+
+    load: Callable[[], Backbone]
+
+
+# The backbone, masks and options of an evaluation worker process, set by _start_worker.
+_WORKER: dict[str, Any] = {}
+
+
+def _start_worker(backbone: Any, masks: Any, options: dict[str, Any], threads: int) -> None:
+    # Each worker gets its share of the cores; OpenCV (and torch, if loaded) would
+    # otherwise start a thread per core in every process.
+    import cv2
+
+    cv2.setNumThreads(threads)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(threads)
+    try:
+        _WORKER["backbone"] = backbone.load() if isinstance(backbone, BackboneLoader) else backbone
+    except Exception as exc:  # raised again with the first scene, where the caller sees it
+        _WORKER["error"] = exc
+    _WORKER["masks"], _WORKER["options"] = masks, options
+
+
+def _evaluate_in_worker(folder: str) -> SceneEvaluation:
+    if "error" in _WORKER:
+        raise _WORKER["error"]
+    return evaluate_scene(Path(folder), _WORKER["backbone"], masks=_WORKER["masks"],
+                          **_WORKER["options"])
 
 
 def _masker_for(masks: Any, scene: SceneData) -> tuple[Any, str]:
@@ -305,32 +365,79 @@ def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
         seconds={"backbone": t1 - t0, "masks": t2 - t1, "srde_and_fusion": t3 - t2})
 
 
-def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone, *,
-                     masks: Any = "user", progress: bool = True, **options: Any
-                     ) -> DatasetEvaluation:
-    """Evaluate every scene folder of a dataset.
+def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | BackboneLoader, *,
+                     masks: Any = "user", progress: bool = True, jobs: int = 1,
+                     **options: Any) -> DatasetEvaluation:
+    """Evaluate every scene folder of a dataset, in one process or several.
+
+    Scenes are independent, so with ``jobs > 1`` a pool of worker processes evaluates
+    them side by side; each worker gets the backbone once, when it starts, and the
+    scores are the same as in one process (scenes stay in dataset order).
 
     Parameters
     ----------
     dataset_dir : path
         A folder of scene folders (see :func:`~srde_fusion.io.list_scenes`).
-    backbone : callable
-        ``backbone(left, right) -> (H, W)`` disparity in pixels.
+    backbone : callable or BackboneLoader
+        ``backbone(left, right) -> (H, W)`` disparity in pixels, or a loader that makes
+        one. With ``jobs > 1`` a backbone is pickled to every worker; one that holds a
+        model session cannot be, so pass a :class:`BackboneLoader` instead.
     masks : {"user", "auto"} or masker
         See :func:`evaluate_scene`.
     progress : bool
         Show a progress bar on stderr.
+    jobs : int
+        Worker processes (at most one per scene); 1 evaluates in this process.
+        ``os.cpu_count()`` uses every core.
     **options
         Passed to :func:`evaluate_scene` (``srde_method``, ``border_check``).
 
     Returns
     -------
     DatasetEvaluation
-    """
-    folders = list_scenes(dataset_dir)
-    if progress:
-        from tqdm import tqdm
+        With ``jobs`` (the processes used) and ``wall_s``, hence ``scenes_per_second``.
 
-        folders = tqdm(folders, desc="evaluating", unit="scene")
-    return DatasetEvaluation(tuple(evaluate_scene(Path(f), backbone, masks=masks, **options)
-                                   for f in folders))
+    Raises
+    ------
+    SRDEError
+        ``jobs`` is not a positive integer, or a backbone that cannot be pickled is
+        given with ``jobs > 1``; and whatever :func:`evaluate_scene` raises.
+    """
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise SRDEError(f"jobs: expected a positive integer (worker processes), got {jobs!r}")
+    start = time.perf_counter()
+    folders = list_scenes(dataset_dir)
+    jobs = min(jobs, len(folders))
+    if jobs <= 1:
+        if isinstance(backbone, BackboneLoader):
+            backbone = backbone.load()
+        if progress:
+            from tqdm import tqdm
+
+            folders = tqdm(folders, desc="evaluating", unit="scene")
+        scenes = tuple(evaluate_scene(Path(f), backbone, masks=masks, **options)
+                       for f in folders)
+        return DatasetEvaluation(scenes, 1, time.perf_counter() - start)
+    try:
+        pickle.dumps(backbone)
+    except Exception as exc:  # pickling raises several exception types
+        raise SRDEError(
+            f"backbone: expected a picklable backbone or a BackboneLoader for jobs > 1 (every "
+            f"worker process needs its own), got {type(backbone).__name__} ({exc})") from None
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    # Fresh interpreters: forking a process that runs model sessions or OpenMP pools
+    # can deadlock the child.
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(jobs, mp_context=context, initializer=_start_worker,
+                             initargs=(backbone, masks, options, threads)) as pool:
+        results = pool.map(_evaluate_in_worker, [str(f) for f in folders])
+        if progress:
+            from tqdm import tqdm
+
+            results = tqdm(results, total=len(folders), desc=f"evaluating ({jobs} processes)",
+                           unit="scene")
+        scenes = tuple(results)
+    return DatasetEvaluation(scenes, jobs, time.perf_counter() - start)

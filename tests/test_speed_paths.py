@@ -1,21 +1,28 @@
-"""The fast paths of SRDE give what the straightforward computations give.
+"""The fast paths give what the straightforward computations give.
 
 Pixel windows of the plane geometry against per-pixel rays, the shifted-slice clip of
 the search region against a per-pixel gather, the 8-bit clipping test against
-``saturation_mask``.
+``saturation_mask``, and a dataset evaluated by worker processes against the same
+dataset evaluated in one process.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from srde_fusion.cli import main
+from srde_fusion.commands import _worker_backbone
 from srde_fusion.errors import SRDEError
+from srde_fusion.evaluation import BackboneLoader, evaluate_dataset
 from srde_fusion.geometry import Plane, incidence_angle_deg, plane_depth, plane_disparity
 from srde_fusion.highlight import _saturated
 from srde_fusion.imaging import saturation_mask
+from srde_fusion.scenes import default_rig, render_dataset
 from srde_fusion.srde import _mask_box, _paste, _shifted_window
 
 # Grid rays and per-pixel rays differ only in the order of float64 operations; arccos
@@ -104,3 +111,51 @@ def test_clipping_test_matches_saturation_mask(channels):
     np.testing.assert_array_equal(_saturated(crop), saturation_mask(crop))
     as_float = crop.astype(np.float32) / 255.0
     np.testing.assert_array_equal(_saturated(as_float), saturation_mask(as_float))
+
+
+# ---------------------------------------------------------------- parallel evaluation
+@pytest.fixture(scope="module")
+def two_scenes(tmp_path_factory):
+    """Two rendered scenes at 320 x 240, one glossy object each."""
+    root = tmp_path_factory.mktemp("two_scenes")
+    render_dataset(root, n_scenes=2, seed=5, rig=default_rig().scaled(0.5),
+                   background="textured", progress=False)
+    return root
+
+
+def _scores_only(evaluation) -> dict:
+    data = evaluation.to_dict()
+    del data["run"]
+    for scene in data["scenes"]:
+        del scene["seconds"]
+    return data
+
+
+def test_parallel_evaluation_gives_the_serial_numbers(two_scenes):
+    loader = BackboneLoader(functools.partial(_worker_backbone, "default", None, 1))
+    serial = evaluate_dataset(two_scenes, loader, progress=False, jobs=1)
+    parallel = evaluate_dataset(two_scenes, loader, progress=False, jobs=2)
+    assert (serial.jobs, parallel.jobs) == (1, 2)
+    assert [s.name for s in parallel.scenes] == [s.name for s in serial.scenes]
+    assert _scores_only(parallel) == _scores_only(serial)
+    assert parallel.scenes_per_second == pytest.approx(2 / parallel.wall_s)
+    assert parallel.to_dict()["run"]["jobs"] == 2
+
+
+@pytest.mark.parametrize("jobs", [0, -1, 1.5, True])
+def test_bad_jobs_raise(two_scenes, jobs):
+    with pytest.raises(SRDEError, match="jobs: expected a positive integer"):
+        evaluate_dataset(two_scenes, lambda left, right: left[..., 0] * 0.0, jobs=jobs)
+
+
+def test_unpicklable_backbone_with_jobs_raises(two_scenes):
+    with pytest.raises(SRDEError, match="expected a picklable backbone or a BackboneLoader"):
+        evaluate_dataset(two_scenes, lambda left, right: left[..., 0] * 0.0, jobs=2,
+                         progress=False)
+
+
+def test_eval_command_rejects_zero_jobs(two_scenes, capsys):
+    code = main(["eval", str(two_scenes), "--backbone", "default", "--jobs", "0"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert "--jobs: expected a positive number of worker processes, got 0" in err[0]
