@@ -119,13 +119,15 @@ def _clean(value: Any) -> Any:
 def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
                          image: np.ndarray, *, gt_disparity: np.ndarray | None = None,
                          region: np.ndarray | None = None, extra: dict | None = None,
-                         title: str | None = None) -> SceneRun:
+                         title: str | None = None, srde_only: bool = False) -> SceneRun:
     """Write a fusion result: disparity maps, source map, JSON report and figure.
 
     Files: ``fused_disparity.pfm`` (invalid = inf) and ``fused_disparity.png`` (KITTI
     16-bit, value / 256, 0 = invalid), ``backbone_disparity.pfm``, ``srde_disparity.pfm``,
     ``source.png`` (8-bit: 0 = backbone, k = object k's SRDE plane), ``report.json``
-    (per-object decisions and, with ground truth, the scores) and ``figure.png``.
+    (per-object decisions and, with ground truth, the scores) and ``figure.png``. With
+    ``srde_only`` (SRDE run without a backbone) the disparity files are
+    ``srde_disparity.pfm`` and ``srde_disparity.png`` only.
 
     Parameters
     ----------
@@ -142,6 +144,8 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
         More JSON-serialisable entries for the report.
     title : str, optional
         Figure title.
+    srde_only : bool
+        Write and draw SRDE's map only.
 
     Returns
     -------
@@ -157,13 +161,16 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
         raise FileFormatError(f"{out}: could not create the output folder: {exc}") from None
     files: dict[str, Path] = {}
     notes: list[str] = []
-    files["fused_pfm"] = write_disparity(out / FUSED_PFM, result.disparity)
+    main, main_pfm = ("srde", SRDE_PFM) if srde_only else ("fused", FUSED_PFM)
+    main_png = main_pfm.replace(".pfm", ".png")
+    files[f"{main}_pfm"] = write_disparity(out / main_pfm, result.disparity)
     try:
-        files["fused_png"] = write_disparity(out / FUSED_PNG, result.disparity)
+        files[f"{main}_png"] = write_disparity(out / main_png, result.disparity)
     except FileFormatError as exc:  # beyond the 16-bit format's range
-        notes.append(f"{FUSED_PNG} not written: {exc}")
-    files["backbone_pfm"] = write_disparity(out / BACKBONE_PFM, result.backbone_disparity)
-    files["srde_pfm"] = write_disparity(out / SRDE_PFM, result.srde_disparity)
+        notes.append(f"{main_png} not written: {exc}")
+    if not srde_only:
+        files["backbone_pfm"] = write_disparity(out / BACKBONE_PFM, result.backbone_disparity)
+        files["srde_pfm"] = write_disparity(out / SRDE_PFM, result.srde_disparity)
     files["source_png"] = write_mask(out / SOURCE_PNG, result.source)
 
     scores = None
@@ -171,10 +178,11 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
         if region is None and result.objects:
             region = result.source > 0
         scores = score_fusion(result, gt_disparity, region)
-    fig = comparison_figure(
-        image, {"backbone": result.backbone_disparity, "SRDE": result.srde_disparity,
-                "fused": result.disparity},
-        gt_disparity=gt_disparity, source=result.source, region=region, title=title)
+    maps = ({"SRDE": result.disparity} if srde_only else
+            {"backbone": result.backbone_disparity, "SRDE": result.srde_disparity,
+             "fused": result.disparity})
+    fig = comparison_figure(image, maps, gt_disparity=gt_disparity, source=result.source,
+                            region=region, title=title)
     files["figure_png"] = save_figure(fig, out / FIGURE_PNG)
 
     report = {"fusion": result.report(), "scores": scores, "notes": notes,
@@ -343,7 +351,7 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
     region = scene.mask_labels > 0 if scene.mask_labels is not None else None
     return write_fusion_outputs(out_dir, result, scene.views[rig.reference],
                                 gt_disparity=scene.gt_disparity, region=region,
-                                title=f"{scene.name}: SRDE alone",
+                                title=f"{scene.name}: SRDE alone", srde_only=True,
                                 extra={"scene": str(scene.path), "masks": source})
 
 

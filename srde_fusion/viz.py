@@ -191,7 +191,7 @@ def comparison_figure(image: np.ndarray, disparities: Mapping[str, np.ndarray], 
     if n_rows == 2:
         if source is not None:
             axes[1, 0].imshow(colorize_source(source), interpolation="nearest")
-            axes[1, 0].set_title("source (dark = backbone)")
+            axes[1, 0].set_title("source (colour = object k)")
         if gt_disparity is not None:
             gt = np.asarray(gt_disparity, dtype=np.float64)
             errors = {name: np.abs(np.asarray(d, dtype=np.float64) - gt)
