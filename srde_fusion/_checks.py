@@ -155,8 +155,9 @@ def check_disparity(disparity: Any, shape: tuple[int, int] | None = None, name: 
         raise DisparityError(f"{name}: expected a float array, got dtype {disparity.dtype}")
     if shape is not None and disparity.shape != tuple(shape):
         raise DisparityError(f"{name}: expected shape {tuple(shape)}, got {disparity.shape}")
-    out = disparity.astype(np.float32, copy=True)
-    with np.errstate(invalid="ignore"):
+    # A float64 value beyond float32's range becomes inf, i.e. invalid, without a warning.
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = disparity.astype(np.float32, copy=True)
         out[~np.isfinite(out) | (out < 0)] = np.nan
     return out
 
