@@ -28,6 +28,8 @@ from .errors import (
     SceneError,
     SRDEError,
 )
+from .evaluation import evaluate_dataset, evaluate_scene, score_fusion
+from .fusion import BorderCheck, FusionResult, HybridStereo, ObjectReport, fuse, postprocess
 from .geometry import Plane, mirror_point, plane_depth, plane_disparity, plane_from_lights
 from .highlight import HighlightDetection, detect_highlight
 from .io import (
@@ -51,6 +53,7 @@ from .io import (
     write_scene,
 )
 from .light import LightEstimate, estimate_light
+from .masks import HighlightSegmenter, OnnxMasker, UserMasks
 from .metrics import METRIC_KEYS, evaluate, format_markdown_table, summarize
 from .refine import PlaneRefinement, refine_plane
 from .rig import Camera, CameraRig, Intrinsics
@@ -90,6 +93,20 @@ __all__ = [
     "SRDEResult",
     "refine_plane",
     "PlaneRefinement",
+    # masks and fusion
+    "UserMasks",
+    "HighlightSegmenter",
+    "OnnxMasker",
+    "fuse",
+    "postprocess",
+    "HybridStereo",
+    "FusionResult",
+    "ObjectReport",
+    "BorderCheck",
+    # evaluation
+    "evaluate_scene",
+    "evaluate_dataset",
+    "score_fusion",
     # light calibration
     "Board",
     "BoardMarker",
