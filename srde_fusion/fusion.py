@@ -392,6 +392,8 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
         Wrong number, size or type of views.
     MaskError
         A mask of the wrong shape or dtype, or an empty one.
+    SRDEError
+        ``srde.estimate`` returned a disparity map that is not ``(H, W)``.
 
     Notes
     -----
@@ -425,6 +427,9 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
                 f"{getattr(result, 'reason', '')}", result, n_mask, 0))
             continue
         srde_disp = np.asarray(result.disparity, dtype=np.float32)
+        if srde_disp.shape != (h, w):
+            raise SRDEError(f"srde: expected estimate() to return an ({h}, {w}) disparity map, "
+                            f"got shape {srde_disp.shape}")
         stats = _BorderStats()
         if border_check is not None:
             stats = _border_stats(result, rig, backbone, mask, textured, border_check)
@@ -446,7 +451,8 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
                 k, "fallback", f"SRDE contradicts the backbone around the object's outline: "
                 f"{contradiction}, over {stats.n_px} textured px)", result, n_mask, 0, **common))
             continue
-        take = mask & np.isfinite(srde_disp) & (source == SOURCE_BACKBONE)
+        # Only valid disparity replaces the backbone, whatever an estimator returns.
+        take = mask & np.isfinite(srde_disp) & (srde_disp >= 0) & (source == SOURCE_BACKBONE)
         fused[take] = srde_disp[take]
         source[take] = k
         n_take = int(np.count_nonzero(take))
