@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
-from kornia.filters import filter2d, filter2d_separable, get_spatial_gradient_kernel2d
+from kornia.filters import filter2d_separable, get_spatial_gradient_kernel2d
 
 from ._checks import check_views
 from .errors import ImageError, SRDEError
@@ -45,6 +45,9 @@ from .imaging import _SRGB_LUT, REC709_LUMA, SATURATION_LEVEL_U8
 from .srde import _MIN_BLOB_AREA_PX, SRDE, SRDEResult
 
 __all__ = ["BatchedSRDE", "label_components"]
+
+# Pointer jumps per labelling round (see label_components).
+_POINTER_JUMPS = 2
 
 
 
@@ -95,9 +98,11 @@ def label_components(binary: torch.Tensor) -> torch.Tensor:
     labels = index * binary
     while True:
         grown = _max3x3(labels) * binary
-        flat = grown.view(b, -1)
-        # A label names a pixel of the same component whose own label is at least as large.
-        grown = flat.gather(1, (flat - 1).clamp_min(0)).view(b, h, w) * binary
+        # A label names a pixel of the same component whose own label is at least as
+        # large; following it twice per round halves the rounds on blob-sized components.
+        for _ in range(_POINTER_JUMPS):
+            flat = grown.view(b, -1)
+            grown = flat.gather(1, (flat - 1).clamp_min(0)).view(b, h, w) * binary
         if torch.equal(grown, labels):
             return labels
         labels = grown
@@ -144,6 +149,87 @@ def _extend(x: torch.Tensor, sizes: np.ndarray, pad: int, mode: str) -> torch.Te
     cols_t = torch.from_numpy(cols).to(x.device)
     x = x.gather(1, rows_t[:, :, None].expand(b, h + 2 * pad, w))
     return x.gather(2, cols_t[:, None, :].expand(b, h + 2 * pad, w + 2 * pad))
+
+
+def _filter_valid(x: torch.Tensor, kernel_x: torch.Tensor, kernel_y: torch.Tensor
+                  ) -> torch.Tensor:
+    """Correlate ``(B, h, w)`` with a separable kernel, "valid" part only.
+
+    On a GPU this is kornia's separable filter. torch's CPU convolutions are slow for
+    thin kernels, so on the CPU the same sums are taken over shifted slices.
+
+    Returns
+    -------
+    torch.Tensor, (B, h - Ky + 1, w - Kx + 1)
+    """
+    if x.device.type != "cpu":
+        return filter2d_separable(x[:, None], kernel_x[None], kernel_y[None],
+                                  padding="valid")[:, 0]
+    kx, ky = kernel_x.tolist(), kernel_y.tolist()
+    w_out, h_out = x.shape[2] - len(kx) + 1, x.shape[1] - len(ky) + 1
+    rows = kx[0] * x[:, :, :w_out]
+    for i, c in enumerate(kx[1:], start=1):
+        rows = rows + c * x[:, :, i:i + w_out]
+    out = ky[0] * rows[:, :h_out]
+    for i, c in enumerate(ky[1:], start=1):
+        out = out + c * rows[:, i:i + h_out]
+    return out
+
+
+def _tight(foreground: torch.Tensor, *layers: torch.Tensor):
+    """Crop a batch to the bounding box of each image's foreground (one common size).
+
+    Components and their statistics need only the foreground's surroundings; the rest
+    of a search crop would only slow the labelling down.
+
+    Returns
+    -------
+    origins : numpy.ndarray, (B, 2) int
+        ``(u0, v0)`` of each box in its image.
+    foreground : torch.Tensor, (B, h', w') bool
+        False outside each image's own box.
+    *layers : torch.Tensor, (B, h', w')
+        The same boxes of the other layers.
+    """
+    b, h, w = foreground.shape
+    rows = foreground.any(dim=2).cpu().numpy()
+    cols = foreground.any(dim=1).cpu().numpy()
+    boxes = np.zeros((b, 4), dtype=np.int64)  # v0, v1, u0, u1; empty images keep 0:1, 0:1
+    boxes[:, [1, 3]] = 1
+    for i in range(b):
+        if rows[i].any():
+            r, c = np.flatnonzero(rows[i]), np.flatnonzero(cols[i])
+            boxes[i] = (r[0], r[-1] + 1, c[0], c[-1] + 1)
+    hb, wb = int((boxes[:, 1] - boxes[:, 0]).max()), int((boxes[:, 3] - boxes[:, 2]).max())
+    row_index = boxes[:, :1] + np.arange(hb)                             # (B, hb)
+    col_index = boxes[:, 2:3] + np.arange(wb)
+    inside = torch.from_numpy((row_index < boxes[:, 1:2])[:, :, None]
+                              & (col_index < boxes[:, 3:4])[:, None, :]).to(foreground.device)
+    rows_t = torch.from_numpy(np.minimum(row_index, h - 1)).to(foreground.device)
+    cols_t = torch.from_numpy(np.minimum(col_index, w - 1)).to(foreground.device)
+
+    def cut(x):
+        x = x.gather(1, rows_t[:, :, None].expand(b, hb, w))
+        return x.gather(2, cols_t[:, None, :].expand(b, hb, wb))
+
+    return (boxes[:, [2, 0]], cut(foreground) & inside, *(cut(x) for x in layers))
+
+
+def _median(values: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
+    """Return numpy's median (mean of the two middle values) of each image's selected values.
+
+    Returns
+    -------
+    torch.Tensor, (B,) float64
+    """
+    out = []
+    for x, m in zip(values, where, strict=True):
+        selected = x[m]
+        n = selected.numel()
+        lower = selected.kthvalue((n - 1) // 2 + 1).values
+        upper = selected.kthvalue(n // 2 + 1).values if n % 2 == 0 else lower
+        out.append((lower + upper) / 2)
+    return torch.stack(out).double()
 
 
 def _smooth_at(extended: torch.Tensor, points_uv: np.ndarray, kernel: torch.Tensor
@@ -273,15 +359,14 @@ class _Engine:
         boxes = np.concatenate([crops.origins, crops.origins + crops.sizes[:, ::-1]], axis=1)
         white = self.luminance(self.crops(self.whites, crops.views, boxes).pixels)
         pad = self.white_kernel.shape[1] // 2
-        white = _extend(white, crops.sizes, pad, "symmetric")[:, None]
-        white = filter2d_separable(white, self.white_kernel, self.white_kernel,
-                                   padding="valid")[:, 0]
+        white = _extend(white, crops.sizes, pad, "symmetric")
+        white = _filter_valid(white, self.white_kernel[0], self.white_kernel[0])
         return lum / white.clamp_min(_WHITE_FLOOR)
 
     def smooth(self, lum: torch.Tensor, sizes: np.ndarray, kernel: torch.Tensor) -> torch.Tensor:
         """Gaussian smoothing of each crop with OpenCV's symmetric border, ``(B, h, w)``."""
-        x = _extend(lum, sizes, kernel.shape[1] // 2, "symmetric")[:, None]
-        return filter2d_separable(x, kernel, kernel, padding="valid")[:, 0]
+        x = _extend(lum, sizes, kernel.shape[1] // 2, "symmetric")
+        return _filter_valid(x, kernel[0], kernel[0])
 
     # ------------------------------------------------------------------ search
     def brightest(self, images, candidates) -> list[int]:
@@ -359,48 +444,36 @@ class _Engine:
         b, h, w = lum.shape
         dev = self.device
         smooth = self.smooth(lum, crops.sizes, self.blob_kernel)
-        count = region.flatten(1).sum(dim=1)
-        ordered = torch.where(region, lum, torch.nan).flatten(1).sort(dim=1).values
-        lower = ordered.gather(1, ((count - 1) // 2)[:, None])[:, 0]
-        upper = ordered.gather(1, (count // 2)[:, None])[:, 0]
-        background = ((lower + upper) / 2).double()                    # numpy's median
+        background = _median(lum, region)
         peak = torch.where(region, smooth, -torch.inf).flatten(1).amax(dim=1).double()
         contrast = peak - background
         given = torch.tensor([math.nan if lv is None else lv for lv in levels],
                              dtype=torch.float64, device=dev)
         level = torch.where(torch.isnan(given), background + _BLOB_LEVEL * contrast, given)
-        excess = torch.where(region, lum - level.float()[:, None, None], 0.0)
-        foreground = excess > 0
+        excess = (lum - level.float()[:, None, None]) * region
+        layers = [excess]
+        if srde.blob_center == "core":
+            layers.append(self.saturated(crops.pixels))
+        origins, foreground, excess, *saturated = _tight(excess > 0, *layers)
+        b, h, w = foreground.shape
         labels = label_components(foreground).flatten(1)                # (B, h w)
-        bins = h * w + 1
-        light = torch.zeros(b, bins, dtype=torch.float64, device=dev)
+        light = torch.zeros(b, h * w + 1, dtype=torch.float64, device=dev)
         light.scatter_add_(1, labels, excess.clamp_min(0).flatten(1).double())
         light[:, 0] = -1.0
         best = light.argmax(dim=1)
         blob = (labels == best[:, None]).view(b, h, w) & foreground
-        area = blob.flatten(1).sum(dim=1)
-        vv = torch.arange(h, device=dev, dtype=torch.float64).view(1, h, 1)
         uu = torch.arange(w, device=dev, dtype=torch.float64).view(1, 1, w)
-        weights = torch.where(blob, excess.double(), 0.0)
-        total = weights.sum(dim=(1, 2))
-        center = torch.stack([(weights * uu).sum(dim=(1, 2)), (weights * vv).sum(dim=(1, 2))],
-                             dim=1) / total[:, None]
-        if srde.blob_center == "core":
-            core = blob & self.saturated(crops.pixels)
+        vv = torch.arange(h, device=dev, dtype=torch.float64).view(1, h, 1)
+        center = _centroid(torch.where(blob, excess.double(), 0.0), uu, vv)
+        if saturated:
+            core = blob & saturated[0]
             n_core = core.flatten(1).sum(dim=1)
-            core_center = torch.stack([(core * uu).sum(dim=(1, 2)), (core * vv).sum(dim=(1, 2))],
-                                      dim=1) / n_core.clamp_min(1)[:, None]
-            center = torch.where((n_core >= _MIN_CORE_PX)[:, None], core_center, center)
-        rows_any, cols_any = blob.any(dim=2), blob.any(dim=1)
-        big = torch.tensor(max(h, w), device=dev)
-        ar_v, ar_u = torch.arange(h, device=dev), torch.arange(w, device=dev)
-        bbox = torch.stack([torch.where(cols_any, ar_u, big).amin(dim=1),
-                            torch.where(rows_any, ar_v, big).amin(dim=1),
-                            torch.where(cols_any, ar_u, -1).amax(dim=1) + 1,
-                            torch.where(rows_any, ar_v, -1).amax(dim=1) + 1], dim=1)
+            center = torch.where((n_core >= _MIN_CORE_PX)[:, None],
+                                 _centroid(core.double(), uu, vv), center)
         stats = {name: t.cpu().numpy() for name, t in dict(
             background=background, peak=peak, contrast=contrast, level=level,
-            any=foreground.flatten(1).any(dim=1), area=area, center=center, bbox=bbox).items()}
+            any=foreground.flatten(1).any(dim=1), area=blob.flatten(1).sum(dim=1),
+            center=center, bbox=_bbox(blob)).items()}
         out = []
         for i in range(b):
             bg, pk, ct, lv = (float(stats[k][i]) for k in ("background", "peak", "contrast",
@@ -414,18 +487,22 @@ class _Engine:
                 out.append(HighlightDetection.missing(
                     f"no pixel above the level {lv:.4f} in the search region"))
                 continue
-            area_i = int(stats["area"][i])
-            if area_i < _MIN_BLOB_AREA_PX:
+            area = int(stats["area"][i])
+            if area < _MIN_BLOB_AREA_PX:
                 out.append(HighlightDetection.missing(
-                    f"brightest blob has {area_i} px above the level {lv:.4f}, fewer than "
+                    f"brightest blob has {area} px above the level {lv:.4f}, fewer than "
                     f"min_area_px {_MIN_BLOB_AREA_PX}"))
                 continue
-            center_uv = stats["center"][i].astype(np.float64)
+            (u0, v0), (bu0, bv0, bu1, bv1) = origins[i], stats["bbox"][i]
+            center_uv = stats["center"][i] + np.array([u0, v0], dtype=np.float64)
             if srde.blob_center == "lobe":
-                center_uv = self._lobe(lum[i], crops.pixels[i], region_np[i],
-                                       blob[i].cpu().numpy(), bg, ct, center_uv)
-            out.append(HighlightDetection(True, center_uv, area_i,
-                                          tuple(int(x) for x in stats["bbox"][i]), ct, "", lv))
+                full = np.zeros(lum.shape[1:], dtype=bool)
+                box = blob[i, :bv1, :bu1].cpu().numpy()
+                full[v0:v0 + box.shape[0], u0:u0 + box.shape[1]] = box
+                center_uv = self._lobe(lum[i], crops.pixels[i], region_np[i], full, bg, ct,
+                                       center_uv)
+            out.append(HighlightDetection(True, center_uv, area, (int(bu0 + u0), int(bv0 + v0),
+                                          int(bu1 + u0), int(bv1 + v0)), ct, "", lv))
         return out
 
     def _lobe(self, lum, pixels, region, blob, background, contrast, fallback) -> np.ndarray:
@@ -442,18 +519,22 @@ class _Engine:
         half = srde.window // 2
         # Sobel then box statistics, both with reflect-101 borders: |gradient| of the
         # extended crop is the extension of the crop's |gradient|, so one extension does.
-        x = _extend(lum, sizes, half + 1, "reflect101")[:, None]
+        x = _extend(lum, sizes, half + 1, "reflect101")
         sobel = get_spatial_gradient_kernel2d("sobel", 1).to(dev, torch.float32)
-        gx = filter2d(x, sobel[0][None], padding="valid")
-        gy = filter2d(x, sobel[1][None], padding="valid")
-        grad = torch.sqrt(gx * gx + gy * gy)                           # (B, 1, h + 2 half, ...)
-        box = torch.full((1, srde.window), 1.0 / srde.window, device=dev)
-        mean = filter2d_separable(grad, box, box, padding="valid")[:, 0]
-        mean_sq = filter2d_separable(grad * grad, box, box, padding="valid")[:, 0]
-        grad = grad[:, 0, half:half + h, half:half + w]
+        derivative, smoothing = sobel[0, 0], sobel[0, :, 2]             # [-1, 0, 1], [1, 2, 1]
+        gx = _filter_valid(x, derivative, smoothing)
+        gy = _filter_valid(x, smoothing, derivative)
+        grad = torch.sqrt(gx * gx + gy * gy)                            # (B, h + 2 half, ...)
+        box = torch.full((srde.window,), 1.0 / srde.window, device=dev)
+        mean = _filter_valid(grad, box, box)
+        mean_sq = _filter_valid(grad * grad, box, box)
+        grad = grad[:, half:half + h, half:half + w]
         std = torch.sqrt(torch.clamp(mean_sq - mean * mean, min=0.0))
         threshold = mean + srde.k * std
-        candidates = region & (grad > threshold)
+        n_region = region.flatten(1).sum(dim=1)
+        origins, candidates, grad, threshold = _tight(region & (grad > threshold), grad,
+                                                      threshold)
+        b, h, w = candidates.shape
         labels = label_components(candidates).flatten(1)
         bins = h * w + 1
         flat_v = torch.arange(h, device=dev).repeat_interleave(w).expand(b, -1)
@@ -476,8 +557,6 @@ class _Engine:
         n_ring = ring.flatten(1).sum(dim=1).clamp_min(1)
         uu = torch.arange(w, device=dev, dtype=torch.float64).view(1, 1, w)
         vv = torch.arange(h, device=dev, dtype=torch.float64).view(1, h, 1)
-        center = torch.stack([(ring * uu).sum(dim=(1, 2)), (ring * vv).sum(dim=(1, 2))],
-                             dim=1) / n_ring[:, None]
         score = ((torch.where(ring, grad, 0.0).flatten(1).sum(dim=1) / n_ring)
                  / (torch.where(ring, threshold, 0.0).flatten(1).sum(dim=1) / n_ring)
                  .clamp_min(float(np.finfo(np.float32).tiny)))
@@ -486,11 +565,11 @@ class _Engine:
             return t.gather(1, index[:, None])[:, 0]
 
         stats = {name: t.cpu().numpy() for name, t in dict(
-            n=(area > 0).sum(dim=1), kept=keep.any(dim=1), region=region.flatten(1).sum(dim=1),
+            n=(area > 0).sum(dim=1), kept=keep.any(dim=1), region=n_region,
             area=pick(area, best), u0=pick(u_min, best), v0=pick(v_min, best),
-            u1=pick(u_max, best) + 1, v1=pick(v_max, best) + 1, center=center, score=score,
-            big_w=pick(widths, largest), big_h=pick(heights, largest),
-            big_area=pick(area, largest)).items()}
+            u1=pick(u_max, best) + 1, v1=pick(v_max, best) + 1,
+            center=_centroid(ring.double(), uu, vv), score=score, big_w=pick(widths, largest),
+            big_h=pick(heights, largest), big_area=pick(area, largest)).items()}
         out = []
         for i in range(b):
             n = int(stats["n"][i])
@@ -505,11 +584,32 @@ class _Engine:
                     f"{srde.min_extent_px} px among {n} (largest: {int(stats['big_w'][i])}x"
                     f"{int(stats['big_h'][i])} px, {int(stats['big_area'][i])} px)"))
                 continue
-            bbox = tuple(int(stats[k][i]) for k in ("u0", "v0", "u1", "v1"))
-            out.append(HighlightDetection(True, stats["center"][i].astype(np.float64),
-                                          int(stats["area"][i]), bbox, float(stats["score"][i]),
-                                          ""))
+            u0, v0 = (int(o) for o in origins[i])
+            bbox = (int(stats["u0"][i]) + u0, int(stats["v0"][i]) + v0,
+                    int(stats["u1"][i]) + u0, int(stats["v1"][i]) + v0)
+            center_uv = stats["center"][i] + np.array([u0, v0], dtype=np.float64)
+            out.append(HighlightDetection(True, center_uv, int(stats["area"][i]), bbox,
+                                          float(stats["score"][i]), ""))
         return out
+
+
+def _centroid(weights: torch.Tensor, uu: torch.Tensor, vv: torch.Tensor) -> torch.Tensor:
+    """``(u, v)`` centroid of each non-negative ``(B, h, w)`` weight image, ``(B, 2)``."""
+    total = weights.sum(dim=(1, 2)).clamp_min(float(np.finfo(np.float64).tiny))
+    return torch.stack([(weights * uu).sum(dim=(1, 2)), (weights * vv).sum(dim=(1, 2))],
+                       dim=1) / total[:, None]
+
+
+def _bbox(mask: torch.Tensor) -> torch.Tensor:
+    """``(u0, v0, u1, v1)``, inclusive-exclusive, of each ``(B, h, w)`` mask, ``(B, 4)``."""
+    b, h, w = mask.shape
+    rows, cols = mask.any(dim=2), mask.any(dim=1)
+    ar_v = torch.arange(h, device=mask.device)
+    ar_u = torch.arange(w, device=mask.device)
+    return torch.stack([torch.where(cols, ar_u, w).amin(dim=1),
+                        torch.where(rows, ar_v, h).amin(dim=1),
+                        torch.where(cols, ar_u, -1).amax(dim=1) + 1,
+                        torch.where(rows, ar_v, -1).amax(dim=1) + 1], dim=1)
 
 
 def _device(device) -> torch.device:
