@@ -1,4 +1,4 @@
-"""SRDE with its pixel work in torch, batched over the views (kornia filters).
+"""SRDE with its pixel work in torch, batched over the views.
 
 :class:`BatchedSRDE` is :class:`~srde_fusion.srde.SRDE` with every step that touches
 pixels done by torch on a device: luminance (sRGB decoding through a table), the
@@ -10,6 +10,12 @@ are, so on a GPU the images never leave it. What needs only a few numbers per vi
 stays in numpy on the host: candidate positions along the baselines, the search discs
 (small boolean crops, uploaded), the triangulation, the plane and the disparity map.
 The photometric refinement, when enabled, runs on host copies of the views.
+
+Separable filters (Gaussian, Sobel, box) run as kornia's separable filter on GPUs and as
+sums of shifted slices on the CPU, where torch's convolutions are slow for thin kernels;
+connected components are labelled by :func:`label_components` (max propagation with
+pointer jumping), inside the bounding box of the foreground only. The long Gaussian of
+the baseline search is evaluated only at the candidate pixels.
 
 Results agree with :class:`~srde_fusion.srde.SRDE`: each crop is extended at its own
 edges the way OpenCV extends it (symmetric for the Gaussian smoothing, reflect-101 for
