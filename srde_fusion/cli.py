@@ -26,7 +26,7 @@ _COMMAND_MODULES = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every available subcommand."""
+    """Build the argument parser with every available subcommand."""
     parser = argparse.ArgumentParser(
         prog="srde-fusion",
         description="Disparity of flat glossy objects from their specular highlight (SRDE), "
@@ -44,7 +44,18 @@ def build_parser() -> argparse.ArgumentParser:
         register = getattr(module, "register_cli", None)
         if register is not None:
             register(sub)
+    for p in (parser, *sub.choices.values()):
+        _one_line_errors(p)
     return parser
+
+
+def _one_line_errors(parser: argparse.ArgumentParser) -> None:
+    """Make a parser's argument errors one line on stderr, exit code 2, no usage block."""
+
+    def error(message: str) -> None:
+        parser.exit(2, f"{parser.prog}: error: {message}\n")
+
+    parser.error = error  # type: ignore[method-assign]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -54,6 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = args.func(args)
     except SRDEError as exc:
+        print(f"srde-fusion {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # an output the system refuses (a folder in the way, disk full)
         print(f"srde-fusion {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
