@@ -415,8 +415,12 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
             from tqdm import tqdm
 
             folders = tqdm(folders, desc="evaluating", unit="scene")
-        scenes = tuple(evaluate_scene(Path(f), backbone, masks=masks, **options)
-                       for f in folders)
+        try:
+            scenes = tuple(evaluate_scene(Path(f), backbone, masks=masks, **options)
+                           for f in folders)
+        finally:
+            if progress:  # end the bar's line, so an error message starts on its own
+                folders.close()
         return DatasetEvaluation(scenes, 1, time.perf_counter() - start)
     try:
         pickle.dumps(backbone)
