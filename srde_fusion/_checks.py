@@ -61,7 +61,7 @@ def check_image(image: Any, name: str = "image") -> np.ndarray:
     if image.dtype == np.uint8:
         return image
     if np.issubdtype(image.dtype, np.floating):
-        image = image.astype(np.float32, copy=False)
+        # Checked before the cast to float32, which would overflow on huge values.
         if not np.all(np.isfinite(image)):
             raise ImageError(f"{name}: expected finite float values in [0, 1], got NaN or inf")
         lo, hi = float(image.min()), float(image.max())
@@ -69,7 +69,7 @@ def check_image(image: Any, name: str = "image") -> np.ndarray:
             raise ImageError(
                 f"{name}: expected float values in [0, 1], got range [{lo:.4g}, {hi:.4g}]"
             )
-        return image
+        return image.astype(np.float32, copy=False)
     raise ImageError(f"{name}: expected dtype uint8 or float in [0, 1], got {image.dtype}")
 
 

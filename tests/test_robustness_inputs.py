@@ -63,6 +63,8 @@ def _replace(views, index, image):
     (lambda v: _replace(v, 2, v[2] > 128), r"views\[2\]: expected dtype uint8 .* got bool"),
     (lambda v: _replace(v, 2, v[2].astype(np.float32)),  # float 0..255, not 0..1
      r"views\[2\]: expected float values in \[0, 1\], got range \[.*, 255\]"),
+    (lambda v: _replace(v, 2, np.where(v[2] > 200, 3.5e38, 0.0)),  # beyond float32's range
+     r"views\[2\]: expected float values in \[0, 1\], got range \[0, 3.5e\+38\]"),
     (lambda v: _replace(v, 5, np.where(v[5] > 200, np.nan, v[5] / 255.0)),
      r"views\[5\]: expected finite float values in \[0, 1\], got NaN or inf"),
     (lambda v: _replace(v, 4, np.dstack([v[4], v[4][:, :, :1]])),
@@ -132,6 +134,16 @@ def test_saturated_everywhere_but_the_object(rig, views, srde):
 def test_bad_mask_for_srde(views, srde, mask, error, match):
     with pytest.raises(error, match=match):
         srde.estimate(views, mask)
+
+
+def test_float_labels_beyond_the_integer_range(rig, views):
+    labels = np.zeros((H, W), np.float16)
+    labels[MASK] = 6e4
+    assert len(postprocess(BACKBONE, views, rig, labels).objects) == 1
+    labels = labels.astype(np.float64) * 1e15
+    with pytest.raises(MaskError, match=r"masks: expected integer labels \(0 = background\), "
+                       "got values up to 6e\\+19"):
+        postprocess(BACKBONE, views, rig, labels)
 
 
 def test_integer_and_float_masks_mean_non_zero(views, srde):
@@ -284,3 +296,23 @@ def test_random_arrays_into_evaluate(pred, gt, region):
         for key in ("bad1", "bmp0.1", "d1"):
             assert np.isnan(metrics[key]) or 0.0 <= metrics[key] <= 1.0
         assert metrics["valid_px"] >= 0
+
+
+# ------------------------------------------------------------------ longer runs (-m slow)
+_MANY = settings(max_examples=400, suppress_health_check=[HealthCheck.too_slow])
+
+
+@pytest.mark.slow
+@_MANY
+@given(array=odd_arrays(), slot=st.sampled_from(["views", "one view", "mask"]))
+def test_random_arrays_into_srde_estimate_many(rig, views, srde, array, slot):
+    test_random_arrays_into_srde_estimate.hypothesis.inner_test(
+        rig=rig, views=views, srde=srde, array=array, slot=slot)
+
+
+@pytest.mark.slow
+@_MANY
+@given(array=odd_arrays(), slot=st.sampled_from(["backbone", "masks", "mask list", "view"]))
+def test_random_arrays_into_fuse_and_postprocess_many(rig, views, srde, array, slot):
+    test_random_arrays_into_fuse_and_postprocess.hypothesis.inner_test(
+        rig=rig, views=views, srde=srde, array=array, slot=slot)
