@@ -51,6 +51,10 @@ def _labels_to_masks(labels: np.ndarray, name: str) -> list[np.ndarray]:
         if not np.all(np.isfinite(labels)) or np.any(labels != np.round(labels)):
             raise MaskError(f"{name}: expected integer labels (0 = background), got non-integer "
                             f"float values")
+        largest = float(np.abs(labels).max()) if labels.size else 0.0
+        if largest > np.iinfo(np.int32).max:  # would not survive the cast to integers
+            raise MaskError(f"{name}: expected integer labels (0 = background), got values up "
+                            f"to {largest:g}")
         labels = labels.astype(np.int64)
     elif labels.dtype != bool and not np.issubdtype(labels.dtype, np.integer):
         raise MaskError(f"{name}: expected a bool or integer label image, got dtype {labels.dtype}")
