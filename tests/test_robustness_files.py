@@ -439,3 +439,18 @@ def test_random_values_in_a_valid_rig_json(rig, data):
             continue
     _only_srde_errors(lambda: CameraRig.from_dict(edited))
     _only_srde_errors(lambda: CameraRig.from_json(json.dumps(edited)))
+
+
+# ------------------------------------------------------------------ longer runs (-m slow)
+@pytest.mark.slow
+@settings(max_examples=1000, suppress_health_check=[HealthCheck.too_slow])
+@given(data=_garbage(), suffix=st.sampled_from([".pfm", ".png", ".npy", ".jpg"]))
+def test_garbage_bytes_into_the_readers_many(data, suffix):
+    test_garbage_bytes_into_the_readers.hypothesis.inner_test(data=data, suffix=suffix)
+
+
+@pytest.mark.slow
+@settings(max_examples=1000)
+@given(data=st.data())
+def test_random_values_in_a_valid_rig_json_many(rig, data):
+    test_random_values_in_a_valid_rig_json.hypothesis.inner_test(rig=rig, data=data)
