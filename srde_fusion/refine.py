@@ -577,6 +577,8 @@ def _restart_plane(setup: _Setup, samples: _Samples) -> Plane | None:
     # Disparity of the virtual light across the farthest camera, per unit inverse depth.
     span_px = rig.intrinsics.fx * float(np.max(np.linalg.norm(
         (rig.centers_m - ref)[list(samples.view_indices)], axis=1)))
+    if span_px <= 0.0:  # only the reference view is sampled: no depth moves V's image there
+        return None
     best_cost, best_plane = math.inf, None
     for shift in (0.0, *_RESTART_SHIFTS_PX):
         w = inverse_depth + shift / span_px
