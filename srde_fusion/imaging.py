@@ -6,6 +6,7 @@ thresholds meant as brightness) works on linear intensity (DESIGN §2).
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from .errors import ImageError
@@ -97,6 +98,11 @@ def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
 
 def saturation_mask(image: np.ndarray) -> np.ndarray:
     """Pixels where any channel is clipped at the top of the range, (H, W) bool."""
+    if image.dtype == np.uint8 and image.ndim == 3:
+        # OpenCV's range test gives the same mask an order of magnitude faster than
+        # numpy's any(axis=2), strided crops included.
+        below = (SATURATION_LEVEL_U8 - 1,) * image.shape[2]
+        return cv2.inRange(image, (0,) * image.shape[2], below) == 0
     if image.dtype == np.uint8:
         sat = image >= SATURATION_LEVEL_U8
     else:
