@@ -252,7 +252,7 @@ def _detect(image, region, *, method, encoding, window, k, min_extent_px, blob_c
         det = _detect_paper(lum, sub_region, window=window, k=k, min_extent_px=min_extent_px)
     else:
         # Only the core and lobe centres look at clipping.
-        saturated = None if blob_center == "weighted" else _saturated(image[crop])
+        saturated = None if blob_center == "weighted" else saturation_mask(image[crop])
         det = _detect_blob(lum, saturated, sub_region, center=blob_center,
                            min_contrast=min_contrast, min_area_px=min_area_px, level=level)
     if not det.found:
@@ -261,11 +261,6 @@ def _detect(image, region, *, method, encoding, window, k, min_extent_px, blob_c
     return HighlightDetection(True, det.center_uv + np.array([u0, v0], dtype=np.float64),
                               det.area_px, (bu0 + u0, bv0 + v0, bu1 + u0, bv1 + v0), det.score, "",
                               det.level)
-
-
-def _saturated(image: np.ndarray) -> np.ndarray:
-    """:func:`~srde_fusion.imaging.saturation_mask` of a crop, ``(h, w)`` bool."""
-    return saturation_mask(image)
 
 
 def _components(binary: np.ndarray):
