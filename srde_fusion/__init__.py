@@ -63,6 +63,17 @@ from .triangulation import Triangulation, triangulate_rectified
 
 __version__ = "0.1.0"
 
+# torch is imported only when the batched path is asked for.
+_LAZY = {"BatchedSRDE": "srde_fusion.batched"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'srde_fusion' has no attribute {name!r}")
+
 __all__ = [
     # errors
     "SRDEError",
@@ -91,6 +102,7 @@ __all__ = [
     "HighlightDetection",
     "SRDE",
     "SRDEResult",
+    "BatchedSRDE",
     "refine_plane",
     "PlaneRefinement",
     # masks and fusion
