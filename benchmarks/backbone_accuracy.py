@@ -143,7 +143,9 @@ def main() -> None:
         "# Stand-in backbone accuracy\n\n"
         f"The {name} (trained {info.get('training', {}).get('steps', '?')} steps on "
         "procedural pairs, igev preset) beside "
-        f"OpenCV StereoSGBM (block {SGBM_BLOCK}, {SGBM_NUM_DISPARITIES} disparities, 3-way).\n\n"
+        f"OpenCV StereoSGBM (block {SGBM_BLOCK}, {SGBM_NUM_DISPARITIES} disparities, 3-way). "
+        "SGBM's EPE covers only the pixels it filled (see `invalid`); bad-1, bad-2 and D1 "
+        "count its empty pixels as wrong. The stand-in fills every pixel.\n\n"
         f"## Rendered scenes ({args.scenes} scenes, 640x480, textured background, one glossy "
         "object; mean ± std over scenes)\n\n"
         + table(scene_rows, "region")
