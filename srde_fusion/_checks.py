@@ -51,7 +51,9 @@ def check_image(image: Any, name: str = "image") -> np.ndarray:
         Wrong type, dtype, shape, non-finite or out-of-range float values.
     """
     if not isinstance(image, np.ndarray):
-        raise ImageError(f"{name}: expected a numpy array (H, W) or (H, W, 3), got {_describe(image)}")
+        raise ImageError(
+            f"{name}: expected a numpy array (H, W) or (H, W, 3), got {_describe(image)}"
+        )
     if image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
@@ -73,8 +75,9 @@ def check_image(image: Any, name: str = "image") -> np.ndarray:
     raise ImageError(f"{name}: expected dtype uint8 or float in [0, 1], got {image.dtype}")
 
 
-def check_views(views: Any, n_cameras: int | None = None, image_size: tuple[int, int] | None = None
-                ) -> list[np.ndarray]:
+def check_views(
+    views: Any, n_cameras: int | None = None, image_size: tuple[int, int] | None = None
+) -> list[np.ndarray]:
     """Validate the list of views of a rig.
 
     Parameters
@@ -96,7 +99,9 @@ def check_views(views: Any, n_cameras: int | None = None, image_size: tuple[int,
     if not isinstance(views, Sequence) or isinstance(views, (str, bytes)):
         raise ImageError(f"views: expected a sequence of images, got {_describe(views)}")
     if n_cameras is not None and len(views) != n_cameras:
-        raise ImageError(f"views: expected {n_cameras} images (one per rig camera), got {len(views)}")
+        raise ImageError(
+            f"views: expected {n_cameras} images (one per rig camera), got {len(views)}"
+        )
     if len(views) == 0:
         raise ImageError("views: expected at least one image, got none")
     checked = [check_image(v, f"views[{i}]") for i, v in enumerate(views)]
@@ -115,8 +120,9 @@ def check_views(views: Any, n_cameras: int | None = None, image_size: tuple[int,
     return checked
 
 
-def check_mask(mask: Any, shape: tuple[int, int], name: str = "mask", *, allow_empty: bool = False
-               ) -> np.ndarray:
+def check_mask(
+    mask: Any, shape: tuple[int, int], name: str = "mask", *, allow_empty: bool = False
+) -> np.ndarray:
     """Validate a binary mask of the reference view and return it as bool.
 
     Parameters
@@ -138,8 +144,9 @@ def check_mask(mask: Any, shape: tuple[int, int], name: str = "mask", *, allow_e
     return mask
 
 
-def check_disparity(disparity: Any, shape: tuple[int, int] | None = None, name: str = "disparity"
-                    ) -> np.ndarray:
+def check_disparity(
+    disparity: Any, shape: tuple[int, int] | None = None, name: str = "disparity"
+) -> np.ndarray:
     """Validate a disparity map and return it as float32 (NaN = invalid).
 
     Non-finite and negative values are allowed in the input and mean *invalid*;
@@ -151,7 +158,9 @@ def check_disparity(disparity: Any, shape: tuple[int, int] | None = None, name: 
         disparity = disparity[0]
     if disparity.ndim != 2:
         raise DisparityError(f"{name}: expected shape (H, W), got {disparity.shape}")
-    if not (np.issubdtype(disparity.dtype, np.floating) or np.issubdtype(disparity.dtype, np.integer)):
+    if not (
+        np.issubdtype(disparity.dtype, np.floating) or np.issubdtype(disparity.dtype, np.integer)
+    ):
         raise DisparityError(f"{name}: expected a float array, got dtype {disparity.dtype}")
     if shape is not None and disparity.shape != tuple(shape):
         raise DisparityError(f"{name}: expected shape {tuple(shape)}, got {disparity.shape}")

@@ -43,7 +43,9 @@ def _vector3(value: Any, field_name: str) -> tuple[float, float, float]:
     if isinstance(value, np.ndarray):
         value = value.tolist()
     if not isinstance(value, (list, tuple)) or len(value) != 3:
-        raise RigError(f"{field_name}: expected a list of 3 numbers [x, y, z] in metres, got {value!r}")
+        raise RigError(
+            f"{field_name}: expected a list of 3 numbers [x, y, z] in metres, got {value!r}"
+        )
     return tuple(_number(v, f"{field_name}[{i}]") for i, v in enumerate(value))  # type: ignore[return-value]
 
 
@@ -84,8 +86,9 @@ class Intrinsics:
             object.__setattr__(self, name, _number(getattr(self, name), f"intrinsics.{name}"))
 
     @classmethod
-    def from_focal_length(cls, focal_length_mm: float, pixel_size_um: float, cx: float, cy: float
-                          ) -> Intrinsics:
+    def from_focal_length(
+        cls, focal_length_mm: float, pixel_size_um: float, cx: float, cy: float
+    ) -> Intrinsics:
         """Intrinsics from a lens focal length (mm) and a square pixel pitch (µm)."""
         f_mm = _number(focal_length_mm, "focal_length_mm", positive=True)
         p_um = _number(pixel_size_um, "pixel_size_um", positive=True)
@@ -148,13 +151,21 @@ class CameraRig:
 
     def __post_init__(self) -> None:
         size = self.image_size
-        if (not isinstance(size, (tuple, list)) or len(size) != 2
-                or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s > 0
-                           for s in size)):
-            raise RigError(f"image_size: expected [width, height] as two positive integers, got {size!r}")
+        if (
+            not isinstance(size, (tuple, list))
+            or len(size) != 2
+            or not all(
+                isinstance(s, (int, np.integer)) and not isinstance(s, bool) and s > 0 for s in size
+            )
+        ):
+            raise RigError(
+                f"image_size: expected [width, height] as two positive integers, got {size!r}"
+            )
         object.__setattr__(self, "image_size", (int(size[0]), int(size[1])))
         if not isinstance(self.intrinsics, Intrinsics):
-            raise RigError(f"intrinsics: expected an Intrinsics, got {type(self.intrinsics).__name__}")
+            raise RigError(
+                f"intrinsics: expected an Intrinsics, got {type(self.intrinsics).__name__}"
+            )
         cams = tuple(self.cameras)
         if len(cams) < 2:
             raise RigError(f"cameras: expected at least 2 cameras, got {len(cams)}")
@@ -166,8 +177,9 @@ class CameraRig:
             if not isinstance(c.name, str) or not c.name:
                 raise RigError(f"cameras[{i}].name: expected a non-empty string, got {c.name!r}")
         # Centres as tuples of floats keep the rig hashable, comparable and JSON-serialisable.
-        cams = tuple(Camera(c.name, _vector3(c.center_m, f"cameras[{i}].center"))
-                     for i, c in enumerate(cams))
+        cams = tuple(
+            Camera(c.name, _vector3(c.center_m, f"cameras[{i}].center")) for i, c in enumerate(cams)
+        )
         names = [c.name for c in cams]
         if len(set(names)) != len(names):
             raise RigError(f"cameras: expected unique names, got {names}")
@@ -183,16 +195,24 @@ class CameraRig:
                 f"got {self.stereo_pair!r}"
             )
         pair = tuple(self.stereo_pair)
-        if (len(pair) != 2 or not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool)
-                                      and 0 <= i < n for i in pair)):
-            raise RigError(f"stereo_pair: expected two camera indices in [0, {n - 1}], got {self.stereo_pair!r}")
+        if len(pair) != 2 or not all(
+            isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < n
+            for i in pair
+        ):
+            raise RigError(
+                f"stereo_pair: expected two camera indices in [0, {n - 1}], "
+                f"got {self.stereo_pair!r}"
+            )
         pair = (int(pair[0]), int(pair[1]))
         if pair[0] != self.reference:
             raise RigError(
-                f"stereo_pair: expected the reference camera {self.reference} first, got {list(pair)}"
+                f"stereo_pair: expected the reference camera {self.reference} first, "
+                f"got {list(pair)}"
             )
         object.__setattr__(self, "stereo_pair", pair)
-        centers = np.array([_vector3(c.center_m, f"cameras[{i}].center") for i, c in enumerate(cams)])
+        centers = np.array(
+            [_vector3(c.center_m, f"cameras[{i}].center") for i, c in enumerate(cams)]
+        )
         z0 = centers[self.reference, 2]
         off = np.abs(centers[:, 2] - z0)
         if off.max() > _COPLANAR_TOL_M:
@@ -208,20 +228,36 @@ class CameraRig:
                 f"reference along x (dx > 0, dy = 0), got dx = {d[0]:g} m, dy = {d[1]:g} m"
             )
         if self.image_encoding not in IMAGE_ENCODINGS:
-            raise RigError(f"image_encoding: expected one of {list(IMAGE_ENCODINGS)}, got {self.image_encoding!r}")
+            raise RigError(
+                f"image_encoding: expected one of {list(IMAGE_ENCODINGS)}, "
+                f"got {self.image_encoding!r}"
+            )
         if self.light_position_m is not None:
-            object.__setattr__(self, "light_position_m", _vector3(self.light_position_m, "light.position"))
+            object.__setattr__(
+                self, "light_position_m", _vector3(self.light_position_m, "light.position")
+            )
         centers.setflags(write=False)
         object.__setattr__(self, "_centers", centers)
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def grid(cls, rows: int, cols: int, baseline_m: float, fx: float | None = None,
-             fy: float | None = None, cx: float | None = None, cy: float | None = None,
-             image_size: tuple[int, int] = (640, 480), *, focal_length_mm: float | None = None,
-             pixel_size_um: float | None = None, light_position_m: Any = None,
-             image_encoding: str = "srgb") -> CameraRig:
-        """A ``rows x cols`` array with equal horizontal and vertical baselines.
+    def grid(
+        cls,
+        rows: int,
+        cols: int,
+        baseline_m: float,
+        fx: float | None = None,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        image_size: tuple[int, int] = (640, 480),
+        *,
+        focal_length_mm: float | None = None,
+        pixel_size_um: float | None = None,
+        light_position_m: Any = None,
+        image_encoding: str = "srgb",
+    ) -> CameraRig:
+        """Build a ``rows x cols`` array with equal horizontal and vertical baselines.
 
         Cameras are numbered row by row, top-left first (``cam0`` ...). The reference is
         the centre camera (for an even count, the one left of/above the centre), at the
@@ -235,25 +271,39 @@ class CameraRig:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise RigError(f"{name}: expected a positive integer, got {value!r}")
         if cols < 2:
-            raise RigError(f"cols: expected at least 2 columns (a stereo partner to the right), got {cols}")
+            raise RigError(
+                f"cols: expected at least 2 columns (a stereo partner to the right), got {cols}"
+            )
         baseline_m = _number(baseline_m, "baseline_m", positive=True)
         intr = _make_intrinsics(fx, fy, cx, cy, image_size, focal_length_mm, pixel_size_um)
         r0, c0 = (rows - 1) // 2, (cols - 1) // 2
         cameras = tuple(
             Camera(f"cam{r * cols + c}", ((c - c0) * baseline_m, (r - r0) * baseline_m, 0.0))
-            for r in range(rows) for c in range(cols)
+            for r in range(rows)
+            for c in range(cols)
         )
         ref = r0 * cols + c0
-        return cls(tuple(image_size), intr, cameras, ref, (ref, ref + 1), image_encoding,
-                   light_position_m)
+        return cls(
+            tuple(image_size), intr, cameras, ref, (ref, ref + 1), image_encoding, light_position_m
+        )
 
     @classmethod
-    def stereo(cls, baseline_m: float, fx: float | None = None, fy: float | None = None,
-               cx: float | None = None, cy: float | None = None,
-               image_size: tuple[int, int] = (640, 480), *, focal_length_mm: float | None = None,
-               pixel_size_um: float | None = None, light_position_m: Any = None,
-               image_encoding: str = "srgb", names: tuple[str, str] = ("left", "right")) -> CameraRig:
-        """A rectified two-camera rig: reference (left) at the origin, partner at ``+x``."""
+    def stereo(
+        cls,
+        baseline_m: float,
+        fx: float | None = None,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        image_size: tuple[int, int] = (640, 480),
+        *,
+        focal_length_mm: float | None = None,
+        pixel_size_um: float | None = None,
+        light_position_m: Any = None,
+        image_encoding: str = "srgb",
+        names: tuple[str, str] = ("left", "right"),
+    ) -> CameraRig:
+        """Build a rectified two-camera rig: reference (left) at the origin, partner at ``+x``."""
         baseline_m = _number(baseline_m, "baseline_m", positive=True)
         intr = _make_intrinsics(fx, fy, cx, cy, image_size, focal_length_mm, pixel_size_um)
         cameras = (Camera(names[0], (0.0, 0.0, 0.0)), Camera(names[1], (baseline_m, 0.0, 0.0)))
@@ -331,7 +381,8 @@ class CameraRig:
         uv = np.asarray(uv, dtype=np.float64)
         k = self.intrinsics
         return np.stack(
-            [(uv[..., 0] - k.cx) / k.fx, (uv[..., 1] - k.cy) / k.fy, np.ones(uv.shape[:-1])], axis=-1
+            [(uv[..., 0] - k.cx) / k.fx, (uv[..., 1] - k.cy) / k.fy, np.ones(uv.shape[:-1])],
+            axis=-1,
         )
 
     def backproject(self, uv: Any, depth_m: Any, camera: int | None = None) -> np.ndarray:
@@ -363,12 +414,16 @@ class CameraRig:
 
     # ------------------------------------------------------------------ derived rigs
     def with_light(self, light_position_m: Any) -> CameraRig:
-        """A copy of the rig with the given light position (or None)."""
-        return replace(self, light_position_m=None if light_position_m is None
-                       else _vector3(light_position_m, "light_position_m"))
+        """Return a copy of the rig with the given light position (or None)."""
+        return replace(
+            self,
+            light_position_m=None
+            if light_position_m is None
+            else _vector3(light_position_m, "light_position_m"),
+        )
 
     def scaled(self, factor: float) -> CameraRig:
-        """The rig for images resized by ``factor`` (intrinsics follow the pixel grid)."""
+        """Return the rig for images resized by ``factor`` (intrinsics follow the pixel grid)."""
         factor = _number(factor, "factor", positive=True)
         w, h = self.image_size
         new_size = (max(1, round(w * factor)), max(1, round(h * factor)))
@@ -379,24 +434,32 @@ class CameraRig:
         return replace(self, image_size=new_size, intrinsics=intr)
 
     def subset(self, indices: Any) -> CameraRig:
-        """A rig of some of the cameras; the reference and its partner must be kept."""
+        """Return a rig of some of the cameras; the reference and its partner must be kept."""
         n = self.n_cameras
         idx = list(indices)
         # Negative indices would silently wrap to other cameras.
-        if not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < n
-                   for i in idx):
+        if not all(
+            isinstance(i, (int, np.integer)) and not isinstance(i, bool) and 0 <= i < n for i in idx
+        ):
             raise RigError(f"indices: expected camera indices in [0, {n - 1}], got {idx!r}")
         idx = [int(i) for i in idx]
         for must in self.stereo_pair:
             if must not in idx:
-                raise RigError(f"indices: expected the stereo pair {list(self.stereo_pair)} to be kept, got {idx}")
+                raise RigError(
+                    f"indices: expected the stereo pair {list(self.stereo_pair)} to be kept, "
+                    f"got {idx}"
+                )
         cams = tuple(self.cameras[i] for i in idx)
-        return replace(self, cameras=cams, reference=idx.index(self.reference),
-                       stereo_pair=(idx.index(self.stereo_pair[0]), idx.index(self.stereo_pair[1])))
+        return replace(
+            self,
+            cameras=cams,
+            reference=idx.index(self.reference),
+            stereo_pair=(idx.index(self.stereo_pair[0]), idx.index(self.stereo_pair[1])),
+        )
 
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict[str, Any]:
-        """The ``rig.json`` content as a dict (DESIGN §5)."""
+        """Return the ``rig.json`` content as a dict (DESIGN §5)."""
         k = self.intrinsics
         out: dict[str, Any] = {
             "format": RIG_FORMAT,
@@ -421,26 +484,50 @@ class CameraRig:
             Unknown or missing keys, wrong types, non-positive focal lengths, indices out
             of range, or a stereo partner not to the right of the reference.
         """
-        _check_keys(data, {"format", "image_size", "intrinsics", "cameras", "reference",
-                           "stereo_pair", "image_encoding", "light"},
-                    {"format", "image_size", "intrinsics", "cameras", "reference", "stereo_pair"},
-                    "rig")
+        _check_keys(
+            data,
+            {
+                "format",
+                "image_size",
+                "intrinsics",
+                "cameras",
+                "reference",
+                "stereo_pair",
+                "image_encoding",
+                "light",
+            },
+            {"format", "image_size", "intrinsics", "cameras", "reference", "stereo_pair"},
+            "rig",
+        )
         if data["format"] != RIG_FORMAT:
             raise RigError(f"format: expected {RIG_FORMAT!r}, got {data['format']!r}")
         intr_d = data["intrinsics"]
         if isinstance(intr_d, dict) and "focal_length_mm" in intr_d:
-            _check_keys(intr_d, {"focal_length_mm", "pixel_size_um", "cx", "cy"},
-                        {"focal_length_mm", "pixel_size_um", "cx", "cy"}, "intrinsics")
-            intr = Intrinsics.from_focal_length(intr_d["focal_length_mm"], intr_d["pixel_size_um"],
-                                                _number(intr_d["cx"], "intrinsics.cx"),
-                                                _number(intr_d["cy"], "intrinsics.cy"))
+            _check_keys(
+                intr_d,
+                {"focal_length_mm", "pixel_size_um", "cx", "cy"},
+                {"focal_length_mm", "pixel_size_um", "cx", "cy"},
+                "intrinsics",
+            )
+            intr = Intrinsics.from_focal_length(
+                intr_d["focal_length_mm"],
+                intr_d["pixel_size_um"],
+                _number(intr_d["cx"], "intrinsics.cx"),
+                _number(intr_d["cy"], "intrinsics.cy"),
+            )
         else:
             _check_keys(intr_d, {"fx", "fy", "cx", "cy"}, {"fx", "fy", "cx", "cy"}, "intrinsics")
-            intr = Intrinsics(*(_number(intr_d[key], f"intrinsics.{key}", positive=key in ("fx", "fy"))
-                                for key in ("fx", "fy", "cx", "cy")))
+            intr = Intrinsics(
+                *(
+                    _number(intr_d[key], f"intrinsics.{key}", positive=key in ("fx", "fy"))
+                    for key in ("fx", "fy", "cx", "cy")
+                )
+            )
         cams_d = data["cameras"]
         if not isinstance(cams_d, list):
-            raise RigError(f"cameras: expected a list of {{name, center}} objects, got {type(cams_d).__name__}")
+            raise RigError(
+                f"cameras: expected a list of {{name, center}} objects, got {type(cams_d).__name__}"
+            )
         cameras = []
         for i, c in enumerate(cams_d):
             _check_keys(c, {"name", "center"}, {"name", "center"}, f"cameras[{i}]")
@@ -457,8 +544,15 @@ class CameraRig:
         if "light" in data:
             _check_keys(data["light"], {"position"}, {"position"}, "light")
             light = _vector3(data["light"]["position"], "light.position")
-        return cls(tuple(size), intr, tuple(cameras), data["reference"], tuple(pair),
-                   data.get("image_encoding", "srgb"), light)
+        return cls(
+            tuple(size),
+            intr,
+            tuple(cameras),
+            data["reference"],
+            tuple(pair),
+            data.get("image_encoding", "srgb"),
+            light,
+        )
 
     def to_json(self, path: str | os.PathLike | None = None) -> str:
         """Serialise to JSON; write it to ``path`` if given. Returns the text."""
@@ -471,7 +565,9 @@ class CameraRig:
     def from_json(cls, source: str | os.PathLike) -> CameraRig:
         """Read a rig from a ``rig.json`` path or from a JSON string."""
         text: str
-        if isinstance(source, os.PathLike) or (isinstance(source, str) and not source.lstrip().startswith("{")):
+        if isinstance(source, os.PathLike) or (
+            isinstance(source, str) and not source.lstrip().startswith("{")
+        ):
             path = Path(source)
             try:
                 found = path.is_file()
@@ -494,19 +590,27 @@ class CameraRig:
 
 
 def _make_intrinsics(fx, fy, cx, cy, image_size, focal_length_mm, pixel_size_um) -> Intrinsics:
-    if (not isinstance(image_size, (tuple, list)) or len(image_size) != 2
-            or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool)
-                       for s in image_size)):
+    if (
+        not isinstance(image_size, (tuple, list))
+        or len(image_size) != 2
+        or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool) for s in image_size)
+    ):
         raise RigError(f"image_size: expected (width, height) as two integers, got {image_size!r}")
     w, h = image_size
     cx = (w - 1) / 2.0 if cx is None else cx
     cy = (h - 1) / 2.0 if cy is None else cy
     if focal_length_mm is not None or pixel_size_um is not None:
         if fx is not None or fy is not None:
-            raise RigError("focal length: expected either fx/fy or focal_length_mm with pixel_size_um, got both")
+            raise RigError(
+                "focal length: expected either fx/fy or focal_length_mm with "
+                "pixel_size_um, got both"
+            )
         if focal_length_mm is None or pixel_size_um is None:
             raise RigError("focal length: expected both focal_length_mm and pixel_size_um")
         return Intrinsics.from_focal_length(focal_length_mm, pixel_size_um, cx, cy)
     if fx is None:
-        raise RigError("fx: expected a focal length in pixels (or focal_length_mm with pixel_size_um), got None")
+        raise RigError(
+            "fx: expected a focal length in pixels (or focal_length_mm with "
+            "pixel_size_um), got None"
+        )
     return Intrinsics(fx, fx if fy is None else fy, cx, cy)
