@@ -25,7 +25,7 @@ test-all: venv
 	$(BIN)/python -m pytest -q -m "slow or not slow"
 
 lint: venv
-	$(BIN)/ruff check srde_fusion adapters tests
+	$(BIN)/ruff check srde_fusion adapters tests examples benchmarks
 
 bench: venv
 	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done
