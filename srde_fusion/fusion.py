@@ -604,6 +604,7 @@ class HybridStereo:
         views = check_views(views, rig.n_cameras, rig.image_size)
         left, right = (views[i] for i in rig.stereo_pair)
         disparity = self.backbone(left, right)
-        masks = self.masker(views, rig)
-        srde = self.srde if len(masks) else None
+        # Checked here so that a masker returning None or a generator is a MaskError.
+        masks = _as_mask_list(self.masker(views, rig), (rig.height, rig.width))
+        srde = self.srde if masks else None
         return fuse(disparity, views, rig, masks, srde, border_check=self.border_check)

@@ -357,3 +357,40 @@ def test_fusion_never_loses_a_valid_backbone_pixel(rig, views, srde, data, backb
 def test_fusion_never_loses_a_valid_backbone_pixel_many(rig, views, srde, data, backbone,
                                                         masks, real):
     _fuzz_fusion(rig, views, srde, backbone, masks, data.draw(outcomes(len(masks))), real)
+
+
+# ------------------------------------------------------------------ a model around the user's
+@pytest.mark.parametrize("output, error, match", [
+    (np.zeros((H, W - 1), np.float32), DisparityError,
+     r"backbone_disparity: expected shape \(150, 200\), got \(150, 199\)"),
+    (None, DisparityError, "backbone_disparity: expected a numpy array .* got NoneType"),
+    ([[1.0] * W] * H, DisparityError, "backbone_disparity: expected a numpy array .* got list"),
+    (np.zeros((2, H, W), np.float32), DisparityError, r"expected shape \(H, W\)"),
+])
+def test_a_backbone_that_breaks_the_contract(rig, views, output, error, match):
+    model = HybridStereo(lambda left, right: output, rig, masker=lambda v, r: [MASK])
+    with pytest.raises(error, match=match):
+        model(views)
+
+
+@pytest.mark.parametrize("masks, match", [
+    (None, "masks: expected a list of (H, W) bool masks, got NoneType"),
+    ([MASK[:-1]], r"masks\[0\]: expected shape \(150, 200\)"),
+    ([np.zeros((H, W), bool)], r"masks\[0\]: expected at least one pixel"),
+])
+def test_a_masker_that_breaks_the_contract(rig, views, masks, match):
+    model = HybridStereo(lambda left, right: np.full((H, W), 4.0, np.float32), rig,
+                         masker=lambda v, r: masks)
+    with pytest.raises(MaskError, match=match.replace("(H, W)", r"\(H, W\)")):
+        model(views)
+
+
+def test_a_backbone_with_no_valid_pixel(rig, views):
+    model = HybridStereo(lambda left, right: np.full((H, W), -1.0, np.float32), rig,
+                         masker=lambda v, r: [MASK])
+    result = model(views)
+    # Nothing to check SRDE against along the outline: used, and said so.
+    assert result.objects[0].status == "srde"
+    assert "unchecked" in result.objects[0].reason
+    assert np.isnan(result.disparity[~MASK]).all()
+    assert masked_epe(result.disparity, true_disparity(rig), MASK) < 0.1
