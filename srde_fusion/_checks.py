@@ -16,6 +16,8 @@ import numpy as np
 from .errors import DisparityError, ImageError, LightError, MaskError, SRDEError
 
 __all__ = [
+    "check_number",
+    "check_keys",
     "check_image",
     "check_views",
     "check_mask",
@@ -28,6 +30,48 @@ def _describe(array: Any) -> str:
     if isinstance(array, np.ndarray):
         return f"array of shape {array.shape} and dtype {array.dtype}"
     return f"{type(array).__name__}"
+
+
+def check_number(value: Any, name: str, error: type[SRDEError], *, positive: bool = False
+                 ) -> float:
+    """Validate a finite real number (``bool`` is not one) and return it as ``float``.
+
+    Parameters
+    ----------
+    value : Any
+    name : str
+        The field's name in error messages.
+    error : type of SRDEError
+        Raised on failure (``RigError`` for rig.json, ``BoardError`` for board.json, ...).
+    positive : bool
+        Require ``value > 0``.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise error(f"{name}: expected a number, got {type(value).__name__} {value!r}")
+    value = float(value)
+    if not np.isfinite(value):
+        raise error(f"{name}: expected a finite number, got {value}")
+    if positive and value <= 0:
+        raise error(f"{name}: expected a positive number, got {value}")
+    return value
+
+
+def check_keys(data: Any, allowed: set[str], required: set[str], where: str,
+               error: type[SRDEError]) -> dict:
+    """Validate a JSON object's keys: no unknown ones, none of ``required`` missing.
+
+    Returns the object. Unknown keys are an error rather than ignored, so a typo in a
+    configuration file is caught instead of silently falling back to a default.
+    """
+    if not isinstance(data, dict):
+        raise error(f"{where}: expected an object, got {type(data).__name__}")
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise error(f"{where}: unknown key(s) {unknown}; expected only {sorted(allowed)}")
+    missing = sorted(required - set(data))
+    if missing:
+        raise error(f"{where}: missing key(s) {missing}")
+    return data
 
 
 def check_image(image: Any, name: str = "image") -> np.ndarray:

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from ._checks import check_image, check_views
+from ._checks import check_image, check_keys, check_number, check_views
 from .errors import BoardError, LightError
 from .geometry import Plane
 from .imaging import luminance
@@ -71,25 +71,12 @@ DEFAULT_MAX_REPROJECTION_PX = 2.0
 
 
 def _number(value: Any, field_name: str, *, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise BoardError(f"{field_name}: expected a number, got {type(value).__name__} {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise BoardError(f"{field_name}: expected a finite number, got {value}")
-    if positive and value <= 0:
-        raise BoardError(f"{field_name}: expected a positive number, got {value}")
-    return value
+    return check_number(value, field_name, BoardError, positive=positive)
 
 
 def _check_keys(data: Any, allowed: set[str], where: str) -> None:
-    if not isinstance(data, dict):
-        raise BoardError(f"{where}: expected an object, got {type(data).__name__}")
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise BoardError(f"{where}: unknown key(s) {unknown}; expected only {sorted(allowed)}")
-    missing = sorted(allowed - set(data))
-    if missing:
-        raise BoardError(f"{where}: missing key(s) {missing}")
+    # Every key of a board.json object is required.
+    check_keys(data, allowed, allowed, where, BoardError)
 
 
 def aruco_dictionary(name: str) -> cv2.aruco.Dictionary:

@@ -10,7 +10,6 @@ Disparity is for the stereo pair (reference = left, partner to its right):
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ._checks import check_keys, check_number
 from .errors import RigError
 
 __all__ = ["Intrinsics", "Camera", "CameraRig", "RIG_FORMAT"]
@@ -29,14 +29,7 @@ _COPLANAR_TOL_M = 1e-6
 
 
 def _number(value: Any, field_name: str, *, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise RigError(f"{field_name}: expected a number, got {type(value).__name__} {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise RigError(f"{field_name}: expected a finite number, got {value}")
-    if positive and value <= 0:
-        raise RigError(f"{field_name}: expected a positive number, got {value}")
-    return value
+    return check_number(value, field_name, RigError, positive=positive)
 
 
 def _vector3(value: Any, field_name: str) -> tuple[float, float, float]:
@@ -50,14 +43,7 @@ def _vector3(value: Any, field_name: str) -> tuple[float, float, float]:
 
 
 def _check_keys(data: Any, allowed: set[str], required: set[str], where: str) -> None:
-    if not isinstance(data, dict):
-        raise RigError(f"{where}: expected an object, got {type(data).__name__}")
-    unknown = sorted(set(data) - allowed)
-    if unknown:
-        raise RigError(f"{where}: unknown key(s) {unknown}; expected only {sorted(allowed)}")
-    missing = sorted(required - set(data))
-    if missing:
-        raise RigError(f"{where}: missing key(s) {missing}")
+    check_keys(data, allowed, required, where, RigError)
 
 
 @dataclass(frozen=True)
