@@ -77,6 +77,10 @@ MIN_VIRTUAL_LIGHT_SHIFT_PX = 1.0
 # |V - L| below this fraction of the light's distance from the reference camera means the
 # light lies (nearly) on the plane; the normal direction V - L is then mostly noise.
 LIGHT_ON_PLANE_FRACTION = 0.01
+# A light farther than this (metres, per coordinate; the sun is 1.5e11 m away) is a
+# placeholder or a unit slip: its virtual light is at infinity for any rig, and far enough
+# out its squared distances overflow.
+MAX_LIGHT_DISTANCE_M = 1e12
 # The reference highlight's search capsule in other views: this many times the reference
 # blob's half-diagonal, plus a margin, around the line where the highlight can appear.
 _CAPSULE_SCALE = 2.0
@@ -282,6 +286,10 @@ class SRDE:
                              ) from None
         if light_m.shape != (3,) or not np.all(np.isfinite(light_m)):
             raise LightError(f"light: expected 3 finite numbers (x, y, z) in metres, got {light!r}")
+        reach_m = float(np.max(np.abs(light_m - rig.reference_center_m)))
+        if reach_m > MAX_LIGHT_DISTANCE_M:
+            raise LightError(f"light: expected a position within {MAX_LIGHT_DISTANCE_M:g} m of the "
+                             f"reference camera, got one {reach_m:.3g} m away")
         if (isinstance(mask_erosion_px, bool) or not isinstance(mask_erosion_px, (int, np.integer))
                 or mask_erosion_px < 0):
             raise SRDEError(f"mask_erosion_px: expected an integer >= 0 (pixels), got "

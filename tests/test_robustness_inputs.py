@@ -174,10 +174,20 @@ def test_detect_highlight_with_an_empty_region_is_a_result(views):
     ([0.1, np.inf, 0.2], "light: expected 3 finite numbers"),
     ("above", r"light: expected 3 numbers \(x, y, z\) in metres, got 'above'"),
     ([[0.1, 0.2, 0.3]], "light: expected 3 finite numbers"),
+    ([0.0, -1e200, 0.0], r"light: expected a position within 1e\+12 m of the reference camera, "
+     r"got one 1e\+200 m away"),
 ])
 def test_bad_light(rig, views, light, match):
     with pytest.raises(LightError, match=match):
         SRDE(rig, light=light)
+
+
+def test_a_light_beyond_any_use_is_refused_at_every_entry(rig, views):
+    far = [1e300, 1e300, 1e300]
+    with pytest.raises(LightError, match="expected a position within"):
+        postprocess(BACKBONE, views, rig, [MASK], light=far)
+    with pytest.raises(LightError, match="expected a position within"):
+        fuse(BACKBONE, views, rig.with_light(far), [MASK])
 
 
 def test_no_light_anywhere(views):
