@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from ._checks import check_image, check_keys, check_number, check_views
+from ._checks import check_image, check_keys, check_number, check_views, load_json_source
 from .errors import BoardError, LightError
 from .geometry import Plane
 from .imaging import luminance
@@ -330,19 +330,7 @@ class Board:
     @classmethod
     def from_json(cls, source: str | os.PathLike) -> Board:
         """Read a board from a ``board.json`` path or from a JSON string."""
-        if isinstance(source, os.PathLike) or (
-            isinstance(source, str) and not source.lstrip().startswith("{")
-        ):
-            path = Path(source)
-            if not path.is_file():
-                raise BoardError(f"board file: expected an existing board.json, got {str(path)!r}")
-            text, where = path.read_text(errors="replace"), str(path)
-        else:
-            text, where = str(source), "board JSON"
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise BoardError(f"{where}: expected valid JSON, got a parse error: {exc}") from None
+        data = load_json_source(source, "board", BoardError)
         return cls.from_dict(data)
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ._checks import check_keys, check_number
+from ._checks import check_keys, check_number, load_json_source
 from .errors import RigError
 
 __all__ = ["Intrinsics", "Camera", "CameraRig", "RIG_FORMAT"]
@@ -550,28 +550,7 @@ class CameraRig:
     @classmethod
     def from_json(cls, source: str | os.PathLike) -> CameraRig:
         """Read a rig from a ``rig.json`` path or from a JSON string."""
-        text: str
-        if isinstance(source, os.PathLike) or (
-            isinstance(source, str) and not source.lstrip().startswith("{")
-        ):
-            path = Path(source)
-            try:
-                found = path.is_file()
-            except OSError:  # a name the OS refuses to look up (too long, say)
-                found = False
-            if not found:
-                raise RigError(f"rig file: expected an existing rig.json, got {str(path)!r}")
-            try:
-                text = path.read_text(errors="replace")
-            except OSError as exc:
-                raise RigError(f"{path}: expected a readable rig.json, got {exc}") from None
-            where = str(path)
-        else:
-            text, where = str(source), "rig JSON"
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise RigError(f"{where}: expected valid JSON, got a parse error: {exc}") from None
+        data = load_json_source(source, "rig", RigError)
         return cls.from_dict(data)
 
 
