@@ -401,10 +401,15 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
     ``backbone_disparity`` cast to float32, bit for bit, for every finite non-negative
     value.
     """
+    if not isinstance(rig, CameraRig):
+        raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
     w, h = rig.image_size
     backbone = check_disparity(backbone_disparity, (h, w), "backbone_disparity")
     views = check_views(views, rig.n_cameras, rig.image_size)
     mask_list = _as_mask_list(masks, (h, w))
+    if border_check is not None and not isinstance(border_check, BorderCheck):
+        raise SRDEError(f"border_check: expected a BorderCheck or None, got "
+                        f"{type(border_check).__name__}")
     if srde is None and mask_list:
         from .srde import SRDE
 

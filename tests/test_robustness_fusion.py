@@ -30,7 +30,7 @@ from robustness_support import (
     true_disparity,
 )
 
-from srde_fusion.errors import DisparityError, MaskError, SRDEError
+from srde_fusion.errors import DisparityError, MaskError, RigError, SRDEError
 from srde_fusion.fusion import HybridStereo, fuse, postprocess
 from srde_fusion.geometry import Plane
 from srde_fusion.highlight import detect_highlight
@@ -39,6 +39,7 @@ from srde_fusion.rig import CameraRig
 from srde_fusion.srde import SRDE
 
 MASK = box_mask()
+BACKBONE_FLAT = np.full((H, W), 3.0, np.float32)
 
 
 @pytest.fixture(scope="module")
@@ -225,6 +226,18 @@ def test_instance_labels_as_masks(rig, views):
     fake = FakeSRDE([FakeResult("ok", np.full((H, W), 9.0, np.float32))])
     result = fuse(_sprinkled(7), views, rig, labels, fake)
     assert [o.pixel_count for o in result.objects] == [30 * 40, 30 * 50]
+
+
+@pytest.mark.parametrize("not_a_rig", [None, "rig.json", {"reference": 4}])
+def test_a_rig_that_is_not_one(views, srde, not_a_rig):
+    with pytest.raises(RigError, match="rig: expected a CameraRig, got"):
+        fuse(BACKBONE_FLAT, views, not_a_rig, [MASK], srde)
+
+
+@pytest.mark.parametrize("check", [True, {"width_px": 4}, "strict"])
+def test_a_border_check_that_is_not_one(rig, views, srde, check):
+    with pytest.raises(SRDEError, match="border_check: expected a BorderCheck or None, got"):
+        fuse(BACKBONE_FLAT, views, rig, [MASK], srde, border_check=check)
 
 
 # ------------------------------------------------------------------ estimators plugged in
