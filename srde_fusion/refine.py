@@ -914,11 +914,20 @@ class _LobeModel:
         self.n_unclipped = int(np.count_nonzero(~samples.saturated))  # they come first
         self._cache_key: bytes | None = None
         self._cache: _Geometry | None = None
+        self._lobe_key: bytes | None = None
+        self._lobe_value = None
+        self._specular_key = None
+        self._specular_value = self._specular_geometry = None
+        self._terms_geometry = self._terms = None
+        # Reused across steps: arrays this large would cost page faults on every call.
+        self._ones = np.ones(self.y.shape)
+        self._basis_buffer = np.empty((3, len(self.y)))
         self.initial_cost = math.inf  # cost of the start found by initial_guess
         shape = [_I_WIDTH] + ([_I_TAIL] if lobe == "gtr" else [])
         shape += [_I_FORE] if foreshortening is None else []
         self.free_photometric = np.array(shape)
         self.free_all = np.array(list(range(_N_PLANE)) + shape)
+        self._jacobian_buffer = np.empty((len(self.free_all), len(self.y)))
         # Normalise the geometric factors at the initial plane so the intensities read
         # as luminances at the highlight and the parameters are well scaled.
         self.diffuse_scale = self.spec_scale = 1.0
@@ -950,37 +959,58 @@ class _LobeModel:
         """Shading geometry of the samples for plane parameters ``(3,)``.
 
         Everything reduces to scalars per sample: with ``X = C + t k`` on the plane,
-        ``|L - X|^2 = a - 2 t b + t^2 q`` and ``n . X = c``. (One plane at a time keeps
-        the temporaries small.) None if the plane is invalid for some sample: seen from
-        behind, behind a camera, or with the light behind it.
+        ``|L - X|^2 = a - 2 t b + t^2 q`` and ``n . X = c``. None if the plane is invalid
+        for some sample: seen from behind, behind a camera, or with the light behind it.
         """
         n, c = self._planes(plane_params[None])
         n, c = n[0], float(c[0])
         nk = n @ self.ray_t
-        cos_o = -nk / self.sqrt_q
         light_height = float(n @ self.light) - c
-        if not (cos_o.min() > 0.0 and light_height > 0.0):
+        if not (nk.max() < 0.0 and light_height > 0.0):
             return None  # some samples see the plane from behind, or the light is behind it
         t = (c - n @ self.camera_t) / nk
         if not t.min() > 0.0:
             return None
-        r2 = self.a - 2.0 * t * self.b + t * t * self.q
+        # In-place arithmetic: fresh temporaries of this size cost page faults, not flops.
+        cos_o = np.divide(nk, self.sqrt_q)
+        np.negative(cos_o, out=cos_o)
+        tq_b = t * self.q
+        tq_b -= self.b
+        r2 = tq_b - self.b  # |L - X|^2 = t (t q - 2 b) + a
+        r2 *= t
+        r2 += self.a
         r = np.sqrt(r2)
         cos_i = light_height / r
-        cos_io = (t * self.q - self.b) / (self.sqrt_q * r)  # omega_i . omega_o
-        half_norm = np.sqrt(2.0 + 2.0 * cos_io)
-        cos_h = np.minimum((cos_i + cos_o) / half_norm, 1.0)
-        grazing = 1.0 - (1.0 + cos_io) / half_norm  # 1 - omega_i . h
-        grazing2 = grazing * grazing
+        cos_io = tq_b  # omega_i . omega_o = (t q - b) / (sqrt(q) r)
+        cos_io /= self.sqrt_q
+        cos_io /= r
+        half_norm = cos_io * 2.0  # |omega_i + omega_o|
+        half_norm += 2.0
+        np.sqrt(half_norm, out=half_norm)
+        cos_h = cos_i + cos_o
+        cos_h /= half_norm
+        np.minimum(cos_h, 1.0, out=cos_h)
+        grazing = cos_io + 1.0  # 1 - omega_i . h
+        grazing /= half_norm
+        np.subtract(1.0, grazing, out=grazing)
         # Schlick; powers by multiplication (numpy's ** 5 is a slow generic pow)
-        fresnel = self.f0 + (1.0 - self.f0) * (grazing2 * grazing2 * grazing)
-        return _Geometry(
-            cos_h=cos_h,
-            sin2_h=1.0 - cos_h * cos_h,
-            log_foreshortening=np.log(cos_i * cos_o),
-            diffuse=cos_i / r2 * self.diffuse_scale - 1.0,
-            specular=fresnel / (cos_o * r2) * self.spec_scale,
-        )
+        fresnel = grazing * grazing
+        fresnel *= fresnel
+        fresnel *= grazing
+        fresnel *= 1.0 - self.f0
+        fresnel += self.f0
+        sin2_h = cos_h * cos_h
+        np.subtract(1.0, sin2_h, out=sin2_h)
+        log_foreshortening = cos_i * cos_o
+        np.log(log_foreshortening, out=log_foreshortening)
+        diffuse = np.divide(cos_i, r2, out=cos_i)
+        diffuse *= self.diffuse_scale
+        diffuse -= 1.0
+        specular = np.multiply(cos_o, r2, out=r2)
+        np.divide(fresnel, specular, out=specular)
+        specular *= self.spec_scale
+        return _Geometry(cos_h=cos_h, sin2_h=sin2_h, log_foreshortening=log_foreshortening,
+                         diffuse=diffuse, specular=specular)
 
     def _base_geometry(self, theta: np.ndarray) -> _Geometry | None:
         """Geometry of ``theta``'s plane, reused while only the photometry changes."""
@@ -1007,87 +1037,145 @@ class _LobeModel:
         else:
             with np.errstate(divide="ignore"):
                 shape = np.exp((2.0 / alpha2 - 2.0) * np.log(np.maximum(g.cos_h, 0.0)))
-        fore = theta[_I_FORE]
-        if fore != 0.0:
-            return shape * (g.specular * np.exp(fore * g.log_foreshortening))
-        return shape * g.specular
+        return shape * self._specular_term(g, theta[_I_FORE])
+
+    def _specular_term(self, g: _Geometry, foreshortening: float) -> np.ndarray:
+        """``g_s (cos_i cos_o)^k`` of a geometry, ``(P,)``; the last one is kept."""
+        if self._specular_key != (id(g), foreshortening):
+            term = g.specular
+            if foreshortening != 0.0:
+                term = np.exp(foreshortening * g.log_foreshortening)
+                term *= g.specular
+            self._specular_key, self._specular_value = (id(g), foreshortening), term
+            self._specular_geometry = g  # keeps id(g) from being reused while cached
+        return self._specular_value
 
     def _model(self, g: _Geometry, theta: np.ndarray) -> np.ndarray:
         return theta[_I_SPEC] * self._lobe(g, theta) + theta[_I_DIFF] * g.diffuse + theta[_I_LEVEL]
 
     # ------------------------------------------------------------------ residuals
-    def _censor(self, r: np.ndarray) -> np.ndarray:
-        """Saturated samples are lower bounds: only a model below them is an error."""
-        return np.where(self.censored, np.minimum(r, 0.0), r)
+    def _residual(self, model: np.ndarray) -> np.ndarray:
+        """Return model minus observation, ``(P,)``.
 
-    def _intensities(self, basis: np.ndarray):
-        """Specular, diffuse and level ``(3,)`` for a basis ``(P, 3)``, by least squares.
+        Saturated samples are lower bounds: for them only a model below the observation
+        is an error.
+        """
+        r = model - self.y
+        np.minimum(r[self.n_unclipped:], 0.0, out=r[self.n_unclipped:])  # saturated come last
+        return r
 
-        Saturated samples count only where the model falls below them, which depends on
-        the solution: a few active-set passes settle it. Returns the coefficients, the
-        model ``(P,)`` and which samples count ``(P,)`` bool.
+    def _intensity_terms(self, g: _Geometry):
+        """Return the sums over unsaturated samples that do not depend on the lobe (cached).
+
+        Returns ``D (3, k)`` with rows diffuse, 1, y and the Gram entries
+        ``(sum d^2, sum d, k, sum d y, sum y)``.
+        """
+        if self._terms_geometry is not g:
+            k = self.n_unclipped
+            rows = np.stack([g.diffuse[:k], self._ones[:k], self.y[:k]])
+            d = rows[0]
+            self._terms = rows, (float(d @ d), float(d.sum()), float(k), float(d @ rows[2]),
+                                 float(rows[2].sum()))
+            self._terms_geometry = g
+        return self._terms
+
+    def _intensities(self, g: _Geometry, lobe: np.ndarray):
+        """Specular, diffuse and level ``(3,)`` for a lobe ``(P,)``, by least squares.
+
+        The basis is ``(lobe, g_d - 1, 1)``. Saturated samples count only where the
+        model falls below them, which depends on the solution: a few active-set passes
+        settle it. Returns the coefficients and the model ``(P,)``.
         """
         k = self.n_unclipped
-        unclipped = basis[:k]
-        normal0 = unclipped.T @ unclipped
-        rhs0 = unclipped.T @ self.y[:k]
-        clipped, clipped_y = basis[k:], self.y[k:]
-        active = np.zeros(len(clipped_y), dtype=bool)
-        for _ in range(_ACTIVE_SET_PASSES):
-            rows = clipped[active]
-            coef = _solve_normal(normal0 + rows.T @ rows, rhs0 + rows.T @ clipped_y[active])
-            now_active = clipped @ coef < clipped_y
-            if np.array_equal(now_active, active):
-                break
-            active = now_active
-        model = basis @ coef
-        return coef, model, ~self.censored | (model < self.y)
+        rows, (dd, d1, n1, dy, y1) = self._intensity_terms(g)
+        head = lobe[:k]
+        ld, l1, ly = rows @ head
+        normal0 = np.array([[float(head @ head), ld, l1], [ld, dd, d1], [l1, d1, n1]])
+        rhs0 = np.array([ly, dy, y1])
+        coef = _solve_normal(normal0, rhs0)
+        if k < len(lobe):
+            clipped = np.stack([lobe[k:], g.diffuse[k:], self._ones[k:]])  # (3, P - k)
+            clipped_y = self.y[k:]
+            active = np.zeros(len(clipped_y), dtype=bool)
+            for _ in range(_ACTIVE_SET_PASSES - 1):
+                now_active = coef @ clipped < clipped_y
+                if np.array_equal(now_active, active):
+                    break
+                active = now_active
+                cols = clipped[:, active]
+                coef = _solve_normal(normal0 + cols @ cols.T, rhs0 + cols @ clipped_y[active])
+        model = lobe * coef[0]
+        model += coef[1] * g.diffuse
+        model += coef[2]
+        return coef, model
+
+    def _lobe_at(self, theta: np.ndarray):
+        """Return the geometry and lobe ``(P,)`` of ``theta`` (None, None if invalid).
+
+        The last one is kept: a step's Jacobian is taken where it was evaluated.
+        """
+        key = theta[:_I_SPEC].tobytes()
+        if self._lobe_key != key:
+            g = self._base_geometry(theta)
+            self._lobe_value = (g, None if g is None else self._lobe(g, theta))
+            self._lobe_key = key
+        return self._lobe_value
 
     def evaluate(self, theta: np.ndarray):
         """Residual at ``theta``'s plane and lobe shape with the best intensities.
 
         Returns the residual ``(P,)`` and ``theta`` with those intensities filled in.
         """
-        g = self._base_geometry(theta)
+        g, lobe = self._lobe_at(theta)
         if g is None:
             return np.full(self.y.shape, np.inf), theta.copy()
-        basis = np.stack([self._lobe(g, theta), g.diffuse, np.ones(self.y.shape)], axis=1)
-        coef, model, _ = self._intensities(basis)
+        coef, model = self._intensities(g, lobe)
         out = theta.copy()
         out[_I_SPEC:] = coef
-        return self._censor(model - self.y), out
+        return self._residual(model), out
 
     def jacobian(self, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
-        """Jacobian ``(P, len(free))`` of :meth:`evaluate`'s residual.
+        """Transposed Jacobian ``(len(free), P)`` of :meth:`evaluate`'s residual.
 
         Variable projection with Kaufman's approximation: the model's derivative at fixed
         intensities, with its component in the span of the intensity basis removed.
-        Columns by forward differences (lobe-shape columns reuse the plane's geometry),
-        except the foreshortening exponent's, which is exact.
+        Rows by forward differences (lobe-shape rows reuse the plane's geometry), except
+        the foreshortening exponent's, which is exact. The array is a buffer of the
+        model's, overwritten by the next call.
         """
-        g = self._base_geometry(theta)
-        lobe = self._lobe(g, theta)
-        basis = np.stack([lobe, g.diffuse, np.ones(self.y.shape)], axis=1)
-        model = basis @ theta[_I_SPEC:]
-        jac = np.empty((len(model), len(free)))
-        for col, index in enumerate(free):
+        g, lobe = self._lobe_at(theta)
+        basis = self._basis_buffer
+        basis[0] = lobe
+        basis[1] = g.diffuse
+        basis[2] = 1.0
+        model = theta[_I_SPEC:] @ basis
+        jac = self._jacobian_buffer[:len(free)]
+        for row, index in enumerate(free):
             if index == _I_FORE:  # exact: the exponent multiplies log(cos_i cos_o)
-                jac[:, col] = theta[_I_SPEC] * lobe * g.log_foreshortening
+                np.multiply(lobe, g.log_foreshortening, out=jac[row])
+                jac[row] *= theta[_I_SPEC]
                 continue
             shifted = theta.copy()
             shifted[index] += _FD_STEPS[index]
             if index < _N_PLANE:
                 moved = self._geometry(shifted[:_N_PLANE])
-                # (at the edge of validity a plane direction is left out of this step)
-                jac[:, col] = 0.0 if moved is None else self._model(moved, theta) - model
+                if moved is None:  # at the edge of validity: this direction sits out a step
+                    jac[row] = 0.0
+                    continue
+                np.subtract(self._model(moved, theta), model, out=jac[row])
             else:
-                jac[:, col] = theta[_I_SPEC] * (self._lobe(g, shifted) - lobe)
-            jac[:, col] /= _FD_STEPS[index]
+                np.subtract(self._lobe(g, shifted), lobe, out=jac[row])
+                jac[row] *= theta[_I_SPEC]
+            jac[row] /= _FD_STEPS[index]
         # A saturated sample above its lower bound contributes nothing, nor does its slope.
-        counted = ~self.censored | (model < self.y)
-        jac[~counted] = 0.0
-        basis[~counted] = 0.0
-        return jac - basis @ _solve_normal(basis.T @ basis, basis.T @ jac)
+        ignored = self.censored & (model >= self.y)
+        if ignored.any():
+            jac[:, ignored] = 0.0
+            basis[:, ignored] = 0.0
+        coef = _solve_normal(basis @ basis.T, basis @ jac.T)  # (3, K)
+        for row in range(len(free)):
+            jac[row] -= coef[:, row] @ basis
+        return jac
 
     # ------------------------------------------------------------------ start and report
     def initial_guess(self) -> np.ndarray | None:
@@ -1097,7 +1185,6 @@ class _LobeModel:
         specular term.
         """
         g = self._base_geometry(self.start_theta())
-        ones = np.ones(self.y.shape)
         best_cost, best = math.inf, None
 
         def consider(width: float, tail: float) -> None:
@@ -1107,10 +1194,11 @@ class _LobeModel:
             lobe = self._lobe(g, theta)
             if not lobe[:self.n_unclipped].max(initial=0.0) > _MIN_LOBE_ON_UNCLIPPED:
                 return  # so narrow that no unsaturated sample sees it
-            coef, model, _ = self._intensities(np.stack([lobe, g.diffuse, ones], axis=1))
+            coef, model = self._intensities(g, lobe)
             if not coef[0] > 0.0:
                 return
-            cost = float(np.mean(self._censor(model - self.y) ** 2))
+            residual = self._residual(model)
+            cost = float(residual @ residual) / len(residual)
             if cost < best_cost:
                 best_cost, best = cost, theta
                 best[_I_SPEC:] = coef
@@ -1204,9 +1292,9 @@ def _levenberg_marquardt(model: _LobeModel, theta0: np.ndarray, free: np.ndarray
     steps = 0
     moves_plane = bool(np.any(free < _N_PLANE))
     while steps < max_iterations and not converged:
-        jac = model.jacobian(theta, free)
-        normal = jac.T @ jac
-        gradient = jac.T @ residual
+        jac = model.jacobian(theta, free)  # (K, P)
+        normal = jac @ jac.T
+        gradient = jac @ residual
         # Marquardt's scaling: damping proportional to each parameter's curvature.
         damping = np.diag(np.maximum(normal.diagonal(), 1e-12 * max(1.0, float(normal.max()))))
         improved = False
