@@ -52,7 +52,7 @@ import numpy as np
 from ._checks import check_mask, check_views
 from .errors import ImageError, LightError, SRDEError
 from .geometry import Plane, plane_from_lights
-from .imaging import REC709_LUMA, SATURATION_LEVEL_U8, luminance, srgb_to_linear
+from .imaging import REC709_LUMA, luminance, saturation_mask, srgb_to_linear
 from .rig import CameraRig
 
 __all__ = [
@@ -342,7 +342,7 @@ def refine_plane(
     if not isinstance(rig, CameraRig):
         raise SRDEError(f"rig: expected a CameraRig, got {type(rig).__name__}")
     views = check_views(views, rig.n_cameras, rig.image_size)
-    mask = check_mask(mask, (rig.height, rig.width))
+    mask = np.ascontiguousarray(check_mask(mask, (rig.height, rig.width)))
     light = _check_light(light_m)
     if not isinstance(initial_plane, Plane):
         raise SRDEError(f"initial_plane: expected a Plane, got {type(initial_plane).__name__}")
@@ -497,18 +497,16 @@ def _warp_change_px(rig: CameraRig, before: Plane, after: Plane, mask: np.ndarra
 
     Compares where the mappings that two planes induce send the reference mask.
     """
-    x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
     corners = np.array([[x, x + w - 1, x, x + w - 1], [y, y, y + h - 1, y + h - 1],
                         [1.0, 1.0, 1.0, 1.0]])
     worst = 0.0
     for camera in range(rig.n_cameras):
         if camera == rig.reference:
             continue
-        # reference -> camera is the inverse of camera -> reference
-        mapped = [np.linalg.solve(np.vstack([_reference_from_view(rig, p, camera),
-                                             [0.0, 0.0, 1.0]]), corners)[:2]
-                  for p in (before, after)]
-        worst = max(worst, float(np.max(np.abs(mapped[1] - mapped[0]))))
+        moved = (_view_from_reference(rig, after, camera)
+                 - _view_from_reference(rig, before, camera)) @ corners
+        worst = max(worst, float(np.max(np.abs(moved))))
     return worst
 
 
@@ -766,11 +764,12 @@ def _low_quantile(values: np.ndarray) -> float:
 def _erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
     """Shrink the mask by ``radius_px`` in the chessboard metric."""
     side = 2 * radius_px + 1
-    return cv2.erode(mask.astype(np.uint8), np.ones((side, side), np.uint8)) > 0
+    # (a bool array viewed as bytes: no copies of a full-size mask)
+    return cv2.erode(mask.view(np.uint8), np.ones((side, side), np.uint8)).view(bool)
 
 
-def _reference_from_view(rig: CameraRig, plane: Plane, camera: int) -> np.ndarray:
-    """Affine map ``(2, 3)`` from a camera's pixels to the reference pixels on the plane.
+def _view_from_reference(rig: CameraRig, plane: Plane, camera: int) -> np.ndarray:
+    """Affine map ``(2, 3)`` from reference pixels to a camera's pixels on the plane.
 
     In a rectified rig a point at depth z moves by ``-f (C_j - C_ref) / z`` between the
     reference view and camera j, and on a plane ``1 / z`` is affine in the pixel: the
@@ -784,10 +783,16 @@ def _reference_from_view(rig: CameraRig, plane: Plane, camera: int) -> np.ndarra
     d = rig.centers_m[camera] - rig.reference_center_m
     # camera pixel = A (u, v) + t with A = I - s g[:2]^T, t = -s g[2], s = f * dXY
     s = np.array([k.fx * d[0], k.fy * d[1]])
-    a = np.eye(2) - np.outer(s, g[:2])
+    return np.hstack([np.eye(2) - np.outer(s, g[:2]), -(s * g[2])[:, None]])
+
+
+def _reference_from_view(rig: CameraRig, plane: Plane, camera: int) -> np.ndarray:
+    """Affine map ``(2, 3)`` from a camera's pixels to the reference pixels on the plane."""
+    forward = _view_from_reference(rig, plane, camera)
+    a, t = forward[:, :2], forward[:, 2]
     a_inv = np.array([[a[1, 1], -a[0, 1]], [-a[1, 0], a[0, 0]]]) / (a[0, 0] * a[1, 1]
                                                                     - a[0, 1] * a[1, 0])
-    return np.hstack([a_inv, (a_inv @ (s * g[2]))[:, None]])
+    return np.hstack([a_inv, -(a_inv @ t)[:, None]])
 
 
 def _object_lookup(eroded_ref: np.ndarray, to_ref: np.ndarray | None, uu: np.ndarray,
@@ -823,35 +828,31 @@ def _block_window(view: np.ndarray, rig: CameraRig, block_mask: np.ndarray, to_r
     u0, v0 = start + lo * block
     nu, nv = (int(x) for x in hi - lo)
     crop = view[v0:v0 + nv * block, u0:u0 + nu * block]
-    lum = _linear_luminance(crop, rig.image_encoding)
-    level = SATURATION_LEVEL_U8 if crop.dtype == np.uint8 else SATURATION_LEVEL_U8 / 255.0
-    clipped = (crop >= level).astype(np.float32)
-    if clipped.ndim == 3:
-        clipped = cv2.transform(clipped, np.ones((1, 3), np.float32))
+    linear = _decode(crop, rig.image_encoding)
+    clipped = saturation_mask(crop)
     if block > 1:
-        # INTER_AREA with an integer factor is the exact block mean.
-        lum = cv2.resize(lum, (nu, nv), interpolation=cv2.INTER_AREA)
-        clipped = cv2.resize(clipped, (nu, nv), interpolation=cv2.INTER_AREA)
+        # INTER_AREA with an integer factor is the exact block mean; luminance is linear,
+        # so it is taken after averaging, on the small image.
+        linear = cv2.resize(linear, (nu, nv), interpolation=cv2.INTER_AREA)
+        # any() over block rows, then over block columns (single-axis reductions are fast)
+        clipped = clipped.reshape(nv, block, nu * block).any(axis=1)
+        clipped = clipped.reshape(nv, nu, block).any(axis=2)
+    lum = cv2.transform(linear, REC709_LUMA.reshape(1, 3)) if linear.ndim == 3 else linear
     cu = u0 + block * np.arange(nu) + (block - 1) / 2.0
     cv = v0 + block * np.arange(nv) + (block - 1) / 2.0
-    uu, vv = np.meshgrid(cu, cv)
-    uu, vv = uu.ravel(), vv.ravel()
+    uu, vv = np.tile(cu, nv), np.repeat(cv, nu)  # row-major, like the blocks
     inside = _object_lookup(block_mask, to_ref, uu, vv)
-    return (np.stack([uu, vv], axis=1), lum.ravel().astype(np.float64),
-            clipped.ravel() > 0.0, inside)
+    return (np.stack([uu, vv], axis=1), lum.ravel().astype(np.float64), clipped.ravel(),
+            inside)
 
 
-def _linear_luminance(image: np.ndarray, encoding: str) -> np.ndarray:
-    """Linear luminance ``(H, W)`` float32 of a crop (cv2 keeps large windows cheap)."""
+def _decode(image: np.ndarray, encoding: str) -> np.ndarray:
+    """Linear intensity ``(H, W[, 3])`` float32 of a crop (a table for uint8 images)."""
     if image.dtype == np.uint8:
-        linear = cv2.LUT(image, _DECODE_LUT[encoding])
-    elif encoding == "srgb":
-        linear = srgb_to_linear(image)
-    else:
-        linear = image.astype(np.float32)
-    if linear.ndim == 3:
-        linear = cv2.transform(linear, REC709_LUMA.reshape(1, 3))
-    return linear
+        return cv2.LUT(image, _DECODE_LUT[encoding])
+    if encoding == "srgb":
+        return srgb_to_linear(image)
+    return image.astype(np.float32)
 
 
 # ======================================================================================
@@ -894,7 +895,7 @@ class _LobeModel:
         self.e1 = e1 / np.linalg.norm(e1)
         self.e2 = np.cross(self.n0, self.e1)
         # Convergence is judged by the disparity at the corners of the object's box.
-        x, y, w, h = cv2.boundingRect(mask.astype(np.uint8))
+        x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
         corners = np.array([[x, y], [x + w - 1, y], [x, y + h - 1], [x + w - 1, y + h - 1]],
                            dtype=np.float64)
         self.probe_rays = rig.rays(corners)
