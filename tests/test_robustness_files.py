@@ -11,7 +11,6 @@ import copy
 import json
 import math
 import shutil
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -363,7 +362,10 @@ def _garbage():
         lambda parts: parts[0] + parts[1])
 
 
-_SCRATCH = Path(tempfile.mkdtemp(prefix="srde-robustness-"))
+@pytest.fixture(scope="module")
+def scratch(tmp_path_factory) -> Path:
+    """A folder whose files each hypothesis example overwrites."""
+    return tmp_path_factory.mktemp("scratch")
 
 
 def _only_srde_errors(call) -> None:
@@ -375,8 +377,8 @@ def _only_srde_errors(call) -> None:
 
 @settings(max_examples=60, suppress_health_check=[HealthCheck.too_slow])
 @given(data=_garbage(), suffix=st.sampled_from([".pfm", ".png", ".npy", ".jpg"]))
-def test_garbage_bytes_into_the_readers(data, suffix):
-    path = _write(_SCRATCH / f"garbage{suffix}", data)
+def test_garbage_bytes_into_the_readers(scratch, data, suffix):
+    path = _write(scratch / f"garbage{suffix}", data)
     _only_srde_errors(lambda: read_pfm(path))
     _only_srde_errors(lambda: read_kitti_disparity(path))
     _only_srde_errors(lambda: read_image(path))
@@ -390,8 +392,8 @@ def test_garbage_bytes_into_the_readers(data, suffix):
 
 @settings(max_examples=60)
 @given(data=_garbage())
-def test_garbage_bytes_as_rig_json_and_scene(data):
-    folder = _SCRATCH / "scene"
+def test_garbage_bytes_as_rig_json_and_scene(scratch, data):
+    folder = scratch / "scene"
     folder.mkdir(exist_ok=True)
     _write(folder / "rig.json", data)
     with pytest.raises(RigError):
@@ -406,12 +408,12 @@ def test_garbage_bytes_as_rig_json_and_scene(data):
 @given(kind=st.sampled_from(["pfm", "kitti", "npy", "png"]),
        flips=st.lists(st.tuples(st.integers(0, 10**6), st.integers(1, 255)), min_size=1,
                       max_size=8))
-def test_bit_flips_in_valid_files(valid_bytes, kind, flips):
+def test_bit_flips_in_valid_files(scratch, valid_bytes, kind, flips):
     data = bytearray(valid_bytes[kind])
     for position, xor in flips:
         data[position % len(data)] ^= xor
     suffix = {"pfm": ".pfm", "kitti": ".png", "npy": ".npy", "png": ".png"}[kind]
-    path = _write(_SCRATCH / f"flipped{suffix}", bytes(data))
+    path = _write(scratch / f"flipped{suffix}", bytes(data))
     _only_srde_errors(lambda: read_disparity(path))
     if kind == "png":
         _only_srde_errors(lambda: read_image(path))
@@ -445,8 +447,9 @@ def test_random_values_in_a_valid_rig_json(rig, data):
 @pytest.mark.slow
 @settings(max_examples=1000, suppress_health_check=[HealthCheck.too_slow])
 @given(data=_garbage(), suffix=st.sampled_from([".pfm", ".png", ".npy", ".jpg"]))
-def test_garbage_bytes_into_the_readers_many(data, suffix):
-    test_garbage_bytes_into_the_readers.hypothesis.inner_test(data=data, suffix=suffix)
+def test_garbage_bytes_into_the_readers_many(scratch, data, suffix):
+    test_garbage_bytes_into_the_readers.hypothesis.inner_test(scratch=scratch, data=data,
+                                                              suffix=suffix)
 
 
 @pytest.mark.slow
