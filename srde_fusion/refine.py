@@ -125,8 +125,10 @@ _TAIL_BOUNDS = (-0.25, 0.75)
 _FORESHORTENING_BOUNDS = (-4.0, 5.0)
 # Fitted foreshortening exponent starts here, halfway between the conventions.
 _FORESHORTENING_START = 0.5
-# Forward-difference steps: tilts (rad), offset (m), log width, tail, exponent.
-_FD_STEPS = np.array([1e-7, 1e-7, 1e-7, 1e-6, 1e-6, 1e-6])
+# |tail| below this is the Gaussian limit exp(-z) of the "gtr" lobe.
+_ZERO_TAIL = 1e-9
+# |t z| below this takes the lobe's derivative by its tail from a series (no cancellation).
+_SMALL_TAIL_Z = 1e-3
 # Levenberg-Marquardt: start and largest damping, and stopping rules. A joint step ends
 # the fit when it moves the disparity at the object's corners by less than
 # _DISPARITY_STEP_TOL_PX and lowers the cost by less than _PLANE_COST_RTOL (relative), or
@@ -862,13 +864,28 @@ def _decode(image: np.ndarray, encoding: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Geometry:
-    """Shading geometry of the samples for one plane, arrays ``(P,)``."""
+    """Shading geometry of the samples for one plane, arrays ``(P,)``.
+
+    Besides the shading terms it keeps the intermediates of their derivatives with
+    respect to the plane (see :meth:`_LobeModel.jacobian`).
+    """
 
     cos_h: np.ndarray  # cosine of the half-vector angle
     sin2_h: np.ndarray
     log_foreshortening: np.ndarray  # log(cos_i cos_o)
     diffuse: np.ndarray  # g_d - 1
     specular: np.ndarray  # F / (cos_o r^2), normalised
+    normal: np.ndarray  # (3,) unit normal n
+    t: np.ndarray  # ray parameter of X = C + t k
+    nk: np.ndarray  # n . k
+    tq_b: np.ndarray  # t q - b, half the derivative of r^2 along t
+    r: np.ndarray  # distance from X to the light
+    cos_i: np.ndarray
+    cos_o: np.ndarray
+    cos_io: np.ndarray  # omega_i . omega_o
+    half_norm: np.ndarray  # |omega_i + omega_o|
+    grazing: np.ndarray  # 1 - omega_i . h
+    fresnel: np.ndarray
 
 
 class _LobeModel:
@@ -972,7 +989,6 @@ class _LobeModel:
         t = (c - n @ self.camera_t) / nk
         if not t.min() > 0.0:
             return None
-        # In-place arithmetic: fresh temporaries of this size cost page faults, not flops.
         cos_o = np.divide(nk, self.sqrt_q)
         np.negative(cos_o, out=cos_o)
         tq_b = t * self.q
@@ -982,8 +998,7 @@ class _LobeModel:
         r2 += self.a
         r = np.sqrt(r2)
         cos_i = light_height / r
-        cos_io = tq_b  # omega_i . omega_o = (t q - b) / (sqrt(q) r)
-        cos_io /= self.sqrt_q
+        cos_io = tq_b / self.sqrt_q  # omega_i . omega_o = (t q - b) / (sqrt(q) r)
         cos_io /= r
         half_norm = cos_io * 2.0  # |omega_i + omega_o|
         half_norm += 2.0
@@ -1004,14 +1019,16 @@ class _LobeModel:
         np.subtract(1.0, sin2_h, out=sin2_h)
         log_foreshortening = cos_i * cos_o
         np.log(log_foreshortening, out=log_foreshortening)
-        diffuse = np.divide(cos_i, r2, out=cos_i)
+        diffuse = cos_i / r2
         diffuse *= self.diffuse_scale
         diffuse -= 1.0
         specular = np.multiply(cos_o, r2, out=r2)
         np.divide(fresnel, specular, out=specular)
         specular *= self.spec_scale
         return _Geometry(cos_h=cos_h, sin2_h=sin2_h, log_foreshortening=log_foreshortening,
-                         diffuse=diffuse, specular=specular)
+                         diffuse=diffuse, specular=specular, normal=n, t=t, nk=nk, tq_b=tq_b,
+                         r=r, cos_i=cos_i, cos_o=cos_o, cos_io=cos_io, half_norm=half_norm,
+                         grazing=grazing, fresnel=fresnel)
 
     def _base_geometry(self, theta: np.ndarray) -> _Geometry | None:
         """Geometry of ``theta``'s plane, reused while only the photometry changes."""
@@ -1023,22 +1040,61 @@ class _LobeModel:
 
     def _lobe(self, g: _Geometry, theta: np.ndarray) -> np.ndarray:
         """Specular term ``S(n . h) g_s`` with the peak-normalised lobe ``S``, ``(P,)``."""
+        return self._shape(g, theta) * self._specular_term(g, theta[_I_FORE])
+
+    def _shape(self, g: _Geometry, theta: np.ndarray) -> np.ndarray:
+        """Return the peak-normalised lobe ``S(n . h)``, ``(P,)``."""
         alpha2 = math.exp(2.0 * theta[_I_WIDTH])
         if self.lobe == "ggx":
             ratio = alpha2 / (alpha2 + g.sin2_h * (1.0 - alpha2))
-            shape = ratio * ratio
-        elif self.lobe == "gtr":
+            return ratio * ratio
+        if self.lobe == "gtr":
             tail = theta[_I_TAIL]
             z = g.sin2_h * (2.0 * (1.0 - alpha2) / alpha2)
-            if abs(tail) < 1e-9:
-                shape = np.exp(-z)
-            else:
-                # (1 + t z)^(-1/t); where a light tail (t < 0) ends, the lobe is 0.
-                shape = np.exp(np.log(np.maximum(1.0 + tail * z, 1e-300)) * (-1.0 / tail))
-        else:
-            with np.errstate(divide="ignore"):
-                shape = np.exp((2.0 / alpha2 - 2.0) * np.log(np.maximum(g.cos_h, 0.0)))
-        return shape * self._specular_term(g, theta[_I_FORE])
+            if abs(tail) < _ZERO_TAIL:
+                return np.exp(-z)
+            # (1 + t z)^(-1/t); where a light tail (t < 0) ends, the lobe is 0.
+            return np.exp(np.log(np.maximum(1.0 + tail * z, 1e-300)) * (-1.0 / tail))
+        with np.errstate(divide="ignore"):
+            return np.exp((2.0 / alpha2 - 2.0) * np.log(np.maximum(g.cos_h, 0.0)))
+
+    def _shape_slopes(self, g: _Geometry, theta: np.ndarray, shape: np.ndarray):
+        """Return derivatives of :meth:`_shape` ``(P,)`` by the geometry and the shape.
+
+        Returns ``(by, along, by_log_width, by_tail)``: the lobe's derivative is
+        ``by * d(along)`` for ``along`` one of ``g.sin2_h`` or ``g.cos_h``; ``by_tail`` is
+        None unless the lobe is ``"gtr"``. Where a lobe is exactly 0 (a light tail's end,
+        or beyond 90 degrees) all are 0.
+        """
+        alpha2 = math.exp(2.0 * theta[_I_WIDTH])
+        if self.lobe == "ggx":
+            # S = (a2 / D)^2 with D = a2 + s (1 - a2)
+            inv_den = 1.0 / (alpha2 + g.sin2_h * (1.0 - alpha2))
+            return (-2.0 * (1.0 - alpha2)) * shape * inv_den, g.sin2_h, \
+                4.0 * shape * g.sin2_h * inv_den, None
+        if self.lobe == "blinn_phong":
+            # S = cos_h^e with e = 2 / a2 - 2
+            positive = np.maximum(g.cos_h, 1e-300)
+            by_cos = (2.0 / alpha2 - 2.0) * shape / positive
+            return by_cos, g.cos_h, (-4.0 / alpha2) * shape * np.log(positive), None
+        # gtr: S = (1 + t z)^(-1/t) with z = s f, f = 2 (1 - a2) / a2
+        tail = theta[_I_TAIL]
+        factor = 2.0 * (1.0 - alpha2) / alpha2
+        z = g.sin2_h * factor
+        if abs(tail) < _ZERO_TAIL:  # S = exp(-z)
+            return -factor * shape, g.sin2_h, (4.0 / alpha2) * shape * g.sin2_h, \
+                0.5 * shape * z * z
+        u = tail * z
+        base = np.maximum(1.0 + u, 1e-300)
+        by_z = shape / base  # dS/dz = -S / (1 + t z)
+        by_log_width = (4.0 / alpha2) * by_z * g.sin2_h
+        # dS/dt = S (log(1 + u) - u / (1 + u)) / t^2, by its series where u is small
+        with np.errstate(over="ignore", invalid="ignore"):
+            exact = (np.log(base) - u / base) / (tail * tail)
+        series = z * z * (0.5 + u * (-2.0 / 3.0 + 0.75 * u))
+        by_tail = np.where(np.abs(u) < _SMALL_TAIL_Z, series, exact)
+        by_tail = np.where(shape > 0.0, shape * by_tail, 0.0)
+        return -factor * by_z, g.sin2_h, by_log_width, by_tail
 
     def _specular_term(self, g: _Geometry, foreshortening: float) -> np.ndarray:
         """``g_s (cos_i cos_o)^k`` of a geometry, ``(P,)``; the last one is kept."""
@@ -1139,35 +1195,17 @@ class _LobeModel:
         """Transposed Jacobian ``(len(free), P)`` of :meth:`evaluate`'s residual.
 
         Variable projection with Kaufman's approximation: the model's derivative at fixed
-        intensities, with its component in the span of the intensity basis removed.
-        Rows by forward differences (lobe-shape rows reuse the plane's geometry), except
-        the foreshortening exponent's, which is exact. The array is a buffer of the
-        model's, overwritten by the next call.
+        intensities (:meth:`model_slopes`), with its component in the span of the
+        intensity basis removed. The array is a buffer of the model's, overwritten by
+        the next call.
         """
         g, lobe = self._lobe_at(theta)
+        jac = self.model_slopes(theta, free, out=self._jacobian_buffer[:len(free)])
         basis = self._basis_buffer
         basis[0] = lobe
         basis[1] = g.diffuse
         basis[2] = 1.0
         model = theta[_I_SPEC:] @ basis
-        jac = self._jacobian_buffer[:len(free)]
-        for row, index in enumerate(free):
-            if index == _I_FORE:  # exact: the exponent multiplies log(cos_i cos_o)
-                np.multiply(lobe, g.log_foreshortening, out=jac[row])
-                jac[row] *= theta[_I_SPEC]
-                continue
-            shifted = theta.copy()
-            shifted[index] += _FD_STEPS[index]
-            if index < _N_PLANE:
-                moved = self._geometry(shifted[:_N_PLANE])
-                if moved is None:  # at the edge of validity: this direction sits out a step
-                    jac[row] = 0.0
-                    continue
-                np.subtract(self._model(moved, theta), model, out=jac[row])
-            else:
-                np.subtract(self._lobe(g, shifted), lobe, out=jac[row])
-                jac[row] *= theta[_I_SPEC]
-            jac[row] /= _FD_STEPS[index]
         # A saturated sample above its lower bound contributes nothing, nor does its slope.
         ignored = self.censored & (model >= self.y)
         if ignored.any():
@@ -1177,6 +1215,89 @@ class _LobeModel:
         for row in range(len(free)):
             jac[row] -= coef[:, row] @ basis
         return jac
+
+    def model_slopes(self, theta: np.ndarray, free: np.ndarray, *,
+                     out: np.ndarray | None = None) -> np.ndarray:
+        """Return the model's derivatives ``(len(free), P)`` by ``theta[free]`` (intensities held).
+
+        Analytic, by the chain rule through the ray-plane algebra of :meth:`_geometry`
+        (forward mode: one tangent per plane parameter). ``theta``'s plane must be valid.
+        """
+        g, lobe = self._lobe_at(theta)
+        out = np.empty((len(free), len(lobe))) if out is None else out
+        specular, fore = theta[_I_SPEC], theta[_I_FORE]
+        shape = self._shape(g, theta)
+        by, along, by_log_width, by_tail = self._shape_slopes(g, theta, shape)
+        spec_term = specular * self._specular_term(g, fore)  # S's factor in the model
+        planes = [(row, index) for row, index in enumerate(free) if index < _N_PLANE]
+        if planes:
+            directions = self._plane_directions(theta)
+            inv_r, inv_half = 1.0 / g.r, 1.0 / g.half_norm
+            inv_nk, inv_cos_i, inv_cos_o = 1.0 / g.nk, 1.0 / g.cos_i, 1.0 / g.cos_o
+            # d log F = 5 (1 - f0) x^4 dx / F with x = 1 - omega_i . h
+            fresnel_slope = g.grazing * g.grazing
+            fresnel_slope *= fresnel_slope
+            fresnel_slope *= 5.0 * (1.0 - self.f0) / g.fresnel
+            diffuse_g = g.diffuse + 1.0
+        for row, index in planes:
+            dn, dc = directions[index]
+            d_nk = dn @ self.ray_t
+            dt = dc - dn @ self.camera_t
+            dt -= g.t * d_nk
+            dt *= inv_nk
+            dr = g.tq_b * dt
+            dr *= inv_r  # r^2 = a - 2 t b + t^2 q
+            d_cos_o = d_nk / self.sqrt_q
+            np.negative(d_cos_o, out=d_cos_o)
+            d_cos_i = g.cos_i * dr
+            np.subtract(float(dn @ self.light) - dc, d_cos_i, out=d_cos_i)
+            d_cos_i *= inv_r  # cos_i = (n . L - c) / r
+            d_cos_io = self.sqrt_q * dt
+            d_cos_io -= g.cos_io * dr
+            d_cos_io *= inv_r  # cos_io = (t q - b) / (sqrt(q) r)
+            d_half = d_cos_io * inv_half  # half_norm = sqrt(2 + 2 cos_io)
+            d_grazing = (1.0 - g.grazing) * d_half
+            d_grazing -= d_cos_io
+            d_grazing *= inv_half  # grazing = 1 - (1 + cos_io) / half_norm
+            d_along = g.cos_h * d_half
+            np.subtract(d_cos_i + d_cos_o, d_along, out=d_along)
+            d_along *= inv_half  # cos_h = (cos_i + cos_o) / half_norm
+            if along is g.sin2_h:
+                d_along *= -2.0 * g.cos_h
+            # relative changes of cos_i and cos_o, and of r^2
+            rel_i, rel_o = d_cos_i * inv_cos_i, d_cos_o * inv_cos_o
+            rel_r2 = dr * inv_r
+            rel_r2 *= 2.0
+            # specular factor F / (cos_o r^2) (cos_i cos_o)^k, relative
+            rel_spec = fresnel_slope * d_grazing
+            rel_spec -= rel_o
+            rel_spec -= rel_r2
+            rel_spec += fore * (rel_i + rel_o)
+            slope = out[row]
+            np.multiply(by, d_along, out=slope)
+            slope += shape * rel_spec
+            slope *= spec_term
+            rel_i -= rel_r2  # diffuse cos_i / r^2, relative
+            rel_i *= diffuse_g
+            slope += theta[_I_DIFF] * rel_i
+        for row, index in enumerate(free):
+            if index == _I_WIDTH:
+                np.multiply(by_log_width, spec_term, out=out[row])
+            elif index == _I_TAIL:
+                np.multiply(by_tail, spec_term, out=out[row])
+            elif index == _I_FORE:  # the exponent multiplies log(cos_i cos_o)
+                np.multiply(lobe, g.log_foreshortening, out=out[row])
+                out[row] *= specular
+        return out
+
+    def _plane_directions(self, theta: np.ndarray):
+        """Return the derivatives ``(dn (3,), dc)`` of normal and offset by each plane parameter."""
+        m = self.n0 + theta[0] * self.e1 + theta[1] * self.e2
+        norm = float(np.linalg.norm(m))
+        n = m / norm
+        # n = m / |m|: dn = (e - n (n . e)) / |m|
+        return ((self.e1 - n * float(n @ self.e1)) / norm, 0.0), \
+            ((self.e2 - n * float(n @ self.e2)) / norm, 0.0), (np.zeros(3), 1.0)
 
     # ------------------------------------------------------------------ start and report
     def initial_guess(self) -> np.ndarray | None:

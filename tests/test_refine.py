@@ -19,9 +19,16 @@ from hypothesis import strategies as st
 from srde_fusion.errors import ImageError, LightError, MaskError, SRDEError
 from srde_fusion.geometry import Plane, plane_disparity, plane_from_lights
 from srde_fusion.refine import (
+    _I_FORE,
+    _I_SPEC,
+    _I_TAIL,
+    _N_PLANE,
+    DEFAULT_F0,
     LOBES,
     PlaneRefinement,
+    _LobeModel,
     _reference_from_view,
+    _sample_windows,
     refine_plane,
 )
 from srde_fusion.rig import CameraRig
@@ -35,6 +42,10 @@ SHARP_SLACK_PX = 0.002  # "not worse" on sharp lobes, up to noise
 TAIL_TOL = 0.03
 FORESHORTENING_TOL = 0.06
 WIDTH_RTOL = 0.04
+# Analytic model slopes against central differences with steps of 1e-6 rad (tilts),
+# 1e-7 m (offset) and 1e-5 (shape): these agree to ~2e-5 of the largest slope.
+SLOPE_RTOL = 1e-4
+SLOPE_STEPS = (1e-6, 1e-6, 1e-7, 1e-5, 1e-5, 1e-5)
 
 
 @pytest.fixture(scope="module")
@@ -175,6 +186,34 @@ def test_result_is_frozen_and_reports_itself(rough_ggx):
     assert result.lobe == "gtr"
     with pytest.raises(dataclasses.FrozenInstanceError):
         result.status = "kept_initial"
+
+
+# ------------------------------------------------------------------ the model's derivatives
+@pytest.mark.parametrize(("lobe", "tail"), [
+    ("gtr", 0.3), ("gtr", 0.0), ("gtr", 2e-4), ("gtr", -0.2), ("ggx", 0.5),
+    ("blinn_phong", 0.0),
+])
+def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail):
+    case = rough_ggx
+    samples = _sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
+                              case["centers"])
+    model = _LobeModel(samples, case["rig"], case["mask"], case["light"], case["plane"], lobe,
+                       DEFAULT_F0, None)
+    theta = model.start_theta()
+    # off the initial plane, a tail where both of the "gtr" derivative's branches apply
+    theta[:_N_PLANE] = [0.01, -0.02, 0.003]
+    theta[_I_TAIL], theta[_I_FORE], theta[_I_SPEC:] = tail, 0.7, [0.5, 0.1, 0.2]
+    slopes = model.model_slopes(theta, model.free_all)
+    for row, index in enumerate(model.free_all):
+        up, down = theta.copy(), theta.copy()
+        up[index] += SLOPE_STEPS[index]
+        down[index] -= SLOPE_STEPS[index]
+        expected = (model._model(model._geometry(up[:_N_PLANE]), up)
+                    - model._model(model._geometry(down[:_N_PLANE]), down)) / (
+                        2 * SLOPE_STEPS[index])
+        scale = np.max(np.abs(expected))
+        assert scale > 0
+        assert np.max(np.abs(slopes[row] - expected)) < SLOPE_RTOL * scale, index
 
 
 # ------------------------------------------------------------------ keeping the initial plane
