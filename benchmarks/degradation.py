@@ -364,8 +364,7 @@ def main() -> None:
                 "not reached" if marks[key] is None else f"{marks[key]:g}"
                 for key in SUMMARY_COLUMNS) + " |")
             out["axes"][axis][variant] = {"levels": {str(k): v for k, v in rows.items()},
-                                          "thresholds": marks,
-                                          "runs": {str(k): v for k, v in per_level.items()}}
+                                          "thresholds": marks}
             print(f"{axis} [{variant}]: {marks}", flush=True)
         body += [f"({time.time() - t0:.0f} s)", ""]
     lines += [*summary, "", *body]
