@@ -1090,10 +1090,15 @@ class _LobeModel:
         by_log_width = (4.0 / alpha2) * by_z * g.sin2_h
         # dS/dt = S (log(1 + u) - u / (1 + u)) / t^2, by its series where u is small
         with np.errstate(over="ignore", invalid="ignore"):
-            exact = (np.log(base) - u / base) / (tail * tail)
-        series = z * z * (0.5 + u * (-2.0 / 3.0 + 0.75 * u))
-        by_tail = np.where(np.abs(u) < _SMALL_TAIL_Z, series, exact)
-        by_tail = np.where(shape > 0.0, shape * by_tail, 0.0)
+            by_tail = np.log(base)
+            by_tail -= u / base
+            by_tail *= shape / (tail * tail)
+        small = np.abs(u) < _SMALL_TAIL_Z
+        if small.any():
+            us, zs = u[small], z[small]
+            by_tail[small] = shape[small] * zs * zs * (0.5 + us * (-2.0 / 3.0 + 0.75 * us))
+        if tail < 0.0:  # past a light tail's end S = 0, and so is its slope
+            by_tail[shape == 0.0] = 0.0
         return -factor * by_z, g.sin2_h, by_log_width, by_tail
 
     def _specular_term(self, g: _Geometry, foreshortening: float) -> np.ndarray:
@@ -1167,14 +1172,18 @@ class _LobeModel:
         return coef, model
 
     def _lobe_at(self, theta: np.ndarray):
-        """Return the geometry and lobe ``(P,)`` of ``theta`` (None, None if invalid).
+        """Return the geometry, lobe and shape ``(P,)`` of ``theta`` (Nones if invalid).
 
         The last one is kept: a step's Jacobian is taken where it was evaluated.
         """
         key = theta[:_I_SPEC].tobytes()
         if self._lobe_key != key:
             g = self._base_geometry(theta)
-            self._lobe_value = (g, None if g is None else self._lobe(g, theta))
+            if g is None:
+                self._lobe_value = (None, None, None)
+            else:
+                shape = self._shape(g, theta)
+                self._lobe_value = (g, shape * self._specular_term(g, theta[_I_FORE]), shape)
             self._lobe_key = key
         return self._lobe_value
 
@@ -1183,7 +1192,7 @@ class _LobeModel:
 
         Returns the residual ``(P,)`` and ``theta`` with those intensities filled in.
         """
-        g, lobe = self._lobe_at(theta)
+        g, lobe, _ = self._lobe_at(theta)
         if g is None:
             return np.full(self.y.shape, np.inf), theta.copy()
         coef, model = self._intensities(g, lobe)
@@ -1199,7 +1208,7 @@ class _LobeModel:
         intensity basis removed. The array is a buffer of the model's, overwritten by
         the next call.
         """
-        g, lobe = self._lobe_at(theta)
+        g, lobe, _ = self._lobe_at(theta)
         jac = self.model_slopes(theta, free, out=self._jacobian_buffer[:len(free)])
         basis = self._basis_buffer
         basis[0] = lobe
@@ -1223,10 +1232,9 @@ class _LobeModel:
         Analytic, by the chain rule through the ray-plane algebra of :meth:`_geometry`
         (forward mode: one tangent per plane parameter). ``theta``'s plane must be valid.
         """
-        g, lobe = self._lobe_at(theta)
+        g, lobe, shape = self._lobe_at(theta)
         out = np.empty((len(free), len(lobe))) if out is None else out
         specular, fore = theta[_I_SPEC], theta[_I_FORE]
-        shape = self._shape(g, theta)
         by, along, by_log_width, by_tail = self._shape_slopes(g, theta, shape)
         spec_term = specular * self._specular_term(g, fore)  # S's factor in the model
         planes = [(row, index) for row, index in enumerate(free) if index < _N_PLANE]
