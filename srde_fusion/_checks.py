@@ -242,9 +242,16 @@ def check_disparity(
         disparity = disparity[0]
     if disparity.ndim != 2:
         raise DisparityError(f"{name}: expected shape (H, W), got {disparity.shape}")
-    if not (
-        np.issubdtype(disparity.dtype, np.floating) or np.issubdtype(disparity.dtype, np.integer)
-    ):
+    if np.issubdtype(disparity.dtype, np.integer):
+        # Integer disparity is almost always fixed point: OpenCV's StereoBM/SGBM return
+        # int16 x 16, KITTI PNGs hold uint16 x 256. Taking it as pixels would be silently
+        # wrong by that factor.
+        raise DisparityError(
+            f"{name}: expected float disparity in pixels, got dtype {disparity.dtype}; "
+            "fixed-point maps need scaling first (OpenCV StereoSGBM: divide by 16; "
+            "KITTI PNG: use read_kitti_disparity)"
+        )
+    if not np.issubdtype(disparity.dtype, np.floating):
         raise DisparityError(f"{name}: expected a float array, got dtype {disparity.dtype}")
     if shape is not None and disparity.shape != tuple(shape):
         raise DisparityError(f"{name}: expected shape {tuple(shape)}, got {disparity.shape}")

@@ -136,8 +136,6 @@ def test_check_disparity_marks_invalid_as_nan_in_a_copy():
     assert out.dtype == np.float32
     np.testing.assert_array_equal(out, [[1.0, np.nan], [np.nan, 0.0]])
     assert d[0, 1] == -2.0  # the input is untouched
-    ints = check_disparity(np.array([[3, 4]], np.int16), (1, 2))
-    np.testing.assert_array_equal(ints, [[3.0, 4.0]])
     assert check_disparity(np.zeros((1, 3, 4), np.float32)).shape == (3, 4)
 
 
@@ -149,8 +147,10 @@ def test_check_disparity_marks_invalid_as_nan_in_a_copy():
         (np.zeros(5), None, r"got \(5,\)"),
         (np.zeros((3, 4), bool), None, "d: expected a float array, got dtype bool"),
         (np.zeros((3, 4)), (4, 3), r"d: expected shape \(4, 3\), got \(3, 4\)"),
+        (np.zeros((3, 4), np.int16), None, r"d: expected float disparity .* divide by 16"),
+        (np.zeros((3, 4), np.uint16), None, r"got dtype uint16.*read_kitti_disparity"),
     ],
-    ids=["list", "3d", "1d", "bool", "shape"],
+    ids=["list", "3d", "1d", "bool", "shape", "sgbm-int16", "kitti-uint16"],
 )
 def test_check_disparity_errors(disparity, shape, match):
     with pytest.raises(DisparityError, match=match):
