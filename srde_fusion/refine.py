@@ -705,8 +705,8 @@ def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, cente
     for i in sorted(usable, key=lambda j: j != rig.reference):
         if len(radii) == _SIZING_VIEWS:
             break
-        uu, vv = np.meshgrid(np.rint(centers[i, 0]) + offsets, np.rint(centers[i, 1]) + offsets)
-        uu, vv = uu.ravel().astype(np.intp), vv.ravel().astype(np.intp)
+        uu = np.tile(offsets + int(np.rint(centers[i, 0])), len(offsets))
+        vv = np.repeat(offsets + int(np.rint(centers[i, 1])), len(offsets))
         keep = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
         uu, vv = uu[keep], vv[keep]
         inside = _object_lookup(eroded, to_ref[i], uu, vv)
@@ -721,22 +721,22 @@ def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, cente
     if not radii:
         return (f"samples: no view shows a highlight brighter than the object by "
                 f"{MIN_HIGHLIGHT_CONTRAST:g} (linear) inside the mask")
-    half = int(np.clip(math.ceil(WINDOW_PER_BLOB_RADIUS * float(np.median(radii))) + 2,
-                       MIN_WINDOW_HALF_PX, max_half))
+    half = math.ceil(WINDOW_PER_BLOB_RADIUS * float(np.median(radii))) + 2
+    half = min(max(half, MIN_WINDOW_HALF_PX), max_half)
     block = max(1, math.ceil((2 * half + 1) / SAMPLES_PER_SIDE))
 
     block_mask = _erode(mask, MASK_MARGIN_PX + block // 2)
-    cams, rays, lum, sat, used = [], [], [], [], []
+    uvs, lum, sat, used, counts = [], [], [], [], []
     for i in usable:
         window = _block_window(views[i], rig, block_mask, to_ref[i], centers[i], half, block)
         if window is None or not window[3].any():
             continue
         uv, y, clipped, inside = window
+        uvs.append(uv[inside])
         lum.append(y[inside])
         sat.append(clipped[inside])
-        rays.append(rig.rays(uv[inside]))
-        cams.append(np.broadcast_to(rig.centers_m[i], (int(inside.sum()), 3)))
         used.append(i)
+        counts.append(len(lum[-1]))
     if not used:
         return "samples: no object pixels in any highlight window"
     luminance_all = np.concatenate(lum)
@@ -753,7 +753,8 @@ def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, cente
                 f"{len(saturated_all)} saturated); the lobe cannot be fitted")
     # Unsaturated samples first: the intensity solve then slices instead of copying.
     order = np.argsort(saturated_all, kind="stable")
-    return _Samples(np.concatenate(cams)[order], np.concatenate(rays)[order],
+    cameras_m = np.repeat(rig.centers_m[used], counts, axis=0)
+    return _Samples(cameras_m[order], rig.rays(np.concatenate(uvs)[order]),
                     luminance_all[order], saturated_all[order], tuple(used), half, block)
 
 
@@ -763,11 +764,28 @@ def _low_quantile(values: np.ndarray) -> float:
     return float(np.partition(values, k)[k])
 
 
-def _erode(mask: np.ndarray, radius_px: int) -> np.ndarray:
-    """Shrink the mask by ``radius_px`` in the chessboard metric."""
+@dataclass(frozen=True)
+class _Eroded:
+    """A shrunk reference mask, kept only over the object's box (the rest is outside)."""
+
+    inside: np.ndarray  # (h, w) bool, the box's pixels
+    origin: tuple[int, int]  # reference pixel (x, y) of inside[0, 0]
+
+
+def _erode(mask: np.ndarray, radius_px: int) -> _Eroded:
+    """Shrink the mask by ``radius_px`` in the chessboard metric.
+
+    Only the object's bounding box, padded by the radius, is eroded: nothing outside it
+    survives, and the padding keeps the box's edge eroded as in the full image.
+    """
+    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    height, width = mask.shape
+    x0, y0 = max(x - radius_px, 0), max(y - radius_px, 0)
+    x1, y1 = min(x + w + radius_px, width), min(y + h + radius_px, height)
     side = 2 * radius_px + 1
     # (a bool array viewed as bytes: no copies of a full-size mask)
-    return cv2.erode(mask.view(np.uint8), np.ones((side, side), np.uint8)).view(bool)
+    box = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
+    return _Eroded(cv2.erode(box, np.ones((side, side), np.uint8)).view(bool), (x0, y0))
 
 
 def _view_from_reference(rig: CameraRig, plane: Plane, camera: int) -> np.ndarray:
@@ -797,17 +815,18 @@ def _reference_from_view(rig: CameraRig, plane: Plane, camera: int) -> np.ndarra
     return np.hstack([a_inv, -(a_inv @ t)[:, None]])
 
 
-def _object_lookup(eroded_ref: np.ndarray, to_ref: np.ndarray | None, uu: np.ndarray,
+def _object_lookup(eroded_ref: _Eroded, to_ref: np.ndarray | None, uu: np.ndarray,
                    vv: np.ndarray) -> np.ndarray:
     """Whether camera pixels ``uu, vv`` (any shape) land on the eroded reference mask."""
     if to_ref is not None:
         uu, vv = (to_ref[0, 0] * uu + to_ref[0, 1] * vv + to_ref[0, 2],
                   to_ref[1, 0] * uu + to_ref[1, 1] * vv + to_ref[1, 2])
-    ru, rv = np.rint(uu).astype(np.intp), np.rint(vv).astype(np.intp)
-    h, w = eroded_ref.shape
+    x0, y0 = eroded_ref.origin
+    ru, rv = np.rint(uu).astype(np.intp) - x0, np.rint(vv).astype(np.intp) - y0
+    h, w = eroded_ref.inside.shape
     ok = (ru >= 0) & (ru < w) & (rv >= 0) & (rv < h)
     inside = np.zeros(ok.shape, dtype=bool)
-    inside[ok] = eroded_ref[rv[ok], ru[ok]]
+    inside[ok] = eroded_ref.inside[rv[ok], ru[ok]]
     return inside
 
 
