@@ -502,14 +502,8 @@ def _warp_change_px(rig: CameraRig, before: Plane, after: Plane, mask: np.ndarra
     x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
     corners = np.array([[x, x + w - 1, x, x + w - 1], [y, y, y + h - 1, y + h - 1],
                         [1.0, 1.0, 1.0, 1.0]])
-    worst = 0.0
-    for camera in range(rig.n_cameras):
-        if camera == rig.reference:
-            continue
-        moved = (_view_from_reference(rig, after, camera)
-                 - _view_from_reference(rig, before, camera)) @ corners
-        worst = max(worst, float(np.max(np.abs(moved))))
-    return worst
+    moved = (_views_from_reference(rig, after) - _views_from_reference(rig, before)) @ corners
+    return float(np.max(np.abs(moved)))  # (the reference view's rows are 0)
 
 
 def _fit(model: _LobeModel, theta0: np.ndarray, max_iterations: int) -> _Fit:
@@ -651,7 +645,11 @@ def _initial_plane_problem(plane: Plane, rig: CameraRig, light: np.ndarray) -> s
 def _highlight_shift_px(rig: CameraRig, light, before: Plane, after: Plane, views) -> float:
     """Largest displacement of the virtual light's image between two planes, pixels."""
     old, new = before.mirror(light), after.mirror(light)
-    return float(max(np.linalg.norm(rig.project(new, i) - rig.project(old, i)) for i in views))
+    # The rig is rectified: seen from camera j, a point X is X - (C_j - C_ref) seen from
+    # the reference camera.
+    offsets_m = rig.centers_m[list(views)] - rig.reference_center_m
+    moved = rig.project(new - offsets_m) - rig.project(old - offsets_m)
+    return float(np.max(np.linalg.norm(moved, axis=1)))
 
 
 # ======================================================================================
@@ -694,8 +692,8 @@ def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, cente
               and -max_half <= centers[i, 1] <= h + max_half]
     if not usable:
         return "samples: no view has a highlight centre inside or near the image"
-    to_ref = {i: None if i == rig.reference else _reference_from_view(rig, plane, i)
-              for i in usable}
+    maps = _references_from_views(rig, plane)
+    to_ref = {i: None if i == rig.reference else maps[i] for i in usable}
 
     # Size the window from the blob's half-maximum radius, seen on a coarse grid in a few
     # views (the reference first).
@@ -788,8 +786,8 @@ def _erode(mask: np.ndarray, radius_px: int) -> _Eroded:
     return _Eroded(cv2.erode(box, np.ones((side, side), np.uint8)).view(bool), (x0, y0))
 
 
-def _view_from_reference(rig: CameraRig, plane: Plane, camera: int) -> np.ndarray:
-    """Affine map ``(2, 3)`` from reference pixels to a camera's pixels on the plane.
+def _views_from_reference(rig: CameraRig, plane: Plane) -> np.ndarray:
+    """Affine maps ``(N, 2, 3)`` from reference pixels to each camera's pixels on the plane.
 
     In a rectified rig a point at depth z moves by ``-f (C_j - C_ref) / z`` between the
     reference view and camera j, and on a plane ``1 / z`` is affine in the pixel: the
@@ -800,19 +798,30 @@ def _view_from_reference(rig: CameraRig, plane: Plane, camera: int) -> np.ndarra
     base = plane.offset_m - float(n @ rig.reference_center_m)
     # 1 / z = g . (u, v, 1) at reference pixels (u, v)
     g = np.array([n[0] / k.fx, n[1] / k.fy, n[2] - n[0] * k.cx / k.fx - n[1] * k.cy / k.fy]) / base
-    d = rig.centers_m[camera] - rig.reference_center_m
+    d = rig.centers_m - rig.reference_center_m
     # camera pixel = A (u, v) + t with A = I - s g[:2]^T, t = -s g[2], s = f * dXY
-    s = np.array([k.fx * d[0], k.fy * d[1]])
-    return np.hstack([np.eye(2) - np.outer(s, g[:2]), -(s * g[2])[:, None]])
+    s = d[:, :2] * np.array([k.fx, k.fy])  # (N, 2)
+    maps = np.empty((len(d), 2, 3))
+    maps[:, :, :2] = np.eye(2) - s[:, :, None] * g[:2]
+    maps[:, :, 2] = -g[2] * s
+    return maps
+
+
+def _references_from_views(rig: CameraRig, plane: Plane) -> np.ndarray:
+    """Affine maps ``(N, 2, 3)`` from each camera's pixels to the reference pixels."""
+    forward = _views_from_reference(rig, plane)
+    a, t = forward[:, :, :2], forward[:, :, 2]
+    det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+    inverse = np.empty_like(forward)
+    inverse[:, 0, 0], inverse[:, 1, 1] = a[:, 1, 1] / det, a[:, 0, 0] / det
+    inverse[:, 0, 1], inverse[:, 1, 0] = -a[:, 0, 1] / det, -a[:, 1, 0] / det
+    inverse[:, :, 2] = -np.einsum("nij,nj->ni", inverse[:, :, :2], t)
+    return inverse
 
 
 def _reference_from_view(rig: CameraRig, plane: Plane, camera: int) -> np.ndarray:
     """Affine map ``(2, 3)`` from a camera's pixels to the reference pixels on the plane."""
-    forward = _view_from_reference(rig, plane, camera)
-    a, t = forward[:, :2], forward[:, 2]
-    a_inv = np.array([[a[1, 1], -a[0, 1]], [-a[1, 0], a[0, 0]]]) / (a[0, 0] * a[1, 1]
-                                                                    - a[0, 1] * a[1, 0])
-    return np.hstack([a_inv, -(a_inv @ t)[:, None]])
+    return _references_from_views(rig, plane)[camera]
 
 
 def _object_lookup(eroded_ref: _Eroded, to_ref: np.ndarray | None, uu: np.ndarray,
@@ -1410,18 +1419,26 @@ def _solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     ``numpy.linalg.solve``'s call overhead would dominate. A singular system (a lobe
     invisible everywhere) falls back to the pseudo-inverse.
     """
-    scale = 1.0 / np.sqrt(np.maximum(normal.diagonal(), 1e-300))
-    (a, b, c), (d, e, f), (g, h, i) = (normal * scale[:, None] * scale[None, :]).tolist()
+    rows = normal.tolist()
+    scale = [1.0 / math.sqrt(max(rows[j][j], 1e-300)) for j in range(3)]
+    (a, b, c), (d, e, f), (g, h, i) = [[rows[j][k] * scale[j] * scale[k] for k in range(3)]
+                                       for j in range(3)]
     cofactors = [[e * i - f * h, c * h - b * i, b * f - c * e],
                  [f * g - d * i, a * i - c * g, c * d - a * f],
                  [d * h - e * g, b * g - a * h, a * e - b * d]]
     det = a * cofactors[0][0] + b * cofactors[1][0] + c * cofactors[2][0]
+    if rhs.ndim == 1 and abs(det) > _MIN_SCALED_DETERMINANT:
+        # (plain floats: three numbers do not repay numpy's call overhead)
+        y = [r * sj for r, sj in zip(rhs.tolist(), scale, strict=True)]
+        return np.array([scale[j] * (cofactors[j][0] * y[0] + cofactors[j][1] * y[1]
+                                     + cofactors[j][2] * y[2]) / det for j in range(3)])
+    scale_v = np.array(scale)
     if abs(det) > _MIN_SCALED_DETERMINANT:
         inverse = np.array(cofactors) / det
     else:
-        inverse = np.linalg.pinv(normal * scale[:, None] * scale[None, :])
-    x = inverse @ (scale[:, None] * rhs.reshape(3, -1))
-    return (scale[:, None] * x).reshape(rhs.shape)
+        inverse = np.linalg.pinv(normal * scale_v[:, None] * scale_v[None, :])
+    x = inverse @ (scale_v[:, None] * rhs.reshape(3, -1))
+    return (scale_v[:, None] * x).reshape(rhs.shape)
 
 
 def _levenberg_marquardt(model: _LobeModel, theta0: np.ndarray, free: np.ndarray,
