@@ -968,6 +968,7 @@ class _LobeModel:
         # Reused across steps: arrays this large would cost page faults on every call.
         self._ones = np.ones(self.y.shape)
         self._basis_buffer = np.empty((3, len(self.y)))
+        self._basis_partner = np.empty((3, len(self.y)))
         self.initial_cost = math.inf  # cost of the start found by initial_guess
         shape = [_I_WIDTH] + ([_I_TAIL] if lobe == "gtr" else [])
         shape += [_I_FORE] if foreshortening is None else []
@@ -1248,9 +1249,12 @@ class _LobeModel:
         if ignored.any():
             jac[:, ignored] = 0.0
             basis[:, ignored] = 0.0
-        coef = _solve_normal(basis @ basis.T, basis @ jac.T)  # (3, K)
-        for row in range(len(free)):
-            jac[row] -= coef[:, row] @ basis
+        # (numpy computes A @ A.T by a rank-k update, several times slower here than a
+        # product with a copy)
+        partner = self._basis_partner
+        np.copyto(partner, basis)
+        coef = _solve_normal(basis @ partner.T, basis @ jac.T)  # (3, K)
+        jac -= coef.T @ basis
         return jac
 
     def model_slopes(self, theta: np.ndarray, free: np.ndarray, *,
@@ -1267,55 +1271,17 @@ class _LobeModel:
         spec_term = specular * self._specular_term(g, fore)  # S's factor in the model
         planes = [(row, index) for row, index in enumerate(free) if index < _N_PLANE]
         if planes:
+            on_nk, on_cam, on_lh = self._plane_slope_terms(g, theta, by, along, shape, spec_term)
             directions = self._plane_directions(theta)
-            inv_r, inv_half = 1.0 / g.r, 1.0 / g.half_norm
-            inv_nk, inv_cos_i, inv_cos_o = 1.0 / g.nk, 1.0 / g.cos_i, 1.0 / g.cos_o
-            # d log F = 5 (1 - f0) x^4 dx / F with x = 1 - omega_i . h
-            fresnel_slope = g.grazing * g.grazing
-            fresnel_slope *= fresnel_slope
-            fresnel_slope *= 5.0 * (1.0 - self.f0) / g.fresnel
-            diffuse_g = g.diffuse + 1.0
         for row, index in planes:
+            # slope = (n . L - c)' on_lh + (c - n . C)' on_cam + (n . k)' on_nk
             dn, dc = directions[index]
-            d_nk = dn @ self.ray_t
-            dt = dc - dn @ self.camera_t
-            dt -= g.t * d_nk
-            dt *= inv_nk
-            dr = g.tq_b * dt
-            dr *= inv_r  # r^2 = a - 2 t b + t^2 q
-            d_cos_o = d_nk / self.sqrt_q
-            np.negative(d_cos_o, out=d_cos_o)
-            d_cos_i = g.cos_i * dr
-            np.subtract(float(dn @ self.light) - dc, d_cos_i, out=d_cos_i)
-            d_cos_i *= inv_r  # cos_i = (n . L - c) / r
-            d_cos_io = self.sqrt_q * dt
-            d_cos_io -= g.cos_io * dr
-            d_cos_io *= inv_r  # cos_io = (t q - b) / (sqrt(q) r)
-            d_half = d_cos_io * inv_half  # half_norm = sqrt(2 + 2 cos_io)
-            d_grazing = (1.0 - g.grazing) * d_half
-            d_grazing -= d_cos_io
-            d_grazing *= inv_half  # grazing = 1 - (1 + cos_io) / half_norm
-            d_along = g.cos_h * d_half
-            np.subtract(d_cos_i + d_cos_o, d_along, out=d_along)
-            d_along *= inv_half  # cos_h = (cos_i + cos_o) / half_norm
-            if along is g.sin2_h:
-                d_along *= -2.0 * g.cos_h
-            # relative changes of cos_i and cos_o, and of r^2
-            rel_i, rel_o = d_cos_i * inv_cos_i, d_cos_o * inv_cos_o
-            rel_r2 = dr * inv_r
-            rel_r2 *= 2.0
-            # specular factor F / (cos_o r^2) (cos_i cos_o)^k, relative
-            rel_spec = fresnel_slope * d_grazing
-            rel_spec -= rel_o
-            rel_spec -= rel_r2
-            rel_spec += fore * (rel_i + rel_o)
             slope = out[row]
-            np.multiply(by, d_along, out=slope)
-            slope += shape * rel_spec
-            slope *= spec_term
-            rel_i -= rel_r2  # diffuse cos_i / r^2, relative
-            rel_i *= diffuse_g
-            slope += theta[_I_DIFF] * rel_i
+            slope[:] = dc * (on_cam - on_lh)
+            if dn.any():
+                slope += float(dn @ self.light) * on_lh
+                slope -= on_cam * (dn @ self.camera_t)
+                slope += on_nk * (dn @ self.ray_t)
         for row, index in enumerate(free):
             if index == _I_WIDTH:
                 np.multiply(by_log_width, spec_term, out=out[row])
@@ -1325,6 +1291,71 @@ class _LobeModel:
                 np.multiply(lobe, g.log_foreshortening, out=out[row])
                 out[row] *= specular
         return out
+
+    def _plane_slope_terms(self, g: _Geometry, theta: np.ndarray, by: np.ndarray,
+                           along: np.ndarray, shape: np.ndarray, spec_term: np.ndarray):
+        """Return the model's derivatives ``(P,)`` by ``n . k``, ``c - n . C``, ``n . L - c``.
+
+        Every shading term depends on the plane through these three per-sample scalars
+        (``k`` the ray, ``C`` the camera centre, ``L`` the light), and linearly so to
+        first order: collecting the chain rule's coefficients once makes each plane
+        parameter's slope three products.
+        """
+        fore = theta[_I_FORE]
+        inv_r, inv_half = 1.0 / g.r, 1.0 / g.half_norm
+        rho = g.tq_b * inv_r  # dr = rho dt (r^2 = a - 2 t b + t^2 q)
+        kappa = g.cos_io * rho  # d cos_io = kappa dt (cos_io = (t q - b) / (sqrt(q) r))
+        np.subtract(self.sqrt_q, kappa, out=kappa)
+        kappa *= inv_r
+        # d grazing = kappa ((1 - grazing) / half_norm - 1) / half_norm dt
+        grazing_t = (1.0 - g.grazing) * inv_half
+        grazing_t -= 1.0
+        grazing_t *= kappa
+        grazing_t *= inv_half
+        # d log F = 5 (1 - f0) x^4 / F dx, x = grazing (Schlick)
+        fresnel_slope = g.grazing * g.grazing
+        fresnel_slope *= fresnel_slope
+        fresnel_slope *= 5.0 * (1.0 - self.f0) / g.fresnel
+        # The model's slope on d cos_h, on the specular factor's relative change and on
+        # the diffuse factor's relative change.
+        on_cos_h = by * spec_term
+        if along is g.sin2_h:  # d sin^2 = -2 cos_h d cos_h
+            on_cos_h *= -2.0 * g.cos_h
+        on_spec = shape * spec_term
+        on_diffuse = theta[_I_DIFF] * (g.diffuse + 1.0)
+        # cos_h = (cos_i + cos_o) / half_norm, half_norm = sqrt(2 + 2 cos_io)
+        through_h = on_cos_h * inv_half
+        # specular factor F (cos_i cos_o)^k / (cos_o r^2), diffuse factor cos_i / r^2
+        on_cos_i = fore * on_spec
+        on_cos_i += on_diffuse
+        on_cos_i /= g.cos_i
+        on_cos_i += through_h
+        on_cos_o = (fore - 1.0) * on_spec
+        on_cos_o /= g.cos_o
+        on_cos_o += through_h
+        # everything that moves with the ray parameter t directly
+        on_t = fresnel_slope * grazing_t
+        on_t *= on_spec
+        term = through_h * g.cos_h
+        term *= kappa
+        term *= inv_half
+        on_t -= term
+        term = on_spec + on_diffuse
+        term *= rho
+        term *= 2.0 * inv_r  # d log r^2 = 2 rho / r dt
+        on_t -= term
+        # cos_i = (n . L - c) / r: d cos_i = (d(n . L - c) - cos_i rho dt) / r
+        on_lh = on_cos_i * inv_r
+        term = on_lh * g.cos_i
+        term *= rho
+        on_t -= term
+        # t = (c - n . C) / (n . k): dt = (d(c - n . C) - t d(n . k)) / (n . k)
+        on_cam = on_t / g.nk
+        # cos_o = -(n . k) / sqrt(q)
+        on_nk = on_cos_o / self.sqrt_q
+        np.negative(on_nk, out=on_nk)
+        on_nk -= on_cam * g.t
+        return on_nk, on_cam, on_lh
 
     def _plane_directions(self, theta: np.ndarray):
         """Return the derivatives ``(dn (3,), dc)`` of normal and offset by each plane parameter."""
