@@ -41,6 +41,7 @@ factor tilts the lobe across the image, which shifts its peak, so it must be mod
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -373,8 +374,8 @@ def refine_plane(
     if centers is None:
         virtual = initial_plane.mirror(light)
         centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
-    setup = _Setup(views, rig, mask, light, initial_plane, centers, lobe, f0, foreshortening,
-                   max_iterations)
+    setup = _Setup(views, rig, mask, _box(mask), light, initial_plane, centers, lobe, f0,
+                   foreshortening, max_iterations)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
         return kept(attempt)
@@ -410,6 +411,7 @@ class _Setup:
     views: list
     rig: CameraRig
     mask: np.ndarray
+    box: tuple[int, int, int, int]  # the mask's bounding box (x, y, width, height)
     light: np.ndarray
     initial_plane: Plane
     centers: np.ndarray
@@ -419,7 +421,7 @@ class _Setup:
     max_iterations: int
 
     def model(self, samples: _Samples, plane: Plane) -> _LobeModel:
-        return _LobeModel(samples, self.rig, self.mask, self.light, plane, self.lobe, self.f0,
+        return _LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
                           self.foreshortening)
 
 
@@ -451,7 +453,8 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     Returns why no fit could run (a string) when the samples or the start fail.
     ``photometry``: parameters whose lobe shape to start from instead of a grid search.
     """
-    samples = _sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers)
+    samples = _sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers,
+                              box=setup.box)
     if isinstance(samples, str):
         return samples
     model = setup.model(samples, sample_plane)
@@ -488,18 +491,19 @@ def _resampled(setup: _Setup, attempt: _Attempt, *, keep_photometry: bool) -> _A
     them off the object. Returns the new attempt if it passes, else None.
     """
     plane = attempt.model.plane(attempt.fit.theta)
-    if not _warp_change_px(setup.rig, attempt.sample_plane, plane, setup.mask) > MASK_MARGIN_PX:
+    if not _warp_change_px(setup.rig, attempt.sample_plane, plane, setup.box) > MASK_MARGIN_PX:
         return None
     again = _attempt(setup, plane, photometry=attempt.fit.theta if keep_photometry else None)
     return again if isinstance(again, _Attempt) and not again.problem else None
 
 
-def _warp_change_px(rig: CameraRig, before: Plane, after: Plane, mask: np.ndarray) -> float:
+def _warp_change_px(rig: CameraRig, before: Plane, after: Plane, box) -> float:
     """Largest move (px) of the object box's corners, mapped into any other camera.
 
-    Compares where the mappings that two planes induce send the reference mask.
+    Compares where the mappings that two planes induce send the reference mask's box
+    ``(x, y, width, height)``.
     """
-    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    x, y, w, h = box
     corners = np.array([[x, x + w - 1, x, x + w - 1], [y, y, y + h - 1, y + h - 1],
                         [1.0, 1.0, 1.0, 1.0]])
     moved = (_views_from_reference(rig, after) - _views_from_reference(rig, before)) @ corners
@@ -680,10 +684,14 @@ class _Samples:
         return int(self.luminance.shape[0])
 
 
-def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray
-                    ) -> _Samples | str:
-    """Block samples around each view's highlight on the object, or why there are none."""
-    eroded = _erode(mask, MASK_MARGIN_PX)
+def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray,
+                    *, box=None) -> _Samples | str:
+    """Block samples around each view's highlight on the object, or why there are none.
+
+    ``box``: the mask's bounding box, if known.
+    """
+    box = _box(mask) if box is None else box
+    eroded = _erode(mask, MASK_MARGIN_PX, box)
     w, h = rig.image_size
     max_half = max(MIN_WINDOW_HALF_PX, int(MAX_WINDOW_FRACTION * min(w, h)))
     usable = [i for i in range(rig.n_cameras)
@@ -723,7 +731,7 @@ def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, cente
     half = min(max(half, MIN_WINDOW_HALF_PX), max_half)
     block = max(1, math.ceil((2 * half + 1) / SAMPLES_PER_SIDE))
 
-    block_mask = _erode(mask, MASK_MARGIN_PX + block // 2)
+    block_mask = _erode(mask, MASK_MARGIN_PX + block // 2, box)
     uvs, lum, sat, used, counts = [], [], [], [], []
     for i in usable:
         window = _block_window(views[i], rig, block_mask, to_ref[i], centers[i], half, block)
@@ -770,20 +778,26 @@ class _Eroded:
     origin: tuple[int, int]  # reference pixel (x, y) of inside[0, 0]
 
 
-def _erode(mask: np.ndarray, radius_px: int) -> _Eroded:
+def _box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    """Bounding box ``(x, y, width, height)`` of a bool mask's pixels, in pixels."""
+    # (a bool array viewed as bytes: no copy of a full-size mask)
+    return tuple(int(v) for v in cv2.boundingRect(mask.view(np.uint8)))
+
+
+def _erode(mask: np.ndarray, radius_px: int, box) -> _Eroded:
     """Shrink the mask by ``radius_px`` in the chessboard metric.
 
-    Only the object's bounding box, padded by the radius, is eroded: nothing outside it
-    survives, and the padding keeps the box's edge eroded as in the full image.
+    Only the object's bounding box ``box`` (see :func:`_box`), padded by the radius, is
+    eroded: nothing outside it survives, and the padding keeps the box's edge eroded as
+    in the full image.
     """
-    x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+    x, y, w, h = box
     height, width = mask.shape
     x0, y0 = max(x - radius_px, 0), max(y - radius_px, 0)
     x1, y1 = min(x + w + radius_px, width), min(y + h + radius_px, height)
     side = 2 * radius_px + 1
-    # (a bool array viewed as bytes: no copies of a full-size mask)
-    box = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
-    return _Eroded(cv2.erode(box, np.ones((side, side), np.uint8)).view(bool), (x0, y0))
+    pixels = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
+    return _Eroded(cv2.erode(pixels, np.ones((side, side), np.uint8)).view(bool), (x0, y0))
 
 
 def _views_from_reference(rig: CameraRig, plane: Plane) -> np.ndarray:
@@ -926,7 +940,7 @@ class _LobeModel:
     moves the others (``free_*`` lists which).
     """
 
-    def __init__(self, samples: _Samples, rig: CameraRig, mask: np.ndarray, light: np.ndarray,
+    def __init__(self, samples: _Samples, rig: CameraRig, box, light: np.ndarray,
                  plane0: Plane, lobe: str, f0: float, foreshortening: float | None) -> None:
         self.lobe = lobe
         self.f0 = f0
@@ -940,7 +954,7 @@ class _LobeModel:
         self.e1 = e1 / np.linalg.norm(e1)
         self.e2 = np.cross(self.n0, self.e1)
         # Convergence is judged by the disparity at the corners of the object's box.
-        x, y, w, h = cv2.boundingRect(mask.view(np.uint8))
+        x, y, w, h = box
         corners = np.array([[x, y], [x + w - 1, y], [x, y + h - 1], [x + w - 1, y + h - 1]],
                            dtype=np.float64)
         self.probe_rays = rig.rays(corners)
@@ -984,6 +998,13 @@ class _LobeModel:
             return
         self.diffuse_scale = 1.0 / float(np.median(geometry.diffuse + 1.0))
         self.spec_scale = 1.0 / float(np.median(geometry.specular))
+        # the same geometry with the scales applied is the start's
+        diffuse = geometry.diffuse + 1.0
+        diffuse *= self.diffuse_scale
+        diffuse -= 1.0
+        self._cache = dataclasses.replace(geometry, diffuse=diffuse,
+                                          specular=geometry.specular * self.spec_scale)
+        self._cache_key = np.zeros(_N_PLANE).tobytes()
 
     def start_theta(self) -> np.ndarray:
         theta = np.zeros(_N_PARAMS)

@@ -197,8 +197,8 @@ def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail):
     case = rough_ggx
     samples = _sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
                               case["centers"])
-    model = _LobeModel(samples, case["rig"], case["mask"], case["light"], case["plane"], lobe,
-                       DEFAULT_F0, None)
+    model = _LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
+                       lobe, DEFAULT_F0, None)
     theta = model.start_theta()
     # off the initial plane, a tail where both of the "gtr" derivative's branches apply
     theta[:_N_PLANE] = [0.01, -0.02, 0.003]
