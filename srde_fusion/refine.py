@@ -872,16 +872,16 @@ def _block_window(view: np.ndarray, rig: CameraRig, block_mask: np.ndarray, to_r
     u0, v0 = start + lo * block
     nu, nv = (int(x) for x in hi - lo)
     crop = view[v0:v0 + nv * block, u0:u0 + nu * block]
-    linear = _decode(crop, rig.image_encoding)
+    lum = _decode(crop, rig.image_encoding)
+    if lum.ndim == 3:
+        lum = cv2.transform(lum, REC709_LUMA.reshape(1, 3))
     clipped = saturation_mask(crop)
     if block > 1:
-        # INTER_AREA with an integer factor is the exact block mean; luminance is linear,
-        # so it is taken after averaging, on the small image.
-        linear = cv2.resize(linear, (nu, nv), interpolation=cv2.INTER_AREA)
+        # INTER_AREA with an integer factor is the exact block mean.
+        lum = cv2.resize(lum, (nu, nv), interpolation=cv2.INTER_AREA)
         # any() over block rows, then over block columns (single-axis reductions are fast)
         clipped = clipped.reshape(nv, block, nu * block).any(axis=1)
         clipped = clipped.reshape(nv, nu, block).any(axis=2)
-    lum = cv2.transform(linear, REC709_LUMA.reshape(1, 3)) if linear.ndim == 3 else linear
     cu = u0 + block * np.arange(nu) + (block - 1) / 2.0
     cv = v0 + block * np.arange(nv) + (block - 1) / 2.0
     uu, vv = np.tile(cu, nv), np.repeat(cv, nu)  # row-major, like the blocks
@@ -979,6 +979,7 @@ class _LobeModel:
         self._specular_key = None
         self._specular_value = self._specular_geometry = None
         self._terms_geometry = self._terms = None
+        self._sum_unclipped_y = float(self.y[:self.n_unclipped].sum())
         # Reused across steps: arrays this large would cost page faults on every call.
         self._ones = np.ones(self.y.shape)
         self._basis_buffer = np.empty((3, len(self.y)))
@@ -1179,15 +1180,11 @@ class _LobeModel:
     def _intensity_terms(self, g: _Geometry):
         """Return the sums over unsaturated samples that do not depend on the lobe (cached).
 
-        Returns ``D (3, k)`` with rows diffuse, 1, y and the Gram entries
-        ``(sum d^2, sum d, k, sum d y, sum y)``.
+        ``(d . d, sum d)`` of the diffuse term ``d`` and ``d . y`` with the observations.
         """
         if self._terms_geometry is not g:
-            k = self.n_unclipped
-            rows = np.stack([g.diffuse[:k], self._ones[:k], self.y[:k]])
-            d = rows[0]
-            self._terms = rows, (float(d @ d), float(d.sum()), float(k), float(d @ rows[2]),
-                                 float(rows[2].sum()))
+            d = g.diffuse[:self.n_unclipped]
+            self._terms = float(d @ d), float(d.sum()), float(d @ self.y[:self.n_unclipped])
             self._terms_geometry = g
         return self._terms
 
@@ -1199,11 +1196,12 @@ class _LobeModel:
         settle it. Returns the coefficients and the model ``(P,)``.
         """
         k = self.n_unclipped
-        rows, (dd, d1, n1, dy, y1) = self._intensity_terms(g)
-        head = lobe[:k]
-        ld, l1, ly = rows @ head
-        normal0 = np.array([[float(head @ head), ld, l1], [ld, dd, d1], [l1, d1, n1]])
-        rhs0 = np.array([ly, dy, y1])
+        dd, d1, dy = self._intensity_terms(g)
+        head, y_head = lobe[:k], self.y[:k]
+        ld = float(head @ g.diffuse[:k])
+        l1 = float(head.sum())
+        normal0 = np.array([[float(head @ head), ld, l1], [ld, dd, d1], [l1, d1, float(k)]])
+        rhs0 = np.array([float(head @ y_head), dy, self._sum_unclipped_y])
         coef = _solve_normal(normal0, rhs0)
         if k < len(lobe):
             clipped = np.stack([lobe[k:], g.diffuse[k:], self._ones[k:]])  # (3, P - k)
@@ -1211,7 +1209,7 @@ class _LobeModel:
             active = np.zeros(len(clipped_y), dtype=bool)
             for _ in range(_ACTIVE_SET_PASSES - 1):
                 now_active = coef @ clipped < clipped_y
-                if np.array_equal(now_active, active):
+                if not np.any(now_active ^ active):
                     break
                 active = now_active
                 cols = clipped[:, active]
