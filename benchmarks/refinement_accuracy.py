@@ -235,8 +235,9 @@ def main(argv: list[str] | None = None) -> int:
         lines += [f"## {rig_name} rig ({views} views)", "", table,
                   f"SRDE failed on {failed} of {len(records)} scenes.", "",
                   *target_lines(numbers, rig_name), "", *worse_lines(records), "",
-                  "Refinement time per frame, best of three calls (median and p90 over "
-                  "frames, wall; median CPU; median of the first call alone), ms:", ""]
+                  "Refinement time per frame, best of three calls right after SRDE's default "
+                  "estimate (median and p90 over frames, wall; median CPU; median of the first "
+                  "call alone), ms:", ""]
         for method, t in times.items():
             if t:
                 lines.append(f"- {method}: {t['median_ms']:.1f} / {t['p90_ms']:.1f} wall, "
