@@ -833,11 +833,6 @@ def _references_from_views(rig: CameraRig, plane: Plane) -> np.ndarray:
     return inverse
 
 
-def _reference_from_view(rig: CameraRig, plane: Plane, camera: int) -> np.ndarray:
-    """Affine map ``(2, 3)`` from a camera's pixels to the reference pixels on the plane."""
-    return _references_from_views(rig, plane)[camera]
-
-
 def _object_lookup(eroded_ref: _Eroded, to_ref: np.ndarray | None, uu: np.ndarray,
                    vv: np.ndarray) -> np.ndarray:
     """Whether camera pixels ``uu, vv`` (any shape) land on the eroded reference mask."""
@@ -1281,7 +1276,8 @@ class _LobeModel:
         """Return the model's derivatives ``(len(free), P)`` by ``theta[free]`` (intensities held).
 
         Analytic, by the chain rule through the ray-plane algebra of :meth:`_geometry`
-        (forward mode: one tangent per plane parameter). ``theta``'s plane must be valid.
+        (see :meth:`_plane_slope_terms`) and the lobe shapes. ``theta``'s plane must be
+        valid.
         """
         g, lobe, shape = self._lobe_at(theta)
         out = np.empty((len(free), len(lobe))) if out is None else out

@@ -27,8 +27,9 @@ from srde_fusion.refine import (
     LOBES,
     PlaneRefinement,
     _LobeModel,
-    _reference_from_view,
+    _references_from_views,
     _sample_windows,
+    _warp_change_px,
     refine_plane,
 )
 from srde_fusion.rig import CameraRig
@@ -332,5 +333,22 @@ def test_plane_induced_map_agrees_with_ray_casting(rig, tilt_x, tilt_y, depth, c
     center = rig.centers_m[camera]
     point = center + ray * (plane.offset_m - plane.n @ center) / (plane.n @ ray)
     expected = rig.project(point)
-    to_ref = _reference_from_view(rig, plane, camera)
+    to_ref = _references_from_views(rig, plane)[camera]
     assert to_ref @ [u, v, 1.0] == pytest.approx(expected, abs=1e-6)
+
+
+def test_warp_change_is_the_largest_corner_move_by_ray_casting(rig):
+    before = Plane.from_point_normal([0.0, 0.0, 1.0], [0.1, -0.2, -1.0])
+    after = Plane.from_point_normal([0.0, 0.0, 1.1], [0.15, -0.2, -1.0])
+    box = (40, 30, 100, 80)  # x, y, width, height
+    corners = np.array([[40.0, 30.0], [139.0, 30.0], [40.0, 109.0], [139.0, 109.0]])
+    rays = rig.rays(corners)
+    ref = rig.reference_center_m
+
+    def seen(plane, camera):
+        points = ref + rays * ((plane.offset_m - plane.n @ ref) / (rays @ plane.n))[:, None]
+        return rig.project(points, camera)
+
+    expected = max(np.max(np.abs(seen(after, j) - seen(before, j))) for j in range(9))
+    assert expected > 1.0
+    assert _warp_change_px(rig, before, after, box) == pytest.approx(expected, rel=1e-9)
