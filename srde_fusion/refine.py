@@ -985,6 +985,7 @@ class _LobeModel:
         self.free_photometric = np.array(shape)
         self.free_all = np.array(list(range(_N_PLANE)) + shape)
         self._jacobian_buffer = np.empty((len(self.free_all), len(self.y)))
+        self._jacobian_partner = np.empty_like(self._jacobian_buffer)
         # Normalise the geometric factors at the initial plane so the intensities read
         # as luminances at the highlight and the parameters are well scaled.
         self.diffuse_scale = self.spec_scale = 1.0
@@ -1263,13 +1264,21 @@ class _LobeModel:
         if ignored.any():
             jac[:, ignored] = 0.0
             basis[:, ignored] = 0.0
-        # (numpy computes A @ A.T by a rank-k update, several times slower here than a
-        # product with a copy)
-        partner = self._basis_partner
+        partner = self._basis_partner  # (see gram)
         np.copyto(partner, basis)
         coef = _solve_normal(basis @ partner.T, basis @ jac.T)  # (3, K)
         jac -= coef.T @ basis
         return jac
+
+    def gram(self, jac: np.ndarray) -> np.ndarray:
+        """Return ``jac @ jac.T`` ``(K, K)`` for a Jacobian from :meth:`jacobian`.
+
+        numpy computes ``A @ A.T`` by a rank-k update, several times slower here than a
+        product with a copy of ``A``.
+        """
+        partner = self._jacobian_partner[:len(jac)]
+        np.copyto(partner, jac)
+        return jac @ partner.T
 
     def model_slopes(self, theta: np.ndarray, free: np.ndarray, *,
                      out: np.ndarray | None = None) -> np.ndarray:
@@ -1505,7 +1514,7 @@ def _levenberg_marquardt(model: _LobeModel, theta0: np.ndarray, free: np.ndarray
     moves_plane = bool(np.any(free < _N_PLANE))
     while steps < max_iterations and not converged:
         jac = model.jacobian(theta, free)  # (K, P)
-        normal = jac @ jac.T
+        normal = model.gram(jac)
         gradient = jac @ residual
         # Marquardt's scaling: damping proportional to each parameter's curvature.
         damping = np.diag(np.maximum(normal.diagonal(), 1e-12 * max(1.0, float(normal.max()))))
