@@ -88,6 +88,24 @@ class BorderCheck:
     min_px : int
         Fewest band pixels for the check to run; with fewer, SRDE is accepted
         unchecked and the report says so.
+    photo_ring_px : int
+        Width of the inner ring of the mask (pixels within this distance of its outline)
+        on which the photometric check compares SRDE with the backbone; 0 disables the
+        check.
+    max_photo_ratio, photo_margin : float
+        SRDE is rejected when its mean photometric cost on the ring exceeds
+        ``max_photo_ratio * backbone_cost + photo_margin`` (cost: median over the other
+        cameras of the absolute grey difference, values in [0, 1]).
+    suspect_front_ratio, suspect_behind_ratio : float
+        The stricter ``min_front_ratio`` (in (0, 1)) and ``max_behind_ratio`` (> 1)
+        applied when SRDE's own evidence is weak: its photometric refinement kept the
+        initial plane, or its photometric cost on the ring is above the backbone's
+        (within the margin that the photometric check allows).
+    trim_disagreement : float
+        A textured mask pixel whose backbone disparity differs from SRDE's by more than
+        this fraction of SRDE's, and which the backbone explains photometrically better,
+        is not part of the object when it is connected to the mask's edge: it keeps the
+        backbone's disparity. 0 disables the trim.
     """
 
     width_px: int = 4
@@ -97,6 +115,12 @@ class BorderCheck:
     max_behind_ratio: float = 1.25
     min_front_ratio: float = 0.25
     min_px: int = 30
+    photo_ring_px: int = 3
+    max_photo_ratio: float = 1.25
+    photo_margin: float = 0.02
+    suspect_front_ratio: float = 0.5
+    suspect_behind_ratio: float = 1.15
+    trim_disagreement: float = 0.2
 
     def __post_init__(self) -> None:
         if int(self.width_px) != self.width_px or self.width_px < 1:
@@ -118,6 +142,21 @@ class BorderCheck:
                              f"{self.min_front_ratio!r}")
         if int(self.min_px) != self.min_px or self.min_px < 1:
             raise SRDEError(f"min_px: expected a positive integer, got {self.min_px!r}")
+        if int(self.photo_ring_px) != self.photo_ring_px or self.photo_ring_px < 0:
+            raise SRDEError(f"photo_ring_px: expected an integer >= 0, got "
+                            f"{self.photo_ring_px!r}")
+        if not (isinstance(self.suspect_front_ratio, (int, float))
+                and 0.0 < self.suspect_front_ratio < 1.0):
+            raise SRDEError(f"suspect_front_ratio: expected a number in (0, 1), got "
+                            f"{self.suspect_front_ratio!r}")
+        if not (isinstance(self.suspect_behind_ratio, (int, float))
+                and 1.0 < self.suspect_behind_ratio < math.inf):
+            raise SRDEError(f"suspect_behind_ratio: expected a finite number > 1, got "
+                            f"{self.suspect_behind_ratio!r}")
+        for name in ("max_photo_ratio", "photo_margin", "trim_disagreement"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise SRDEError(f"{name}: expected a finite number >= 0, got {value!r}")
 
 
 #: The outline check :func:`fuse` runs unless told otherwise.
@@ -151,6 +190,15 @@ class ObjectReport:
     border_median_diff_px : float
         Median of ``srde - backbone`` over the band, pixels (NaN when not run); for
         information, not used in the decision.
+    trimmed_px : int
+        Mask pixels found not to belong to the object (textured, contradicting SRDE,
+        better explained by the backbone, connected to the mask's edge); they keep the
+        backbone's disparity.
+    photo_px : int
+        Ring pixels the photometric check used (0 when it did not run).
+    photo_cost_srde, photo_cost_backbone : float
+        Mean photometric cost on the ring with SRDE's and with the backbone's disparity,
+        grey values in [0, 1] (NaN when the check did not run).
     """
 
     index: int
@@ -163,6 +211,10 @@ class ObjectReport:
     border_ratio_low: float = math.nan
     border_ratio_high: float = math.nan
     border_median_diff_px: float = math.nan
+    trimmed_px: int = 0
+    photo_px: int = 0
+    photo_cost_srde: float = math.nan
+    photo_cost_backbone: float = math.nan
 
     @property
     def used_srde(self) -> bool:
@@ -182,6 +234,12 @@ class ObjectReport:
                 "ratio_low": _json_float(self.border_ratio_low),
                 "ratio_high": _json_float(self.border_ratio_high),
                 "median_diff_px": _json_float(self.border_median_diff_px),
+            },
+            "trimmed_px": self.trimmed_px,
+            "photo": {
+                "px": self.photo_px,
+                "cost_srde": _json_float(self.photo_cost_srde),
+                "cost_backbone": _json_float(self.photo_cost_backbone),
             },
             "srde": _srde_to_dict(self.srde),
         }
@@ -303,17 +361,19 @@ def _gradient_magnitude(gray: np.ndarray) -> np.ndarray:
     return cv2.magnitude(gx, gy)
 
 
+def _clipped(reference: np.ndarray) -> np.ndarray:
+    """Return the clipped highlights and their rim in the reference view, (H, W) bool."""
+    return cv2.dilate(saturation_mask(reference).astype(np.uint8),
+                      np.ones((5, 5), np.uint8)).astype(bool)
+
+
 def _textured(reference: np.ndarray, min_gradient: float) -> np.ndarray:
     """Pixels of the reference view that carry texture a matcher can lock onto."""
     # Texture is judged on the encoded values (luma), as a network trained on 8-bit
     # images sees them; linear luminance would squash texture in dark regions.
-    gray = to_float(reference)
-    if gray.ndim == 3:
-        gray = gray @ REC709_LUMA
-    textured = _gradient_magnitude(gray) > min_gradient
+    textured = _gradient_magnitude(_gray(reference)) > min_gradient
     # Clipped highlights have strong, view-dependent edges that the backbone mismatches.
-    clipped = cv2.dilate(saturation_mask(reference).astype(np.uint8), np.ones((5, 5), np.uint8))
-    return textured & (clipped == 0)
+    return textured & ~_clipped(reference)
 
 
 def _border_band(mask: np.ndarray, width_px: int) -> np.ndarray:
@@ -350,6 +410,111 @@ def _border_stats(result: Any, rig: CameraRig, backbone: np.ndarray, mask: np.nd
     low, high = np.quantile(backbone_px / srde_px, [check.low_quantile, check.high_quantile])
     return _BorderStats(int(keep.sum()), float(low), float(high),
                         float(np.median(srde_px - backbone_px)))
+
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    """Return the encoded grey values in [0, 1], (H, W) float32."""
+    gray = to_float(image)
+    return (gray @ REC709_LUMA).astype(np.float32) if gray.ndim == 3 else gray.astype(np.float32)
+
+
+def _photo_cost(grays: list[np.ndarray], rig: CameraRig, us: np.ndarray, vs: np.ndarray,
+                disparity_px: np.ndarray) -> np.ndarray:
+    """Return the per-pixel photometric cost of a disparity, (N,) float32, grey in [0, 1].
+
+    Each reference pixel is looked up in every other camera where the hypothesis puts it
+    (a rectified array moves it by ``d * (dX, dY * fy / fx) / B``); the cost is the
+    median absolute grey difference over the cameras it lands in, NaN if none.
+    """
+    if us.size == 0:
+        return np.zeros(0, dtype=np.float32)
+    offsets = rig.centers_m - rig.centers_m[rig.reference]
+    fx, fy = rig.intrinsics.fx, rig.intrinsics.fy
+    steps = disparity_px / rig.baseline_m
+    reference = grays[rig.reference][vs, us]
+    costs = []
+    for j, gray in enumerate(grays):
+        if j == rig.reference:
+            continue
+        map_u = (us - steps * offsets[j, 0]).astype(np.float32)[None]
+        map_v = (vs - steps * (fy / fx) * offsets[j, 1]).astype(np.float32)[None]
+        sample = cv2.remap(gray, map_u, map_v, cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_CONSTANT, borderValue=math.nan)[0]
+        costs.append(np.abs(sample - reference))
+    costs = np.sort(np.asarray(costs), axis=0)  # NaN sorts last
+    n_valid = np.count_nonzero(np.isfinite(costs), axis=0)
+    cols = np.arange(costs.shape[1])
+    low = costs[np.maximum((n_valid - 1) // 2, 0), cols]
+    high = costs[np.maximum(n_valid // 2, 0), cols]
+    return np.where(n_valid > 0, 0.5 * (low + high), np.nan).astype(np.float32)
+
+
+def _inner_ring(mask: np.ndarray, width_px: int) -> np.ndarray:
+    """Return the mask pixels within ``width_px`` of its outline, (H, W) bool."""
+    size = 2 * width_px + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    inner = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_REPLICATE)
+    return mask & (inner == 0)
+
+
+def _trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
+          textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
+          check: BorderCheck) -> np.ndarray:
+    """Return the mask pixels that are not the object, (H, W) bool.
+
+    A glossy textureless object offers no texture except along its outline, so textured
+    mask pixels where the backbone contradicts SRDE's plane and matches the other views
+    better are background the mask spilled over; only regions touching the mask's edge
+    are trimmed, so a textured patch inside the object cannot punch holes into it.
+    """
+    candidates = (mask & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
+                  & (np.abs(backbone - srde_disp) > check.trim_disagreement * srde_disp))
+    vs, us = np.nonzero(candidates)
+    if vs.size == 0:
+        return candidates
+    cost_srde = _photo_cost(grays, rig, us, vs, srde_disp[vs, us])
+    cost_backbone = _photo_cost(grays, rig, us, vs, backbone[vs, us])
+    worse = cost_srde > check.max_photo_ratio * cost_backbone + check.photo_margin
+    candidates[vs[~worse], us[~worse]] = False
+    _, labels = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
+    touching = np.unique(labels[_inner_ring(mask, 1) & candidates])
+    # The object's own silhouette edge is textured and mixes both depths; only regions
+    # reaching deeper into the mask than the outline band are spilled-over background.
+    deep = np.unique(labels[mask & ~_inner_ring(mask, check.width_px) & candidates])
+    keep = np.intersect1d(touching, deep)
+    return np.isin(labels, keep[keep > 0])
+
+
+@dataclass(frozen=True)
+class _PhotoStats:
+    n_px: int = 0
+    cost_srde: float = math.nan
+    cost_backbone: float = math.nan
+
+
+def _photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
+                 textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
+                 check: BorderCheck) -> _PhotoStats:
+    """Return the photometric cost of SRDE and the backbone on the mask's inner ring."""
+    # Only ring pixels next to texture (the silhouette edge): inside a glossy object the
+    # shading follows the reflection, whose depth is the virtual light's, not the
+    # surface's, so a uniform interior would favour whichever hypothesis is nearer it.
+    near_texture = cv2.dilate(textured.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    ring = (_inner_ring(mask, check.photo_ring_px) & near_texture & np.isfinite(srde_disp)
+            & np.isfinite(backbone))
+    if trimmed.any():
+        # Next to trimmed background the mask is background too, texture or not.
+        size = 4 * check.width_px + 1
+        ring &= cv2.dilate(trimmed.astype(np.uint8), np.ones((size, size), np.uint8)) == 0
+    vs, us = np.nonzero(ring)
+    cost_srde = _photo_cost(grays, rig, us, vs, srde_disp[vs, us])
+    cost_backbone = _photo_cost(grays, rig, us, vs, backbone[vs, us])
+    both = np.isfinite(cost_srde) & np.isfinite(cost_backbone)
+    if not both.any():
+        return _PhotoStats()
+    return _PhotoStats(int(both.sum()), float(cost_srde[both].mean()),
+                       float(cost_backbone[both].mean()))
 
 
 def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
@@ -417,9 +582,10 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
 
     fused = backbone.copy()
     source = np.zeros((h, w), dtype=np.int32)
-    textured = None
+    textured = grays = None
     if border_check is not None and mask_list:
         textured = _textured(views[rig.reference], border_check.min_gradient)
+        grays = [_gray(v) for v in views]
 
     reports = []
     for k, mask in enumerate(mask_list, start=1):
@@ -435,45 +601,99 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
         if srde_disp.shape != (h, w):
             raise SRDEError(f"srde: expected estimate() to return an ({h}, {w}) disparity map, "
                             f"got shape {srde_disp.shape}")
-        stats = _BorderStats()
-        if border_check is not None:
-            stats = _border_stats(result, rig, backbone, mask, textured, border_check)
-        common = dict(border_px=stats.n_px, border_ratio_low=stats.ratio_low,
-                      border_ratio_high=stats.ratio_high,
-                      border_median_diff_px=stats.median_diff_px)
-        checked = border_check is not None and stats.n_px >= border_check.min_px
-        contradiction = ""
-        if checked and stats.ratio_low > border_check.max_behind_ratio:
-            contradiction = (f"it puts the object behind what the backbone sees around it "
-                             f"(q{border_check.low_quantile:g} of backbone/srde = "
-                             f"{stats.ratio_low:.2f} > {border_check.max_behind_ratio:g}")
-        elif checked and stats.ratio_high < border_check.min_front_ratio:
-            contradiction = (f"it puts the object far in front of anything the backbone sees "
-                             f"there (q{border_check.high_quantile:g} of backbone/srde = "
-                             f"{stats.ratio_high:.2f} < {border_check.min_front_ratio:g}")
-        if contradiction:
-            reports.append(ObjectReport(
-                k, "fallback", f"SRDE contradicts the backbone around the object's outline: "
-                f"{contradiction}, over {stats.n_px} textured px)", result, n_mask, 0, **common))
-            continue
-        # Only valid disparity replaces the backbone, whatever an estimator returns.
-        take = mask & np.isfinite(srde_disp) & (srde_disp >= 0) & (source == SOURCE_BACKBONE)
-        fused[take] = srde_disp[take]
-        source[take] = k
-        n_take = int(np.count_nonzero(take))
-        if border_check is None:
-            reason = "SRDE used (border check disabled)"
-        elif not checked:
-            reason = (f"SRDE used unchecked: only {stats.n_px} textured px with a valid "
-                      f"backbone around the outline (need {border_check.min_px})")
-        else:
-            reason = (f"SRDE agrees with the backbone around the object's outline "
-                      f"(backbone/srde q{border_check.low_quantile:g} = {stats.ratio_low:.2f}, "
-                      f"q{border_check.high_quantile:g} = {stats.ratio_high:.2f} over "
-                      f"{stats.n_px} px)")
-        reports.append(ObjectReport(k, "srde", reason, result, n_mask, n_take, **common))
+        reports.append(_decide(k, result, srde_disp, mask, n_mask, backbone, rig, textured,
+                               grays, border_check, fused, source))
 
     return FusionResult(fused, source, tuple(reports), backbone)
+
+
+def _suspicion(result: Any, photo: _PhotoStats) -> str:
+    """Say why SRDE's own evidence for its plane is weak ("" if it is not)."""
+    refinement = getattr(result, "refinement", None)
+    if refinement is not None and not refinement.ok:
+        return "its photometric refinement kept the initial plane"
+    if photo.n_px and photo.cost_srde > photo.cost_backbone:
+        return (f"its plane explains the outline worse than the backbone "
+                f"({photo.cost_srde:.3f} > {photo.cost_backbone:.3f})")
+    return ""
+
+
+def _decide(k: int, result: Any, srde_disp: np.ndarray, mask: np.ndarray, n_mask: int,
+            backbone: np.ndarray, rig: CameraRig, textured: np.ndarray | None,
+            grays: list[np.ndarray] | None,
+            check: BorderCheck | None, fused: np.ndarray, source: np.ndarray) -> ObjectReport:
+    """Check one successful SRDE result, write it into ``fused``/``source`` if accepted."""
+    trimmed = np.zeros_like(mask)
+    if check is not None and check.trim_disagreement > 0:
+        trimmed = _trim(mask, srde_disp, backbone, textured, grays, rig, check)
+    n_trimmed = int(np.count_nonzero(trimmed))
+    object_mask = mask & ~trimmed
+    stats = _BorderStats()
+    if check is not None:
+        stats = _border_stats(result, rig, backbone, object_mask, textured, check)
+    photo = _PhotoStats()
+    if check is not None and check.photo_ring_px > 0:
+        photo = _photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check)
+    common = dict(border_px=stats.n_px, border_ratio_low=stats.ratio_low,
+                  border_ratio_high=stats.ratio_high,
+                  border_median_diff_px=stats.median_diff_px, trimmed_px=n_trimmed,
+                  photo_px=photo.n_px, photo_cost_srde=photo.cost_srde,
+                  photo_cost_backbone=photo.cost_backbone)
+    checked = check is not None and stats.n_px >= check.min_px
+    suspicion = _suspicion(result, photo)
+    contradiction = ""
+    if checked and stats.ratio_low > check.max_behind_ratio:
+        contradiction = (f"it puts the object behind what the backbone sees around it "
+                         f"(q{check.low_quantile:g} of backbone/srde = "
+                         f"{stats.ratio_low:.2f} > {check.max_behind_ratio:g}")
+    elif checked and stats.ratio_high < check.min_front_ratio:
+        contradiction = (f"it puts the object far in front of anything the backbone sees "
+                         f"there (q{check.high_quantile:g} of backbone/srde = "
+                         f"{stats.ratio_high:.2f} < {check.min_front_ratio:g}")
+    elif checked and suspicion and stats.ratio_low > check.suspect_behind_ratio:
+        contradiction = (f"{suspicion}, and it puts the object behind what the backbone sees "
+                         f"around it (q{check.low_quantile:g} of backbone/srde = "
+                         f"{stats.ratio_low:.2f} > {check.suspect_behind_ratio:g}")
+    elif checked and suspicion and stats.ratio_high < check.suspect_front_ratio:
+        contradiction = (f"{suspicion}, and it puts the object far in front of anything the "
+                         f"backbone sees there (q{check.high_quantile:g} of backbone/srde = "
+                         f"{stats.ratio_high:.2f} < {check.suspect_front_ratio:g}")
+    if contradiction:
+        return ObjectReport(
+            k, "fallback", f"SRDE contradicts the backbone around the object's outline: "
+            f"{contradiction}, over {stats.n_px} textured px)", result, n_mask, 0, **common)
+    photo_checked = check is not None and photo.n_px >= check.min_px
+    if photo_checked and (photo.cost_srde
+                          > check.max_photo_ratio * photo.cost_backbone + check.photo_margin):
+        return ObjectReport(
+            k, "fallback", f"SRDE's plane does not explain the object's outline in the other "
+            f"views: mean grey difference {photo.cost_srde:.3f} against the backbone's "
+            f"{photo.cost_backbone:.3f} (limit {check.max_photo_ratio:g} x backbone + "
+            f"{check.photo_margin:g}) over {photo.n_px} px of the mask's inner ring",
+            result, n_mask, 0, **common)
+    # Only valid disparity replaces the backbone, whatever an estimator returns.
+    take = (object_mask & np.isfinite(srde_disp) & (srde_disp >= 0)
+            & (source == SOURCE_BACKBONE))
+    fused[take] = srde_disp[take]
+    source[take] = k
+    n_take = int(np.count_nonzero(take))
+    if check is None:
+        reason = "SRDE used (border check disabled)"
+    elif not checked:
+        reason = (f"SRDE used unchecked: only {stats.n_px} textured px with a valid "
+                  f"backbone around the outline (need {check.min_px})")
+    else:
+        reason = (f"SRDE agrees with the backbone around the object's outline "
+                  f"(backbone/srde q{check.low_quantile:g} = {stats.ratio_low:.2f}, "
+                  f"q{check.high_quantile:g} = {stats.ratio_high:.2f} over "
+                  f"{stats.n_px} px)")
+    if photo_checked:
+        reason += (f"; photometric cost on the inner ring {photo.cost_srde:.3f} "
+                   f"(backbone {photo.cost_backbone:.3f})")
+    if n_trimmed:
+        reason += (f"; {n_trimmed} textured mask px at the edge are not the object and keep "
+                   f"the backbone")
+    return ObjectReport(k, "srde", reason, result, n_mask, n_take, **common)
 
 
 def _resolve_masker(masks: Any) -> Masker:

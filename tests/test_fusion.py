@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,7 @@ class FakeResult:
     disparity: np.ndarray | None
     plane: Plane | None = None
     method: str = "fake"
+    refinement: object = None
 
     @property
     def ok(self) -> bool:
@@ -199,19 +201,30 @@ def test_label_image_is_accepted_as_masks(rig):
     assert result.disparity[7, 7] == 2.0 and result.disparity[35, 35] == 4.0
 
 
+BACKGROUND_PX = 6
+
+
 def flat_object_scene(rig):
-    """Textured background at 6 px, a uniform grey tilted object plane at ~12 px."""
-    views = textured_views(3)
+    """Textured background at 6 px, a uniform grey tilted object plane at ~12 px.
+
+    The right view is the left one as the stereo pair sees it: the background moved by
+    its disparity, the object painted where its plane puts it.
+    """
+    left = textured_views(3, n=1)[0]
     mask = box(12, 36, 16, 48)
-    for v in views:
-        v[mask] = 128  # textureless inside; the silhouette against texture stays
+    left[mask] = 128  # textureless inside; the silhouette against texture stays
     plane = Plane.from_point_normal([0.0, 0.0, 0.5], [0.1, -0.2, -1.0])
     truth = plane_disparity(plane, rig).astype(np.float32)
+    right = np.roll(left, -BACKGROUND_PX, axis=1)
+    right[mask] = np.roll(left, -BACKGROUND_PX, axis=1)[mask]
+    vs, us = np.nonzero(mask)
+    right[vs, np.rint(us - truth[vs, us]).astype(int)] = 128
+    views = [left, right]
     # The backbone is wrong inside (stripes of +3 px) and sees the background outside,
     # but reports the object's disparity along its outline, a little beyond it too
     # (foreground fattening, as matchers do at occluding edges).
     stripes = np.float32(3.0) * (np.arange(W) % 2)[None, :].repeat(H, axis=0)
-    backbone = np.full((H, W), 6.0, np.float32)
+    backbone = np.full((H, W), float(BACKGROUND_PX), np.float32)
     backbone[mask] = truth[mask] + stripes[mask]
     rim = (ndimage.binary_dilation(mask, iterations=2)
            & ~ndimage.binary_erosion(mask, iterations=BorderCheck().width_px))
@@ -257,14 +270,96 @@ def test_srde_that_grossly_contradicts_the_outline_falls_back(rig, factor, where
     assert "disabled" in unchecked.objects[0].reason
 
 
+NO_PHOTO = BorderCheck(photo_ring_px=0)
+
+
 @pytest.mark.parametrize("factor", [1.2, 2.0, 3.5, 1 / 1.2])
-def test_what_the_outline_cannot_refute_is_kept(rig, factor):
+def test_what_the_outline_ratio_cannot_refute_is_kept(rig, factor):
     # Nearer than the backbone's outline says (up to 4x) is what an object in front of
     # its background looks like to a backbone that only sees the background there.
     views, mask, plane, backbone = flat_object_scene(rig)
-    result = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, factor)], rig))
+    result = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, factor)], rig),
+                  border_check=NO_PHOTO)
     assert result.objects[0].status == "srde", result.objects[0].reason
     assert result.objects[0].border_ratio_high == pytest.approx(1 / factor, rel=1e-4)
+    assert result.objects[0].photo_px == 0
+
+
+def test_plane_that_misplaces_the_outline_in_the_other_view_falls_back(rig):
+    # What the ratio cannot refute, the other view can: the wrong plane puts the
+    # object's edge onto background texture there.
+    views, mask, plane, backbone = flat_object_scene(rig)
+    result = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, 1.2)], rig))
+    obj = result.objects[0]
+    assert obj.status == "fallback"
+    assert obj.reason.startswith("SRDE's plane does not explain the object's outline")
+    assert obj.photo_px >= BorderCheck().min_px
+    assert obj.photo_cost_srde > 1.25 * obj.photo_cost_backbone + 0.02
+    assert np.array_equal(result.disparity, backbone)
+
+
+def test_correct_plane_explains_the_outline(rig):
+    views, mask, plane, backbone = flat_object_scene(rig)
+    obj = fuse(backbone, views, rig, [mask], FakeSRDE([plane], rig)).objects[0]
+    assert obj.status == "srde"
+    assert obj.photo_px >= BorderCheck().min_px
+    assert obj.photo_cost_srde < 0.02
+    assert "photometric cost" in obj.reason
+
+
+def test_plane_worse_than_the_backbone_in_the_other_view_gets_the_stricter_ratio(rig):
+    views, mask, plane, backbone = flat_object_scene(rig)
+    obj = fuse(backbone, views, rig, [mask], FakeSRDE([scaled(plane, 3.5)], rig)).objects[0]
+    assert obj.status == "fallback"
+    assert "its plane explains the outline worse than the backbone" in obj.reason
+    assert "far in front of" in obj.reason
+    assert obj.border_ratio_high == pytest.approx(1 / 3.5, rel=1e-4)
+
+
+@dataclass(frozen=True)
+class FakeRefinement:
+    ok: bool
+
+
+@pytest.mark.parametrize("factor, where", [(3.0, "far in front of"), (1 / 1.2, "behind")])
+def test_weak_srde_evidence_tightens_the_outline_ratio(rig, factor, where):
+    views, mask, plane, backbone = flat_object_scene(rig)
+    wrong = scaled(plane, factor)
+    for refined in (True, False):
+        srde = FakeSRDE([wrong], rig)
+        estimate = srde.estimate
+        srde.estimate = lambda v, m, e=estimate, ok=refined: FakeResult(
+            **{**e(v, m).__dict__, "refinement": FakeRefinement(ok)})
+        obj = fuse(backbone, views, rig, [mask], srde, border_check=NO_PHOTO).objects[0]
+        if refined:
+            assert obj.status == "srde", obj.reason
+        else:
+            assert obj.status == "fallback"
+            assert "refinement kept the initial plane" in obj.reason
+            assert f"puts the object {where}" in obj.reason
+
+
+def test_mask_spilling_onto_textured_background_is_trimmed(rig):
+    views, mask, plane, backbone = flat_object_scene(rig)
+    spilled = ndimage.binary_dilation(mask, iterations=8)
+    result = fuse(backbone, views, rig, [spilled], FakeSRDE([plane], rig))
+    obj = result.objects[0]
+    assert obj.status == "srde", obj.reason
+    assert obj.trimmed_px > 0 and "not the object" in obj.reason
+    truth = plane_disparity(plane, rig).astype(np.float32)
+    # The object keeps SRDE; trimmed pixels keep the backbone, bit for bit.
+    np.testing.assert_array_equal(result.disparity[mask], truth[mask])
+    kept = spilled & (result.source == 0)
+    assert int(kept.sum()) == obj.trimmed_px
+    assert same_bits(result.disparity[kept], backbone[kept])
+    assert not (kept & mask).any()
+    # Most of the spilled ring was background texture.
+    assert obj.trimmed_px > 0.25 * np.count_nonzero(spilled & ~mask)
+    # Without the trim the plane covers the whole spilled mask.
+    untrimmed = fuse(backbone, views, rig, [spilled], FakeSRDE([plane], rig),
+                     border_check=BorderCheck(trim_disagreement=0, photo_ring_px=0))
+    assert untrimmed.objects[0].trimmed_px == 0
+    assert np.all(untrimmed.source[spilled] == 1)
 
 
 def test_outline_without_texture_is_not_checked(rig):
@@ -338,6 +433,16 @@ def test_border_check_options_are_validated():
         BorderCheck(min_front_ratio=0.0)
     with pytest.raises(SRDEError, match=r"low_quantile, high_quantile: expected 0 < low"):
         BorderCheck(low_quantile=0.9, high_quantile=0.5)
+    with pytest.raises(SRDEError, match=r"photo_ring_px: expected an integer >= 0"):
+        BorderCheck(photo_ring_px=-1)
+    with pytest.raises(SRDEError, match=r"photo_margin: expected a finite number >= 0"):
+        BorderCheck(photo_margin=math.nan)
+    with pytest.raises(SRDEError, match=r"trim_disagreement: expected a finite number >= 0"):
+        BorderCheck(trim_disagreement=-0.1)
+    with pytest.raises(SRDEError, match=r"suspect_front_ratio: expected a number in \(0, 1\)"):
+        BorderCheck(suspect_front_ratio=1.0)
+    with pytest.raises(SRDEError, match=r"suspect_behind_ratio: expected a finite number > 1"):
+        BorderCheck(suspect_behind_ratio=0.9)
 
 
 def test_hybrid_stereo_needs_a_light():
