@@ -22,6 +22,15 @@ using SRDE on an object where the fused map is worse than the backbone; a *misse
 fusion falling back although SRDE alone was better. Full-scene EPE is reported too,
 since a dilated mask moves SRDE's plane onto the background.
 
+Fusion's fallbacks were built against these curves. Before the photometric outline check,
+the stricter ratios on weak SRDE evidence and the mask trim (outline ratios alone), on the
+same 6 scenes: light error 800 mm 5/18 object-runs harmful (fused/backbone 0.948), 1600 mm
+8/18 harmful (2.280); centre noise 8 px 2/18 harmful, 16 px 3/18; mask dilation 32/64 px
+full-scene fused/backbone 1.020/1.204. Tried on the way: a photometric ring over every
+inner-ring pixel (light 1600 mm 1 harmful, but eroded masks fell back: inside a glossy
+object the shading follows the reflection, not the surface), over textured pixels only
+(too few pixels: light 1600 mm 2 harmful, 1.12), and the stricter ratios alone.
+
 Run: ``python benchmarks/degradation.py [--scenes 6] [--seed 3000] [--scale 1.0]``;
 writes ``benchmarks/results/degradation.md`` and ``.json``.
 """
@@ -71,7 +80,7 @@ LIGHT_DIRECTIONS = 2
 SUBPIXEL_PX = 1.0
 #: A stricter outline check, tried on the centre-noise and light axes: SRDE may put the
 #: object at most 2x nearer than the top of what the backbone sees along its outline
-#: (default 4x).
+#: (default 4x, 2x only when SRDE's own evidence is weak).
 STRICT_CHECK = BorderCheck(min_front_ratio=0.5)
 #: SRDE variants of the centre-noise axis: (name, SRDE refine option, outline check).
 CENTRE_NOISE_VARIANTS = (

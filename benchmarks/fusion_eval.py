@@ -17,6 +17,7 @@ writes ``benchmarks/results/fusion_eval.md`` and ``.json``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import platform
@@ -82,8 +83,18 @@ def scaled(plane: Plane, factor: float) -> Plane:
     return Plane(plane.normal, plane.offset_m / factor)
 
 
+class FixedSRDE:
+    """An estimator that returns one given result (for judging a chosen plane)."""
+
+    def __init__(self, result) -> None:
+        self.result = result
+
+    def estimate(self, views, mask):
+        return self.result
+
+
 def rule_decisions(plane: Plane, rig, backbone: np.ndarray, mask: np.ndarray,
-                   textured: np.ndarray) -> dict[str, bool]:
+                   textured: np.ndarray, views: list, result) -> dict[str, bool]:
     """Whether each outline rule accepts ``plane`` for the object ``mask`` (True = accept)."""
     check = DEFAULT_BORDER_CHECK
     srde_full = plane_disparity(plane, rig)
@@ -105,9 +116,16 @@ def rule_decisions(plane: Plane, rig, backbone: np.ndarray, mask: np.ndarray,
         low, high = np.quantile(ratio, [check.low_quantile, check.high_quantile])
         out["C: band both sides, q0.95 >= 1/1.5 and q0.75 <= 1.5"] = bool(
             high >= 1 / 1.5 and low <= 1.5)
-        out[f"D (used): q{check.low_quantile:g} <= {check.max_behind_ratio:g} and "
+        out[f"D: q{check.low_quantile:g} <= {check.max_behind_ratio:g} and "
             f"q{check.high_quantile:g} >= {check.min_front_ratio:g}"] = bool(
             low <= check.max_behind_ratio and high >= check.min_front_ratio)
+    # E: what fuse decides: D, the photometric outline check, stricter ratios on weak
+    # evidence (the result keeps the estimate's refinement outcome).
+    judged = dataclasses.replace(result, plane=plane, disparity=np.where(
+        mask, srde_full, np.nan).astype(np.float32))
+    report = fuse(backbone, views, rig, [mask], FixedSRDE(judged)).objects[0]
+    out["E (used): D + photometric outline check + stricter ratios on weak evidence"] = (
+        report.used_srde)
     return out
 
 
@@ -164,7 +182,7 @@ def run(n_scenes: int, backbone_names: list[str], seed0: int) -> dict:
                 for kind, factors in (("correct", (1.0,)), ("gross", GROSS_FACTORS)):
                     for f in factors:
                         for rule, ok in rule_decisions(scaled(r.plane, f), rig, bb_checked, m,
-                                                       textured).items():
+                                                       textured, views, r).items():
                             study.setdefault(bname, {}).setdefault(rule, {}).setdefault(
                                 kind, []).append(ok)
         print(f"scene {i + 1}/{n_scenes}: {n_objects} object(s), segmenter IoU "
@@ -250,7 +268,8 @@ def main() -> None:
         "occlusion order (the object is not behind what surrounds it, and not many times",
         "nearer than everything there): it keeps every correct plane and rejects most planes",
         "that are too far, but cannot tell a plane that is too near from a backbone that sees",
-        "only the background."])]
+        "only the background. E adds what the other views say: a wrong plane moves the",
+        "object's silhouette edge onto background texture there (see srde_fusion.fusion)."])]
     times = {k: float(np.mean(v)) for k, v in data["times"].items()}
     lines += ["", "Mean time per scene: " + ", ".join(f"{k} {v:.2f} s" for k, v in times.items()),
               "", f"Machine: {platform.processor() or platform.machine()}, "
