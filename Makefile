@@ -1,6 +1,6 @@
 # Two entry points for a new user (see README):
 #   make demo   create .venv, install, run the end-to-end demo on the embedded default
-#   make test   create .venv, install with the dev extra, run the default test suite
+#   make test   create .venv, install with the dev extra, lint, run the default test suite
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
@@ -19,6 +19,7 @@ demo: venv
 	$(BIN)/srde-fusion demo --out $(DEMO_OUT)
 
 test: venv
+	$(BIN)/ruff check srde_fusion adapters tests examples benchmarks
 	$(BIN)/python -m pytest -q
 
 test-all: venv
