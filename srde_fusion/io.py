@@ -365,7 +365,9 @@ def read_disparity(path: str | os.PathLike) -> np.ndarray:
         _existing_file(p, "disparity .npy")
         try:
             raw = np.load(p, allow_pickle=False)
-        except (OSError, ValueError, EOFError) as exc:
+        # numpy parses the header with Python's own parser: a damaged header can raise
+        # SyntaxError, tokenize.TokenError, MemoryError, ... besides the usual I/O errors.
+        except Exception as exc:
             raise FileFormatError(
                 f"{p}: expected a numpy .npy array, got an unreadable file: {exc}"
             ) from None

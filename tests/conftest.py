@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 from hypothesis import settings
 
@@ -9,7 +11,12 @@ from srde_fusion.rig import CameraRig
 
 # The machines running the suite are shared; timing-based failures would only be noise.
 settings.register_profile("srde", deadline=None, max_examples=50)
-settings.load_profile("srde")
+# CI explores the same examples every run, so a red build is reproducible; developers get
+# fresh examples each run (HYPOTHESIS_PROFILE=srde-ci reproduces CI locally).
+settings.register_profile("srde-ci", deadline=None, max_examples=50, derandomize=True)
+settings.load_profile(
+    os.environ.get("HYPOTHESIS_PROFILE", "srde-ci" if os.environ.get("CI") else "srde")
+)
 
 
 @pytest.fixture(scope="session")
