@@ -22,6 +22,7 @@ __all__ = [
     "check_number",
     "check_keys",
     "load_json_source",
+    "dump_json",
     "check_image",
     "check_views",
     "check_mask",
@@ -112,6 +113,14 @@ def load_json_source(source: Any, name: str, error: type[SRDEError]) -> Any:
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise error(f"{where}: expected valid JSON, got a parse error: {exc}") from None
+
+
+def dump_json(data: Any, path: str | os.PathLike | None = None) -> str:
+    """Serialise ``data`` as indented JSON; write it to ``path`` if given. Returns the text."""
+    text = json.dumps(data, indent=2) + "\n"
+    if path is not None:
+        Path(path).write_text(text)
+    return text
 
 
 def check_image(image: Any, name: str = "image") -> np.ndarray:

@@ -17,7 +17,6 @@ the array frame explains the marker corners of all views.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import struct
@@ -31,7 +30,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from ._checks import check_image, check_keys, check_number, check_views, load_json_source
+from ._checks import check_image, check_keys, check_number, check_views, dump_json, load_json_source
 from .errors import BoardError, LightError
 from .geometry import Plane
 from .imaging import luminance
@@ -322,10 +321,7 @@ class Board:
 
     def to_json(self, path: str | os.PathLike | None = None) -> str:
         """Serialise to JSON; write it to ``path`` if given. Returns the text."""
-        text = json.dumps(self.to_dict(), indent=2) + "\n"
-        if path is not None:
-            Path(path).write_text(text)
-        return text
+        return dump_json(self.to_dict(), path)
 
     @classmethod
     def from_json(cls, source: str | os.PathLike) -> Board:

@@ -50,8 +50,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ._checks import check_mask, check_views
-from .errors import ImageError, LightError, SRDEError
+from ._checks import check_mask, check_point3, check_views
+from .errors import ImageError, SRDEError
 from .geometry import Plane, plane_from_lights
 from .imaging import REC709_LUMA, luminance, saturation_mask, srgb_to_linear
 from .rig import CameraRig
@@ -346,7 +346,7 @@ def refine_plane(
         raise SRDEError(f"rig: expected a CameraRig, got {type(rig).__name__}")
     views = check_views(views, rig.n_cameras, rig.image_size)
     mask = np.ascontiguousarray(check_mask(mask, (rig.height, rig.width)))
-    light = _check_light(light_m)
+    light = check_point3(light_m, "light_m")
     if not isinstance(initial_plane, Plane):
         raise SRDEError(f"initial_plane: expected a Plane, got {type(initial_plane).__name__}")
     centers = _check_centers(centers_uv, rig.n_cameras)
@@ -600,17 +600,6 @@ def _restart_plane(setup: _Setup, samples: _Samples) -> Plane | None:
 def _is_number_in(value, low: float, high: float) -> bool:
     return (not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
             and low <= float(value) <= high)
-
-
-def _check_light(light_m) -> np.ndarray:
-    try:
-        light = np.asarray(light_m, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise LightError(f"light_m: expected 3 numbers (x, y, z) in metres, got {light_m!r}"
-                         ) from None
-    if light.shape != (3,) or not np.all(np.isfinite(light)):
-        raise LightError(f"light_m: expected 3 finite numbers (x, y, z) in metres, got {light_m!r}")
-    return light
 
 
 def _check_centers(centers_uv, n_views: int) -> np.ndarray | None:

@@ -9,15 +9,13 @@ Disparity is for the stereo pair (reference = left, partner to its right):
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ._checks import check_keys, check_number, load_json_source
+from ._checks import check_keys, check_number, dump_json, load_json_source
 from .errors import RigError
 
 __all__ = ["Intrinsics", "Camera", "CameraRig", "RIG_FORMAT"]
@@ -542,10 +540,7 @@ class CameraRig:
 
     def to_json(self, path: str | os.PathLike | None = None) -> str:
         """Serialise to JSON; write it to ``path`` if given. Returns the text."""
-        text = json.dumps(self.to_dict(), indent=2) + "\n"
-        if path is not None:
-            Path(path).write_text(text)
-        return text
+        return dump_json(self.to_dict(), path)
 
     @classmethod
     def from_json(cls, source: str | os.PathLike) -> CameraRig:

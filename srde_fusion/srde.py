@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ._checks import check_mask, check_views
+from ._checks import check_mask, check_point3, check_views
 from .errors import LightError, RigError, SRDEError
 from .geometry import Plane, incidence_angle_deg, plane_disparity, plane_from_lights
 from .highlight import DEFAULT_BLOB_CENTER, HighlightDetection, _check_options, _detect
@@ -279,13 +279,7 @@ class SRDE:
             if light is None:
                 raise LightError("light: expected a light position (x, y, z) in metres, or a rig "
                                  "with a light, got neither")
-        try:
-            light_m = np.asarray(light, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise LightError(f"light: expected 3 numbers (x, y, z) in metres, got {light!r}"
-                             ) from None
-        if light_m.shape != (3,) or not np.all(np.isfinite(light_m)):
-            raise LightError(f"light: expected 3 finite numbers (x, y, z) in metres, got {light!r}")
+        light_m = check_point3(light, "light")
         reach_m = float(np.max(np.abs(light_m - rig.reference_center_m)))
         if reach_m > MAX_LIGHT_DISTANCE_M:
             raise LightError(f"light: expected a position within {MAX_LIGHT_DISTANCE_M:g} m of the "
