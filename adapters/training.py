@@ -7,7 +7,7 @@ so training needs no data set. The bundled default was made with::
     srde-fusion train-standin --out adapters/weights/standin.onnx --size default \\
         --steps 800 --seed 0
 
-Why procedural pairs and not the rendered scenes of :mod:`srde_fusion.scenes`: rendering
+Why procedural pairs and not the rendered scenes of :mod:`srde_fusion.synthetic.scenes`: rendering
 one scene takes seconds, too slow to draw fresh pairs at every step on a CPU, and the
 procedural layers give exact disparity with occlusions at any range. A variant with 30 %
 dark exposures (like the dim rendered scenes) was trained the same way and measured
@@ -20,7 +20,6 @@ imports it at start-up to register the subcommand.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
@@ -42,7 +41,6 @@ __all__ = [
     "train_standin",
     "export_standin_onnx",
     "evaluate_standin",
-    "register_cli",
 ]
 
 ONNX_OPSET = 17
@@ -343,40 +341,3 @@ def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, 
     info_path.write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     return TrainingReport(out, info_path, initial["epe"], final["epe"], final["bad2"], parity,
                           seconds, net.eval())
-
-
-def _run_cli(args: argparse.Namespace) -> int:
-    config = TrainingConfig(size=args.size, steps=args.steps, seed=args.seed,
-                            batch_size=args.batch_size, threads=args.threads)
-    command = (f"srde-fusion train-standin --out {Path(args.out).name} --size {args.size} "
-               f"--steps {args.steps} --seed {args.seed} --batch-size {args.batch_size}")
-    report = train_standin(args.out, config, progress=not args.quiet, command=command)
-    print(f"wrote {report.onnx_path} and {report.info_path.name}: held-out EPE "
-          f"{report.initial_epe_px:.2f} -> {report.final_epe_px:.2f} px, bad-2 "
-          f"{report.final_bad2:.1%}, ONNX parity {report.parity_max_abs_px:.1e} px, "
-          f"{report.seconds / 60:.1f} min")
-    return 0
-
-
-def register_cli(subparsers: Any) -> None:
-    """Add the ``train-standin`` subcommand."""
-    parser = subparsers.add_parser(
-        "train-standin",
-        help="train the tiny stand-in stereo network and export it to ONNX",
-        description="Train the stand-in stereo network on procedural textured stereo pairs "
-        "(CPU), export it to ONNX with dynamic height and width, and write a JSON record "
-        "(config, command, held-out metrics) next to it.",
-    )
-    defaults = TrainingConfig()
-    parser.add_argument("--out", required=True, help="output .onnx path")
-    parser.add_argument("--steps", type=int, default=defaults.steps,
-                        help=f"optimiser steps (default {defaults.steps})")
-    parser.add_argument("--size", choices=("tiny", "default"), default=defaults.size,
-                        help="architecture size (default: default)")
-    parser.add_argument("--seed", type=int, default=defaults.seed, help="random seed")
-    parser.add_argument("--batch-size", type=int, default=defaults.batch_size,
-                        help=f"pairs per step (default {defaults.batch_size})")
-    parser.add_argument("--threads", type=int, default=defaults.threads,
-                        help=f"torch CPU threads (default {defaults.threads})")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    parser.set_defaults(func=_run_cli)

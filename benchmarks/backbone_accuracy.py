@@ -2,7 +2,7 @@
 
 Two data sets:
 
-* rendered scenes (``srde_fusion.scenes``, textured background, one glossy planar
+* rendered scenes (``srde_fusion.synthetic.scenes``, textured background, one glossy planar
   object each) on the paper's rig, stereo pair only, evaluated over the whole image,
   the textured background and the glossy objects separately;
 * the Middlebury 2014 "Motorcycle" pair bundled with scikit-image
@@ -32,8 +32,8 @@ import numpy as np
 from skimage import data as skdata
 from srde_fusion.adapters import default_model_info, load_backbone
 
-from srde_fusion.metrics import evaluate, summarize
-from srde_fusion.scenes import default_rig, random_scene, render
+from srde_fusion.evaluation.metrics import evaluate, summarize
+from srde_fusion.synthetic.scenes import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 KEYS = ("epe", "bad1", "bad2", "d1", "invalid")

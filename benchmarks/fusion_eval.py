@@ -1,7 +1,7 @@
 """Hybrid stereo on rendered scenes: backbone alone vs SRDE alone vs fused.
 
 A fixed set of hybrid scenes (textured room, one to three flat glossy objects, one
-light, 3x3 array, 640x480) is rendered with ``srde_fusion.scenes``. For each backbone
+light, 3x3 array, 640x480) is rendered with ``srde_fusion.synthetic.scenes``. For each backbone
 (the bundled stand-in network and OpenCV SGBM as a classical pipeline) and each mask
 source (the ground-truth masks as "user" masks, and the built-in highlight segmenter),
 the backbone's map, SRDE alone and the fused map are scored against ground truth over
@@ -27,13 +27,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from srde_fusion.evaluation import METHODS, mask_iou, score_fusion
-from srde_fusion.fusion import DEFAULT_BORDER_CHECK, _border_band, _textured, fuse
-from srde_fusion.geometry import Plane, plane_disparity
-from srde_fusion.masks import HighlightSegmenter
-from srde_fusion.metrics import format_markdown_table, summarize
-from srde_fusion.scenes import default_rig, random_scene, render
-from srde_fusion.srde import SRDE
+from srde_fusion.evaluation.evaluate import METHODS, mask_iou, score_fusion
+from srde_fusion.evaluation.metrics import format_markdown_table, summarize
+from srde_fusion.fusion.fuse import DEFAULT_BORDER_CHECK, _border_band, _textured, fuse
+from srde_fusion.geometry.plane import Plane, plane_disparity
+from srde_fusion.masks.stages import HighlightSegmenter
+from srde_fusion.srde.estimator import SRDE
+from srde_fusion.synthetic.scenes import default_rig, random_scene, render
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "fusion_eval"
@@ -269,7 +269,7 @@ def main() -> None:
         "nearer than everything there): it keeps every correct plane and rejects most planes",
         "that are too far, but cannot tell a plane that is too near from a backbone that sees",
         "only the background. E adds what the other views say: a wrong plane moves the",
-        "object's silhouette edge onto background texture there (see srde_fusion.fusion)."])]
+        "object's silhouette edge onto background texture there (see srde_fusion.fusion.fuse)."])]
     times = {k: float(np.mean(v)) for k, v in data["times"].items()}
     lines += ["", "Mean time per scene: " + ", ".join(f"{k} {v:.2f} s" for k, v in times.items()),
               "", f"Machine: {platform.processor() or platform.machine()}, "

@@ -1,6 +1,6 @@
 """Light calibration accuracy, and what it costs SRDE downstream.
 
-Rendered captures of the ArUco plate (``srde_fusion.light.plate_scene``), the light about
+Rendered captures of the ArUco plate (``srde_fusion.synthetic.plate_scene``), the light about
 1.1 m from the plates (the paper: 1.15 m). Three experiments:
 
 1. light error vs highlight-centre noise (exact centres, the projected virtual light,
@@ -25,18 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
-from srde_fusion.board import Board, estimate_plate_pose
-from srde_fusion.errors import SRDEError
-from srde_fusion.light import (
+from srde_fusion.calibration.board import Board, estimate_plate_pose
+from srde_fusion.calibration.light import (
     estimate_light,
     highlight_normal,
     light_from_reflections,
     plate_scene,
 )
-from srde_fusion.metrics import evaluate
-from srde_fusion.rig import CameraRig
-from srde_fusion.scenes import random_scene, render
-from srde_fusion.srde import SRDE
+from srde_fusion.errors import SRDEError
+from srde_fusion.evaluation.metrics import evaluate
+from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.srde.estimator import SRDE
+from srde_fusion.synthetic.scenes import random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 LIGHT_M = np.array([0.2, -0.45, 0.1])

@@ -1,10 +1,10 @@
 """Accuracy and speed of the photometric plane refinement on rendered scenes.
 
 SRDE's geometric plane comes from highlight centroids, which rough lobes bias (irradiance
-falloff, foreshortening, clipping). ``srde_fusion.refine.refine_plane`` fits a lobe model
+falloff, foreshortening, clipping). ``srde_fusion.srde.refine.plane.refine_plane`` fits a lobe model
 to the highlights of all views to remove that bias. This benchmark measures it against
 the geometric plane and against another way to de-bias the centres, on scenes rendered
-by ``srde_fusion.scenes`` under the paper's conditions:
+by ``srde_fusion.synthetic.scenes`` under the paper's conditions:
 
 * rigs: the paper's 3 x 3 array and a two-camera stereo rig (85 mm baselines,
   640 x 480 px, fx = 600 px);
@@ -36,12 +36,12 @@ from pathlib import Path
 
 import numpy as np
 
-from srde_fusion.geometry import plane_disparity
-from srde_fusion.metrics import evaluate
-from srde_fusion.refine import refine_plane
-from srde_fusion.rig import CameraRig
-from srde_fusion.scenes import default_rig, random_scene, render
-from srde_fusion.srde import SRDE
+from srde_fusion.evaluation.metrics import evaluate
+from srde_fusion.geometry.plane import plane_disparity
+from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.srde.estimator import SRDE
+from srde_fusion.srde.refine.plane import refine_plane
+from srde_fusion.synthetic.scenes import default_rig, random_scene, render
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "refinement_accuracy"

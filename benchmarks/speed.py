@@ -7,7 +7,7 @@ glossy object), per frame:
   (``srde_fusion.imaging.luminance``) - what any method that looks at the pixels pays;
 * SRDE (numpy/OpenCV): detection in all views, triangulation, the disparity map, with
   the photometric refinement off (``refine=False``);
-* SRDE (torch, CPU): the same with ``BatchedSRDE`` (``srde_fusion.batched``);
+* SRDE (torch, CPU): the same with ``BatchedSRDE`` (``srde_fusion.srde.batched``);
 * the photometric refinement that SRDE's default mode adds (``refine_plane``), alone;
 * the stand-in backbone (``load_backbone("default")`` on the stereo pair);
 * SRDE + fusion (``fuse`` with the backbone's map), geometric and with the refinement,
@@ -35,13 +35,13 @@ import numpy as np
 import torch
 from srde_fusion.adapters import load_backbone
 
-from srde_fusion.batched import BatchedSRDE
 from srde_fusion.errors import BackboneError
-from srde_fusion.fusion import fuse
+from srde_fusion.fusion.fuse import fuse
 from srde_fusion.imaging import luminance
-from srde_fusion.refine import refine_plane
-from srde_fusion.scenes import default_rig, random_scene, render
-from srde_fusion.srde import SRDE
+from srde_fusion.srde.batched import BatchedSRDE
+from srde_fusion.srde.estimator import SRDE
+from srde_fusion.srde.refine.plane import refine_plane
+from srde_fusion.synthetic.scenes import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 NAME = "speed"

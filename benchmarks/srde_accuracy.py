@@ -3,7 +3,7 @@
 A fixed set of scenes under the paper's conditions (3 x 3 array, 85 mm baselines,
 640 x 480 px, fx = 600 px; one flat glossy object, one small light of varied size;
 varied roughness, tilt and distance; sensor noise; clipped highlights) is rendered with
-``srde_fusion.scenes``, and every configuration estimates the object's disparity from
+``srde_fusion.synthetic.scenes``, and every configuration estimates the object's disparity from
 the views and its mask. Metrics are the paper's (masked EPE, RMSE, bmp0.1/0.01/0.001) as
 mean ± std over the scenes a configuration succeeded on; ``ok`` counts those scenes.
 
@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from srde_fusion.metrics import PAPER_KEYS, evaluate, format_markdown_table, summarize
-from srde_fusion.rig import CameraRig
-from srde_fusion.scenes import default_rig, random_scene, render
-from srde_fusion.srde import SRDE
+from srde_fusion.evaluation.metrics import PAPER_KEYS, evaluate, format_markdown_table, summarize
+from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.srde.estimator import SRDE
+from srde_fusion.synthetic.scenes import default_rig, random_scene, render
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "srde_accuracy"
@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
         "`paper`: edge-ring centroid, V per neighbouring pair, pixel-wise median of the pair "
         "maps. `default`: intensity-weighted blob centroid on linear intensity at one level "
         "for all views, joint least-squares triangulation, outlier views dropped, then the "
-        "plane refined photometrically (`srde_fusion.refine`: a lobe family with free "
+        "plane refined photometrically (`srde_fusion.srde.refine.plane`: a lobe family with free "
         "width, tail and falloff fitted to the highlights of all views; GGX is one member "
         "of that family, so the Blinn-Phong scenes are the mismatched case). "
         f"`{GEOMETRIC}`: the same without the refinement. The "
@@ -217,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         "Centroids of a rough lobe are biased: irradiance falloff and foreshortening make the "
         "lobe asymmetric, and the bias changes smoothly from camera to camera, which "
         "triangulation reads as a change of depth. The photometric refinement "
-        "(`srde_fusion.refine`) models the lobe to remove it.",
+        "(`srde_fusion.srde.refine.plane`) models the lobe to remove it.",
         "",
         f"## Stereo rig (2 cameras, {STEREO_BASELINE_M * 1000:.0f} mm baseline)",
         "",

@@ -5,7 +5,7 @@ RAFT-Stereo it returns *negative* horizontal flow, it needs sizes divisible by 8
 answers at half resolution, in half-resolution pixels.
 A :class:`~srde_fusion.adapters.StereoSpec` declares those conventions once;
 :class:`~srde_fusion.adapters.TorchStereo` undoes them and hands back positive
-disparity at input resolution. :class:`~srde_fusion.fusion.HybridStereo` then runs the
+disparity at input resolution. :class:`~srde_fusion.fusion.fuse.HybridStereo` then runs the
 network, the mask stage, SRDE and the fusion in one call.
 
 Usage: ``python examples/wrap_your_model.py``
@@ -18,9 +18,9 @@ import torch
 import torch.nn.functional as F
 from srde_fusion.adapters import StereoSpec, TorchStereo
 
-from srde_fusion.fusion import HybridStereo
-from srde_fusion.metrics import evaluate
-from srde_fusion.scenes import default_rig, random_scene, render
+from srde_fusion.evaluation.metrics import evaluate
+from srde_fusion.fusion.fuse import HybridStereo
+from srde_fusion.synthetic.scenes import default_rig, random_scene, render
 
 
 class MyStereoNet(torch.nn.Module):

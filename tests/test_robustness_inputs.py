@@ -12,14 +12,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from robustness_support import H, W, box_mask, grid_rig, highlight_views, true_centers
 
 from srde_fusion.errors import DisparityError, ImageError, LightError, MaskError, SRDEError
-from srde_fusion.fusion import fuse, postprocess
-from srde_fusion.highlight import detect_highlight
-from srde_fusion.metrics import evaluate
-from srde_fusion.rig import CameraRig
-from srde_fusion.srde import SRDE, SRDE_STATUSES
+from srde_fusion.evaluation.metrics import evaluate
+from srde_fusion.fusion.fuse import fuse, postprocess
+from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.srde.estimator import SRDE, SRDE_STATUSES
+from srde_fusion.srde.highlight import detect_highlight
+from tests.support import H, W, box_mask, grid_rig, highlight_views, true_centers
 
 
 @pytest.fixture(scope="module")

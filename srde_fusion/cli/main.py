@@ -1,0 +1,61 @@
+"""The ``srde-fusion`` command: one parser, every subcommand registered explicitly.
+
+Each subcommand maps its flags to keyword arguments of a library function; the logic
+lives in the library. Bad input exits with code 2 and one line on stderr, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ..errors import SRDEError
+from . import calibrate, commands, render, train
+
+__all__ = ["main", "build_parser"]
+
+# Every module here that adds subcommands, in the order ``--help`` lists them. An import
+# error in any of them is a bug and surfaces, rather than silently dropping commands.
+_COMMAND_MODULES = (render, commands, calibrate, train)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the argument parser with every subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="srde-fusion",
+        description="Disparity of flat glossy objects from their specular highlight (SRDE), "
+        "fused into a neural stereo pipeline.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for module in _COMMAND_MODULES:
+        module.register(sub)
+    for p in (parser, *sub.choices.values()):
+        _one_line_errors(p)
+    return parser
+
+
+def _one_line_errors(parser: argparse.ArgumentParser) -> None:
+    """Make a parser's argument errors one line on stderr, exit code 2, no usage block."""
+
+    def error(message: str) -> None:
+        parser.exit(2, f"{parser.prog}: error: {message}\n")
+
+    parser.error = error  # type: ignore[method-assign]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command; returns the exit code (0 ok, 2 bad input)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        result = args.func(args)
+    except SRDEError as exc:
+        print(f"srde-fusion {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # an output the system refuses (a folder in the way, disk full)
+        print(f"srde-fusion {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return int(result or 0)

@@ -1,0 +1,447 @@
+"""Evaluation against ground truth: backbone alone vs SRDE alone vs the fused (hybrid) map.
+
+Each method is scored twice: over the full scene (every pixel with finite ground truth)
+and over the objects (the union of the ground-truth object masks, or of the masks used
+when the scene has none). SRDE alone only covers the objects it was run on; outside
+them it has no prediction, which the metrics count as invalid pixels (see
+:mod:`srde_fusion.evaluation.metrics`) and the ``coverage`` column shows.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pickle
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MaskError, SRDEError
+from ..fusion.fuse import DEFAULT_BORDER_CHECK, BorderCheck, FusionResult, fuse
+from ..io.files import SceneData, list_scenes, read_scene
+from ..masks.stages import HighlightSegmenter, UserMasks
+from .metrics import PAPER_KEYS, evaluate, format_markdown_table, summarize
+
+__all__ = [
+    "METHODS",
+    "REGIONS",
+    "TABLE_KEYS",
+    "score_fusion",
+    "mask_iou",
+    "SceneEvaluation",
+    "DatasetEvaluation",
+    "BackboneLoader",
+    "evaluate_scene",
+    "evaluate_dataset",
+]
+
+#: Methods compared, in table order.
+METHODS = ("backbone", "srde", "hybrid")
+#: Regions scored: every pixel with ground truth, and the objects only.
+REGIONS = ("full", "masked")
+#: Columns of the markdown tables: the paper's metrics, then KITTI-style ones.
+TABLE_KEYS = (*PAPER_KEYS, "bad1", "d1", "coverage")
+#: Mask sources :func:`evaluate_scene` understands by name.
+MASK_SOURCES = ("user", "auto")
+
+
+def _with_coverage(metrics: dict[str, Any]) -> dict[str, Any]:
+    valid = metrics["valid_px"]
+    metrics["coverage"] = (1.0 - metrics["invalid_pred_px"] / valid) if valid else math.nan
+    return metrics
+
+
+def score_fusion(result: FusionResult, gt_disparity: np.ndarray, region: np.ndarray | None
+                 ) -> dict[str, dict[str, dict[str, Any]]]:
+    """Score the backbone, SRDE alone and the fused map against ground truth.
+
+    Parameters
+    ----------
+    result : FusionResult
+    gt_disparity : numpy.ndarray, (H, W), float, pixels
+        Ground truth; non-finite pixels are not scored.
+    region : numpy.ndarray, (H, W), bool, or None
+        The objects; None leaves the masked scores empty (NaN).
+
+    Returns
+    -------
+    dict
+        ``scores[method][region]`` -> :func:`~srde_fusion.evaluation.metrics.evaluate` result plus
+        ``coverage`` (fraction of scored pixels with a prediction), for ``method`` in
+        :data:`METHODS` and ``region`` in :data:`REGIONS`.
+    """
+    gt = np.asarray(gt_disparity, dtype=np.float32)
+    maps = {"backbone": result.backbone_disparity, "srde": result.srde_disparity,
+            "hybrid": result.disparity}
+    empty = np.zeros(gt.shape, dtype=bool)
+    return {
+        method: {
+            "full": _with_coverage(evaluate(pred, gt)),
+            "masked": _with_coverage(evaluate(pred, gt, empty if region is None else region)),
+        }
+        for method, pred in maps.items()
+    }
+
+
+def mask_iou(predicted: Sequence[np.ndarray], truth: Sequence[np.ndarray]) -> np.ndarray:
+    """Best intersection-over-union of each true object with any predicted mask.
+
+    Parameters
+    ----------
+    predicted, truth : sequences of numpy.ndarray, (H, W), bool
+
+    Returns
+    -------
+    numpy.ndarray, (len(truth),), float64
+        0 for an object no predicted mask touches.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> a = np.zeros((4, 4), bool); a[:2] = True
+    >>> b = np.zeros((4, 4), bool); b[:1] = True
+    >>> mask_iou([b], [a]).tolist()
+    [0.5]
+    """
+    out = np.zeros(len(truth))
+    for i, t in enumerate(truth):
+        for p in predicted:
+            union = np.count_nonzero(t | p)
+            if union:
+                out[i] = max(out[i], np.count_nonzero(t & p) / union)
+    return out
+
+
+@dataclass(frozen=True)
+class SceneEvaluation:
+    """Scores of one scene.
+
+    Attributes
+    ----------
+    name : str
+    scores : dict
+        ``scores[method][region]`` -> metrics, see :func:`score_fusion`.
+    report : dict
+        The fusion report (:meth:`~srde_fusion.fusion.fuse.FusionResult.report`).
+    mask_source : str
+        ``"user"``, ``"auto"`` or the masker's name.
+    mask_iou : tuple of float
+        Best IoU of each ground-truth object with the masks used (empty without
+        ground-truth masks).
+    seconds : dict of str -> float
+        Wall-clock time of the backbone, the mask stage and SRDE plus fusion.
+    """
+
+    name: str
+    scores: Mapping[str, Mapping[str, Mapping[str, Any]]]
+    report: Mapping[str, Any]
+    mask_source: str
+    mask_iou: tuple[float, ...] = ()
+    seconds: Mapping[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return a JSON-serialisable view (NaN becomes None)."""
+        return _json_safe({
+            "name": self.name, "mask_source": self.mask_source, "scores": self.scores,
+            "mask_iou": list(self.mask_iou), "seconds": self.seconds, "fusion": self.report,
+        })
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    return value
+
+
+@dataclass(frozen=True)
+class DatasetEvaluation:
+    """Scores of every scene of a dataset, and their summary.
+
+    Attributes
+    ----------
+    scenes : tuple of SceneEvaluation
+    jobs : int
+        Processes that evaluated the scenes (1: in the calling process).
+    wall_s : float
+        Wall-clock time of the whole evaluation, seconds (NaN if not measured).
+    """
+
+    scenes: tuple[SceneEvaluation, ...]
+    jobs: int = 1
+    wall_s: float = math.nan
+
+    @property
+    def scenes_per_second(self) -> float:
+        """Scenes evaluated per second of wall-clock time (NaN if not measured)."""
+        return len(self.scenes) / self.wall_s if self.wall_s > 0 else math.nan
+
+    def summary(self) -> dict[str, dict[str, dict[str, tuple[float, float]]]]:
+        """Mean and standard deviation over scenes, ``summary[method][region][key]``."""
+        return {method: {region: summarize([s.scores[method][region] for s in self.scenes])
+                         for region in REGIONS} for method in METHODS}
+
+    def counts(self) -> dict[str, int]:
+        """Objects, objects fused with SRDE, and fallbacks, over all scenes."""
+        return {
+            "scenes": len(self.scenes),
+            "objects": sum(s.report["n_objects"] for s in self.scenes),
+            "srde": sum(s.report["n_srde"] for s in self.scenes),
+            "fallback": sum(s.report["n_fallback"] for s in self.scenes),
+        }
+
+    def mean_mask_iou(self) -> float:
+        """Mean best IoU of the ground-truth objects with the masks used (NaN if none)."""
+        ious = [v for s in self.scenes for v in s.mask_iou]
+        return float(np.mean(ious)) if ious else math.nan
+
+    def to_markdown(self, keys: Sequence[str] = TABLE_KEYS) -> str:
+        """Two tables (full scene, objects only), mean ± std over scenes."""
+        summary = self.summary()
+        counts = self.counts()
+        lines = [
+            f"{counts['scenes']} scene(s), {counts['objects']} object(s): SRDE used on "
+            f"{counts['srde']}, backbone kept on {counts['fallback']} (fallback).",
+        ]
+        iou = self.mean_mask_iou()
+        if not math.isnan(iou):
+            lines.append(f"Mask IoU with the ground-truth objects: {iou:.3f} (mean over objects).")
+        for region, title in (("full", "Full scene"), ("masked", "Objects (masked)")):
+            rows = {method: summary[method][region] for method in METHODS}
+            lines += ["", f"### {title}", "", format_markdown_table(rows, keys).rstrip("\n")]
+        return "\n".join(lines) + "\n"
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return a JSON-serialisable view: summary, counts and every scene."""
+        summary = {m: {r: {k: {"mean": v[0], "std": v[1]} for k, v in keys.items()}
+                       for r, keys in regions.items()} for m, regions in self.summary().items()}
+        run = {"jobs": self.jobs, "wall_s": self.wall_s,
+               "scenes_per_second": self.scenes_per_second}
+        return _json_safe({"counts": self.counts(), "mask_iou_mean": self.mean_mask_iou(),
+                           "summary": summary, "run": run,
+                           "scenes": [s.to_dict() for s in self.scenes]})
+
+
+Backbone = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class BackboneLoader:
+    """A backbone that each worker process of :func:`evaluate_dataset` loads for itself.
+
+    Model sessions usually cannot be pickled, so parallel evaluation sends this recipe
+    to the workers instead; ``load()`` runs once in each.
+
+    Attributes
+    ----------
+    load : callable
+        ``load() -> backbone``. It is pickled, so a module-level function or a
+        ``functools.partial`` of one.
+    """
+
+    load: Callable[[], Backbone]
+
+
+# The backbone, masks and options of an evaluation worker process, set by _start_worker.
+_WORKER: dict[str, Any] = {}
+
+
+def _start_worker(backbone: Any, masks: Any, options: dict[str, Any], threads: int) -> None:
+    # Each worker gets its share of the cores; OpenCV (and torch, if loaded) would
+    # otherwise start a thread per core in every process.
+    import cv2
+
+    cv2.setNumThreads(threads)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(threads)
+    try:
+        _WORKER["backbone"] = backbone.load() if isinstance(backbone, BackboneLoader) else backbone
+    except Exception as exc:  # raised again with the first scene, where the caller sees it
+        _WORKER["error"] = exc
+    _WORKER["masks"], _WORKER["options"] = masks, options
+
+
+def _evaluate_in_worker(folder: str) -> SceneEvaluation:
+    if "error" in _WORKER:
+        raise _WORKER["error"]
+    return evaluate_scene(Path(folder), _WORKER["backbone"], masks=_WORKER["masks"],
+                          **_WORKER["options"])
+
+
+def _masker_for(masks: Any, scene: SceneData) -> tuple[Any, str]:
+    if isinstance(masks, str):
+        if masks == "user":
+            if scene.mask_labels is None:
+                raise MaskError(f"{scene.path}: expected a mask.png for --masks user, got none")
+            return UserMasks(scene.mask_labels), "user"
+        if masks == "auto":
+            return HighlightSegmenter(), "auto"
+        raise SRDEError(f"masks: expected one of {list(MASK_SOURCES)} or a masker, got {masks!r}")
+    if callable(masks):
+        return masks, type(masks).__name__
+    raise SRDEError(f"masks: expected one of {list(MASK_SOURCES)} or a masker, got "
+                    f"{type(masks).__name__}")
+
+
+def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
+                   masks: Any = "user", srde_method: str = "default",
+                   border_check: BorderCheck | None = DEFAULT_BORDER_CHECK) -> SceneEvaluation:
+    """Run backbone, mask stage, SRDE and fusion on one scene and score them.
+
+    Parameters
+    ----------
+    scene : SceneData or path
+        A scene folder (or one loaded with :func:`~srde_fusion.io.files.read_scene`) with a
+        light in its ``rig.json`` and a ground-truth disparity.
+    backbone : callable
+        ``backbone(left, right) -> (H, W)`` disparity in pixels.
+    masks : {"user", "auto"} or masker
+        ``"user"``: the scene's ``mask.png``; ``"auto"``: the built-in
+        :class:`~srde_fusion.masks.stages.HighlightSegmenter`; or any
+        ``masker(views, rig) -> list of masks``.
+    srde_method : str
+        See :class:`~srde_fusion.srde.estimator.SRDE`.
+    border_check : BorderCheck or None
+        See :func:`~srde_fusion.fusion.fuse.fuse`.
+
+    Returns
+    -------
+    SceneEvaluation
+
+    Raises
+    ------
+    FileFormatError
+        The scene folder cannot be read.
+    DisparityError
+        The scene has no ground-truth disparity.
+    MaskError
+        ``masks="user"`` and the scene has no mask.
+    LightError
+        The scene's rig has no light.
+    """
+    from ..errors import DisparityError, LightError
+    from ..srde.estimator import SRDE
+
+    if not isinstance(scene, SceneData):
+        scene = read_scene(scene)
+    if scene.gt_disparity is None:
+        raise DisparityError(f"{scene.path}: expected a ground-truth disparity "
+                             f"(gt_disparity.pfm or .npy) to evaluate against, got none")
+    rig = scene.rig
+    if rig.light_position_m is None:
+        raise LightError(f"{scene.path}: expected a light position in rig.json, got none")
+    masker, source = _masker_for(masks, scene)
+    views = list(scene.views)
+
+    t0 = time.perf_counter()
+    left, right = (views[i] for i in rig.stereo_pair)
+    backbone_disparity = backbone(left, right)
+    t1 = time.perf_counter()
+    used_masks = masker(views, rig)
+    t2 = time.perf_counter()
+    srde = SRDE(rig, method=srde_method) if len(used_masks) else None
+    result = fuse(backbone_disparity, views, rig, used_masks, srde, border_check=border_check)
+    t3 = time.perf_counter()
+
+    truth = scene.masks
+    region = (np.logical_or.reduce(truth) if truth
+              else np.logical_or.reduce(used_masks) if len(used_masks) else None)
+    ious = tuple(float(v) for v in mask_iou(used_masks, truth)) if truth else ()
+    return SceneEvaluation(
+        name=scene.name, scores=score_fusion(result, scene.gt_disparity, region),
+        report=result.report(), mask_source=source, mask_iou=ious,
+        seconds={"backbone": t1 - t0, "masks": t2 - t1, "srde_and_fusion": t3 - t2})
+
+
+def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | BackboneLoader, *,
+                     masks: Any = "user", progress: bool = True, jobs: int = 1,
+                     **options: Any) -> DatasetEvaluation:
+    """Evaluate every scene folder of a dataset, in one process or several.
+
+    Scenes are independent, so with ``jobs > 1`` a pool of worker processes evaluates
+    them side by side; each worker gets the backbone once, when it starts, and the
+    scores are the same as in one process (scenes stay in dataset order).
+
+    Parameters
+    ----------
+    dataset_dir : path
+        A folder of scene folders (see :func:`~srde_fusion.io.files.list_scenes`).
+    backbone : callable or BackboneLoader
+        ``backbone(left, right) -> (H, W)`` disparity in pixels, or a loader that makes
+        one. With ``jobs > 1`` a backbone is pickled to every worker; one that holds a
+        model session cannot be, so pass a :class:`BackboneLoader` instead.
+    masks : {"user", "auto"} or masker
+        See :func:`evaluate_scene`.
+    progress : bool
+        Show a progress bar on stderr.
+    jobs : int
+        Worker processes (at most one per scene); 1 evaluates in this process.
+        ``os.cpu_count()`` uses every core.
+    **options
+        Passed to :func:`evaluate_scene` (``srde_method``, ``border_check``).
+
+    Returns
+    -------
+    DatasetEvaluation
+        With ``jobs`` (the processes used) and ``wall_s``, hence ``scenes_per_second``.
+
+    Raises
+    ------
+    SRDEError
+        ``jobs`` is not a positive integer, or a backbone that cannot be pickled is
+        given with ``jobs > 1``; and whatever :func:`evaluate_scene` raises.
+    """
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise SRDEError(f"jobs: expected a positive integer (worker processes), got {jobs!r}")
+    start = time.perf_counter()
+    folders = list_scenes(dataset_dir)
+    jobs = min(jobs, len(folders))
+    if jobs <= 1:
+        if isinstance(backbone, BackboneLoader):
+            backbone = backbone.load()
+        if progress:
+            from tqdm import tqdm
+
+            folders = tqdm(folders, desc="evaluating", unit="scene")
+        try:
+            scenes = tuple(evaluate_scene(Path(f), backbone, masks=masks, **options)
+                           for f in folders)
+        finally:
+            if progress:  # end the bar's line, so an error message starts on its own
+                folders.close()
+        return DatasetEvaluation(scenes, 1, time.perf_counter() - start)
+    try:
+        pickle.dumps(backbone)
+    except Exception as exc:  # pickling raises several exception types
+        raise SRDEError(
+            f"backbone: expected a picklable backbone or a BackboneLoader for jobs > 1 (every "
+            f"worker process needs its own), got {type(backbone).__name__} ({exc})") from None
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    # Fresh interpreters: forking a process that runs model sessions or OpenMP pools
+    # can deadlock the child.
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(jobs, mp_context=context, initializer=_start_worker,
+                             initargs=(backbone, masks, options, threads)) as pool:
+        results = pool.map(_evaluate_in_worker, [str(f) for f in folders])
+        if progress:
+            from tqdm import tqdm
+
+            results = tqdm(results, total=len(folders), desc=f"evaluating ({jobs} processes)",
+                           unit="scene")
+        scenes = tuple(results)
+    return DatasetEvaluation(scenes, jobs, time.perf_counter() - start)

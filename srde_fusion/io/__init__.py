@@ -1,0 +1,66 @@
+"""Files: disparity maps, images, masks, calibration files, scene folders.
+
+Imports ``geometry`` (the rig) and the foundation; nothing above.
+"""
+
+from __future__ import annotations
+
+from .files import (
+    DISPARITY_EXTENSIONS,
+    GT_DISPARITY_STEM,
+    IMAGE_EXTENSIONS,
+    KITTI_DISPARITY_MAX_PX,
+    KITTI_DISPARITY_SCALE,
+    MASK_FILE,
+    METADATA_FILE,
+    RIG_FILE,
+    MiddleburyCalib,
+    SceneData,
+    labels_from_masks,
+    list_scenes,
+    masks_from_labels,
+    read_disparity,
+    read_image,
+    read_kitti_disparity,
+    read_mask,
+    read_middlebury_calib,
+    read_opencv_stereo_yaml,
+    read_pfm,
+    read_scene,
+    write_disparity,
+    write_image,
+    write_kitti_disparity,
+    write_mask,
+    write_pfm,
+    write_scene,
+)
+
+__all__ = [
+    "KITTI_DISPARITY_SCALE",
+    "KITTI_DISPARITY_MAX_PX",
+    "DISPARITY_EXTENSIONS",
+    "IMAGE_EXTENSIONS",
+    "RIG_FILE",
+    "MASK_FILE",
+    "GT_DISPARITY_STEM",
+    "METADATA_FILE",
+    "read_pfm",
+    "write_pfm",
+    "read_kitti_disparity",
+    "write_kitti_disparity",
+    "read_disparity",
+    "write_disparity",
+    "read_image",
+    "write_image",
+    "read_mask",
+    "write_mask",
+    "masks_from_labels",
+    "labels_from_masks",
+    "MiddleburyCalib",
+    "read_middlebury_calib",
+    "read_opencv_stereo_yaml",
+    "SceneData",
+    "write_scene",
+    "read_scene",
+    "list_scenes",
+]

@@ -1,0 +1,23 @@
+"""Mask stages: which reference-view pixels belong to which reflective object.
+
+Owns user-given masks, the built-in highlight segmenter and ONNX segmentation models.
+Imports ``srde`` (the detector and triangulation), ``io`` and ``geometry``.
+"""
+
+from __future__ import annotations
+
+from .stages import (
+    HighlightSegmenter,
+    Masker,
+    OnnxMasker,
+    SegmenterDiagnostics,
+    UserMasks,
+)
+
+__all__ = [
+    "Masker",
+    "UserMasks",
+    "HighlightSegmenter",
+    "SegmenterDiagnostics",
+    "OnnxMasker",
+]

@@ -1,0 +1,736 @@
+"""SRDE: the disparity of a flat glossy object from its specular highlight.
+
+A planar glossy surface mirrors the light L; every camera sees the highlight as the
+image of the same virtual light V, L's mirror image across the plane. Triangulating V
+from the highlight centres and knowing L fixes the plane (normal along V - L, through
+(V + L) / 2), and casting the reference camera's pixel rays onto it gives the disparity
+of every pixel of the object (Kossira et al., Methods).
+
+Two methods:
+
+``method="default"``
+    Sub-pixel blob centres on linear intensity; one least-squares triangulation of V
+    from all views (linear in the reference image of V and its inverse depth, residuals
+    in pixels); views whose centre does not fit one 3D point are dropped and named.
+    The plane is then refined photometrically (:func:`~srde_fusion.srde.refine.plane.refine_plane`:
+    a lobe model fitted to the highlights of all views removes the centroid bias of
+    rough surfaces); if the refinement fails, the geometric plane is kept and a note says
+    why. Works on any rectified rig of two or more cameras.
+``method="paper"``
+    The paper as published: edge-ring centroids; V triangulated separately for every
+    pair of neighbouring cameras; one disparity map per pair; their pixel-wise median.
+    Kept as the baseline.
+
+Both search for the highlight only inside the object's eroded mask in the reference
+view, and in every other view only where the reference highlight can appear: along the
+camera's baseline, over the plausible depth range of V, within the reference blob's
+size. What cannot be trusted is reported, never raised: the result's
+``status`` and ``reason`` say which step failed, in which view, with which numbers.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .._checks import check_mask, check_point3, check_views
+from ..errors import LightError, RigError, SRDEError
+from ..geometry.plane import Plane, incidence_angle_deg, plane_disparity, plane_from_lights
+from ..geometry.rig import CameraRig
+from ..geometry.triangulation import (
+    adjacent_pairs,
+    max_shift_px,
+    pairwise_virtual_lights,
+    robust_triangulate,
+    triangulate_rectified,
+)
+from ..imaging import luminance
+from .highlight import DEFAULT_BLOB_CENTER, HighlightDetection, _check_options, _detect
+from .refine.plane import DEFAULT_LOBE, LOBES, PlaneRefinement, refine_plane
+
+__all__ = ["SRDE", "SRDEResult", "SRDE_METHODS", "SRDE_STATUSES"]
+
+#: Methods accepted by :class:`SRDE`.
+SRDE_METHODS = ("default", "paper")
+
+#: Every ``status`` an :class:`SRDEResult` can carry.
+SRDE_STATUSES = (
+    "ok",
+    "mask_too_small",    # the eroded mask (or the given region) leaves nothing to search
+    "no_highlight",      # the reference view, or too many views, show no highlight
+    "inconsistent",      # the centres do not fit one 3D point; or cameras behind the plane
+    "too_few_views",     # fewer agreeing views than min_views
+    "at_infinity",       # V's image barely moves across the rig (delta ~ 0)
+    "behind_cameras",    # V triangulates behind the cameras
+    "light_on_plane",    # V ~ L: the light lies (nearly) on the plane, the normal is undefined
+    "light_behind_plane",  # L on the far side of the plane from the cameras
+    "grazing",           # some mask pixel rays meet the plane (nearly) edge-on, or behind
+)
+
+# The virtual light's image must move at least this much across the used views (pixels)
+# for its depth to mean anything; below, V is "at infinity".
+MIN_VIRTUAL_LIGHT_SHIFT_PX = 1.0
+# |V - L| below this fraction of the light's distance from the reference camera means the
+# light lies (nearly) on the plane; the normal direction V - L is then mostly noise.
+LIGHT_ON_PLANE_FRACTION = 0.01
+# A light farther than this (metres, per coordinate; the sun is 1.5e11 m away) is a
+# placeholder or a unit slip: its virtual light is at infinity for any rig, and far enough
+# out its squared distances overflow.
+MAX_LIGHT_DISTANCE_M = 1e12
+# The reference highlight's search capsule in other views: this many times the reference
+# blob's half-diagonal, plus a margin, around the line where the highlight can appear.
+_CAPSULE_SCALE = 2.0
+_CAPSULE_MARGIN_PX = 6.0
+# Spacing of the candidate virtual-light positions along a baseline, pixels.
+_REGION_SAMPLE_PX = 0.5
+# Smallest blob (pixels above the level) taken for a highlight.
+_MIN_BLOB_AREA_PX = 3
+
+
+@dataclass(frozen=True)
+class _Candidates:
+    """Positions along a baseline where a view can show the reference highlight.
+
+    ``centers`` ``(n, 2)`` float: the reference centre moved by ``step * w_v`` (inverse
+    depths ``w_v`` of V); ``pix`` their pixels; ``shift`` ``(n, 2)`` int: the object's
+    image shift for each; ``ok`` those that land on the object. ``lo``/``hi``: the
+    ``(u, v)`` crop, inclusive-exclusive, that smoothing at ``sigma_px`` reads.
+    """
+
+    step: np.ndarray
+    w_v: np.ndarray
+    centers: np.ndarray
+    pix: np.ndarray
+    shift: np.ndarray
+    ok: np.ndarray
+    sigma_px: float
+    half_diagonal_px: float
+    lo: tuple[int, int]
+    hi: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class SRDEResult:
+    """The outcome of one SRDE estimate.
+
+    Parameters
+    ----------
+    status : str
+        ``"ok"`` or a failure code from :data:`SRDE_STATUSES`.
+    reason : str
+        ``""`` if ok; else the failed step, the view(s) and the numbers.
+    disparity : (H, W) float32
+        Reference-camera disparity of the stereo pair, pixels; NaN outside the mask
+        (all NaN if the estimate failed).
+    plane : Plane or None
+        The object's plane in the array frame.
+    virtual_light_m : (3,) float64 or None
+        The triangulated virtual light, array frame, metres.
+    highlight_centers : (N, 2) float64
+        Highlight centre ``(u, v)`` per view, pixels; NaN where none was found.
+    used_views : (N,) bool
+        Views used in the final solve.
+    residual_px : float
+        RMS reprojection residual of the virtual light over the used views, pixels
+        (NaN if not available).
+    method : str
+        ``"default"`` or ``"paper"``.
+    notes : tuple of str
+        What was left out of an ``ok`` result and why (views without a highlight, views
+        dropped as outliers, pairs dropped by the paper method).
+    detections : tuple of HighlightDetection
+        The per-view detections (empty if the reference view already failed).
+    refinement : PlaneRefinement or None
+        The photometric refinement of the plane (default method), refined or not; None
+        if it did not run. ``virtual_light_m`` is the light mirrored across the returned
+        plane; ``residual_px`` stays the triangulation's.
+    """
+
+    status: str
+    reason: str
+    disparity: np.ndarray
+    plane: Plane | None
+    virtual_light_m: np.ndarray | None
+    highlight_centers: np.ndarray
+    used_views: np.ndarray
+    residual_px: float
+    method: str
+    notes: tuple[str, ...] = ()
+    detections: tuple[HighlightDetection, ...] = field(default=(), repr=False)
+    refinement: PlaneRefinement | None = field(default=None, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the estimate succeeded."""
+        return self.status == "ok"
+
+    def __bool__(self) -> bool:
+        return self.ok
+
+
+def _number(value, name: str, *, low: float = 0.0, low_open: bool = True,
+            high: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+        raise SRDEError(f"{name}: expected a number, got {value!r}")
+    value = float(value)
+    bad_low = value <= low if low_open else value < low
+    if math.isnan(value) or bad_low or value > high:
+        bracket = "(" if low_open else "["
+        raise SRDEError(f"{name}: expected a number in {bracket}{low:g}, {high:g}], got {value!r}")
+    return value
+
+
+class SRDE:
+    """Estimate the plane and disparity of a flat glossy object from its highlight.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        The rectified rig the views come from.
+    light : array_like, (3,), optional
+        The point light in the array frame, metres; ``rig.light`` by default.
+    method : {"default", "paper"}
+        See the module docstring.
+    detector : {"blob", "paper"}, optional
+        Override the highlight detector of the method (``"blob"`` for default, ``"paper"``
+        for paper), e.g. to measure what each part contributes.
+    window, k, min_extent_px : int, float, int
+        The paper detector's window side (px), threshold factor and minimum component
+        extent (px); see :func:`~srde_fusion.srde.highlight.detect_highlight`.
+    blob_center : {"weighted", "core", "lobe"}
+        The blob detector's sub-pixel centre estimator.
+    min_contrast : float
+        The blob detector's minimum peak contrast over the object (linear intensity).
+    mask_erosion_px : int
+        The object mask is eroded by this radius before the reference view is searched,
+        so its border (and the edges it makes) stay out of the search.
+    max_residual_px, min_residual_px : float
+        Outlier bounds of the default method, pixels: a view whose centre misses the
+        triangulated virtual light by more than ``max_residual_px`` is dropped; with
+        five or more agreeing views the bound tightens to four robust standard
+        deviations of their residuals, but not below ``min_residual_px`` (see
+        :func:`~srde_fusion.geometry.triangulation.robust_triangulate`).
+    min_views : int
+        Fewest agreeing views for an ``ok`` result (at least 2).
+    object_depth_m : (float, float)
+        Plausible depth range (reference camera z, metres) of the object. With the
+        light's position it bounds the depth of the virtual light seen along the
+        reference highlight's ray, which sets how far along each baseline the other
+        views are searched.
+    max_incidence_deg : float
+        A plane that some mask pixel ray meets at more than this angle from its normal
+        is "grazing": depth there is ill-conditioned.
+    white_references : sequence of N images, optional
+        Images of a white reference target, one per camera (same size and encoding as
+        the views). Each view's linear intensity is divided by its camera's smoothed
+        white image before detection (the paper normalises with reflection standards).
+    refine : bool, optional
+        Refine the plane photometrically (:func:`~srde_fusion.srde.refine.plane.refine_plane`) after
+        triangulation; by default on for ``method="default"``, off for ``"paper"``
+        (which stays the paper's). Only the default method's joint solve is refined.
+    refine_lobe : {"gtr", "ggx", "blinn_phong"}
+        Lobe model of the refinement (see :data:`~srde_fusion.srde.refine.plane.LOBES`).
+
+    Raises
+    ------
+    RigError
+        ``rig`` is not a CameraRig.
+    LightError
+        No light given and the rig has none, or the light is not 3 finite numbers.
+    ImageError
+        ``white_references`` are not N images of the rig's size.
+    SRDEError
+        An option is out of range.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from srde_fusion.geometry.rig import CameraRig
+    >>> rig = CameraRig.stereo(0.1, fx=400.0, image_size=(96, 64))
+    >>> srde = SRDE(rig, light=[0.05, -0.3, 0.2])
+    >>> result = srde.estimate([np.zeros((64, 96), np.uint8)] * 2, np.ones((64, 96), bool))
+    >>> result.status, result.reason.split(":")[0]
+    ('no_highlight', 'view 0 (left, reference)')
+    """
+
+    def __init__(self, rig: CameraRig, light=None, *, method: str = "default",
+                 detector: str | None = None, window: int = 15, k: float = 1.5,
+                 min_extent_px: int = 10, blob_center: str = DEFAULT_BLOB_CENTER,
+                 min_contrast: float = 0.05, mask_erosion_px: int = 3,
+                 max_residual_px: float = 1.0, min_residual_px: float = 0.05,
+                 min_views: int = 2,
+                 object_depth_m: tuple[float, float] = (0.2, 10.0),
+                 max_incidence_deg: float = 85.0, white_references=None,
+                 refine: bool | None = None, refine_lobe: str = DEFAULT_LOBE) -> None:
+        if not isinstance(rig, CameraRig):
+            raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
+        if method not in SRDE_METHODS:
+            raise SRDEError(f"method: expected one of {list(SRDE_METHODS)}, got {method!r}")
+        if detector is None:
+            detector = "paper" if method == "paper" else "blob"
+        _check_options(detector, rig.image_encoding, window, k, min_extent_px, blob_center,
+                       min_contrast, 1)
+        if light is None:
+            light = rig.light
+            if light is None:
+                raise LightError("light: expected a light position (x, y, z) in metres, or a rig "
+                                 "with a light, got neither")
+        light_m = check_point3(light, "light")
+        reach_m = float(np.max(np.abs(light_m - rig.reference_center_m)))
+        if reach_m > MAX_LIGHT_DISTANCE_M:
+            raise LightError(f"light: expected a position within {MAX_LIGHT_DISTANCE_M:g} m of the "
+                             f"reference camera, got one {reach_m:.3g} m away")
+        if (isinstance(mask_erosion_px, bool) or not isinstance(mask_erosion_px, (int, np.integer))
+                or mask_erosion_px < 0):
+            raise SRDEError(f"mask_erosion_px: expected an integer >= 0 (pixels), got "
+                            f"{mask_erosion_px!r}")
+        if (isinstance(min_views, bool) or not isinstance(min_views, (int, np.integer))
+                or not 2 <= min_views <= rig.n_cameras):
+            raise SRDEError(f"min_views: expected an integer in [2, {rig.n_cameras}] (the rig's "
+                            f"cameras), got {min_views!r}")
+        self.max_residual_px = _number(max_residual_px, "max_residual_px")
+        self.min_residual_px = _number(min_residual_px, "min_residual_px",
+                                       high=self.max_residual_px)
+        self.max_incidence_deg = _number(max_incidence_deg, "max_incidence_deg", high=90.0)
+        try:
+            z_near, z_far = (float(z) for z in object_depth_m)
+        except (TypeError, ValueError):
+            raise SRDEError(f"object_depth_m: expected (near, far) in metres, got "
+                            f"{object_depth_m!r}") from None
+        if not (0.0 < z_near < z_far < math.inf):
+            raise SRDEError(f"object_depth_m: expected 0 < near < far < inf (metres), got "
+                            f"{object_depth_m!r}")
+        if refine is not None and not isinstance(refine, bool):
+            raise SRDEError(f"refine: expected True, False or None, got {refine!r}")
+        if refine_lobe not in LOBES:
+            raise SRDEError(f"refine_lobe: expected one of {list(LOBES)}, got {refine_lobe!r}")
+        self.rig = rig
+        self.light_m = light_m
+        self.method = method
+        # The paper's method stays the paper's unless asked otherwise.
+        self.refine = (method == "default") if refine is None else refine
+        self.refine_lobe = refine_lobe
+        self.detector = detector
+        self.window, self.k, self.min_extent_px = int(window), float(k), int(min_extent_px)
+        self.blob_center = blob_center
+        self.min_contrast = float(min_contrast)
+        self.mask_erosion_px = int(mask_erosion_px)
+        self.min_views = int(min_views)
+        self.object_depth_m = (z_near, z_far)
+        self.white_references = None
+        if white_references is not None:
+            refs = check_views(white_references, rig.n_cameras, rig.image_size)
+            self.white_references = [r.copy() for r in refs]
+
+    # ------------------------------------------------------------------ public
+    def estimate(self, views, mask, *, region=None) -> SRDEResult:
+        """Estimate the object's plane and disparity from the rig's views.
+
+        Parameters
+        ----------
+        views : sequence of N images, (H, W) or (H, W, 3), uint8 or float32 in [0, 1]
+            One image per camera, in the rig's order.
+        mask : numpy.ndarray, (H, W) bool
+            The object's mask in the reference view.
+        region : numpy.ndarray, (H, W) bool, optional
+            Where to search for the highlight in the reference view, instead of the
+            eroded mask. The disparity still covers the whole mask.
+
+        Returns
+        -------
+        SRDEResult
+            ``status == "ok"`` with the disparity inside the mask, or a failure code and
+            a reason (never an exception for geometric failures).
+
+        Raises
+        ------
+        ImageError
+            Wrong number of views, sizes that differ from the rig's, bad dtype or values.
+        MaskError
+            ``mask`` (or ``region``) has the wrong shape or dtype, or is empty.
+        """
+        views = check_views(views, self.rig.n_cameras, self.rig.image_size)
+        return self._estimate(views, mask, region)
+
+    # ------------------------------------------------------------------ steps
+    def _estimate(self, views, mask, region) -> SRDEResult:
+        """:meth:`estimate` on validated views (in whatever form the detection steps take)."""
+        rig = self.rig
+        shape = (rig.height, rig.width)
+        mask = check_mask(mask, shape)
+        if region is not None:
+            search = check_mask(region, shape, "region")
+        else:
+            search = self._erode(mask)
+            if not search.any():
+                return self._failed(
+                    "mask_too_small", f"mask: nothing left to search after eroding the "
+                    f"{int(mask.sum())}-px mask by {self.mask_erosion_px} px")
+        ref = rig.reference
+        ref_det = self._detect_view(views, ref, search)
+        if not ref_det:
+            return self._failed("no_highlight", f"{self._view(ref)}: {ref_det.reason}",
+                                detections=(ref_det,))
+        detections = self._detect_others(views, ref_det, search)
+        centers = np.full((rig.n_cameras, 2), np.nan)
+        for j, det in enumerate(detections):
+            if det:
+                centers[j] = det.center_uv
+        found = np.all(np.isfinite(centers), axis=1)
+        missing = [f"{self._view(j)}: {detections[j].reason}" for j in np.flatnonzero(~found)]
+        if found.sum() < self.min_views:
+            return self._failed(
+                "no_highlight", f"only {int(found.sum())} of {rig.n_cameras} views show a "
+                f"highlight (min_views {self.min_views}); " + "; ".join(missing),
+                centers=centers, detections=tuple(detections))
+        if self.method == "paper":
+            return self._solve_paper(mask, centers, tuple(detections), missing)
+        return self._solve_joint(views, mask, centers, tuple(detections), missing)
+
+    def _view(self, j: int) -> str:
+        ref = ", reference" if j == self.rig.reference else ""
+        return f"view {j} ({self.rig.cameras[j].name}{ref})"
+
+    def _erode(self, mask: np.ndarray) -> np.ndarray:
+        r = self.mask_erosion_px
+        if r == 0:
+            return mask
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        return cv2.erode(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
+
+    def _detect_view(self, views, j: int, region: np.ndarray, level: float | None = None
+                     ) -> HighlightDetection:
+        white = None if self.white_references is None else self.white_references[j]
+        return _detect(views[j], region, method=self.detector, encoding=self.rig.image_encoding,
+                       window=self.window, k=self.k, min_extent_px=self.min_extent_px,
+                       blob_center=self.blob_center, min_contrast=self.min_contrast,
+                       min_area_px=_MIN_BLOB_AREA_PX, level=level, white_reference=white)
+
+    def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray
+                       ) -> list[HighlightDetection]:
+        """Every view's detection: the reference's as given, the others where it can appear."""
+        detections: list[HighlightDetection] = []
+        for j in range(self.rig.n_cameras):
+            if j == self.rig.reference:
+                detections.append(ref_det)
+            else:
+                # One level for all views: an asymmetric lobe's centroid depends on it.
+                level = None if np.isnan(ref_det.level) else ref_det.level
+                region_j = self._search_region(views, j, ref_det, search)
+                if region_j.any():
+                    detections.append(self._detect_view(views, j, region_j, level))
+                else:
+                    detections.append(self._off_object())
+        return detections
+
+    def _off_object(self) -> HighlightDetection:
+        return HighlightDetection.missing(
+            f"no position along the baseline (object depth {self.object_depth_m[0]:g}-"
+            f"{self.object_depth_m[1]:g} m) lies on the object")
+
+    def _search_region(self, views, j: int, ref_det: HighlightDetection, search: np.ndarray
+                       ) -> np.ndarray:
+        """Where view j can show the highlight found in the reference view.
+
+        A virtual light seen at ``c_ref`` in the reference view appears in camera j at
+        ``c_ref + step * w`` with ``step = (-fx dX_j, -fy dY_j)`` and ``w = 1 / z`` its
+        inverse depth; over V's plausible depth range that is a segment.
+        Each candidate V also fixes the depth of the mirror point on the object, hence
+        how far the object moves between the views: a candidate counts only if it lands
+        on the reference search region moved by that shift. The brightest candidate
+        (luminance smoothed at the blob's scale) is taken, and the region is a disc of
+        the reference blob's size around it, within the reference search region moved
+        by V's shift (and, for the paper detector, also by the object's shift, so that
+        object edges, which sit at the object's disparity and not at V's, stay out).
+        """
+        cand = self._candidates(j, ref_det, search)
+        if cand is None:
+            return np.zeros((self.rig.height, self.rig.width), dtype=bool)
+        (u0, v0), (u1, v1) = cand.lo, cand.hi
+        lum = luminance(views[j][v0:v1, u0:u1], self.rig.image_encoding)
+        lum = cv2.GaussianBlur(lum, (0, 0), cand.sigma_px, borderType=cv2.BORDER_REFLECT)
+        brightness = np.full(cand.w_v.size, -np.inf)
+        brightness[cand.ok] = lum[cand.pix[cand.ok, 1] - v0, cand.pix[cand.ok, 0] - u0]
+        return self._region_at(cand, int(np.argmax(brightness)), search)
+
+    def _candidates(self, j: int, ref_det: HighlightDetection, search: np.ndarray
+                    ) -> _Candidates | None:
+        """Where along its baseline view j can show the reference highlight; None if nowhere."""
+        rig = self.rig
+        k = rig.intrinsics
+        h, w = rig.height, rig.width
+        offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
+        step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
+        c = ref_det.center_uv
+        w_lo, w_hi = self._inverse_depth_range(c)
+        n = int(math.ceil(float(np.hypot(*step)) * (w_hi - w_lo) / _REGION_SAMPLE_PX)) + 1
+        w_v = np.linspace(w_lo, w_hi, n)
+        centers = c + step * w_v[:, None]                                    # (n, 2) (u, v)
+        shift = np.rint(step * self._mirror_inverse_depth(c, w_v)[:, None]).astype(int)
+        pix = np.rint(centers).astype(int)
+        src = pix - shift
+        ok = ((pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
+              & (src[:, 0] >= 0) & (src[:, 0] < w) & (src[:, 1] >= 0) & (src[:, 1] < h))
+        ok[ok] = search[src[ok, 1], src[ok, 0]]
+        if not ok.any():
+            return None
+        u0, v0, u1, v1 = ref_det.bbox
+        half_diagonal = 0.5 * math.hypot(u1 - u0, v1 - v0)
+        sigma = max(1.0, 0.5 * half_diagonal)
+        pad = int(math.ceil(3 * sigma))
+        lo = np.maximum(pix[ok].min(axis=0) - pad, 0)
+        hi = np.minimum(pix[ok].max(axis=0) + pad + 1, [w, h])
+        return _Candidates(step, w_v, centers, pix, shift, ok, sigma, half_diagonal,
+                           (int(lo[0]), int(lo[1])), (int(hi[0]), int(hi[1])))
+
+    def _region_at(self, cand: _Candidates, best: int, search: np.ndarray) -> np.ndarray:
+        """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool."""
+        h, w = self.rig.height, self.rig.width
+        radius = _CAPSULE_SCALE * cand.half_diagonal_px + _CAPSULE_MARGIN_PX
+        center = cand.centers[best]
+        bu0, bv0 = np.maximum(np.floor(center - radius).astype(int), 0)
+        bu1, bv1 = np.minimum(np.ceil(center + radius).astype(int) + 1, [w, h])
+        vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
+        disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
+        # Moved with the highlight, the reference region clips the blob the same way in
+        # every view, so the clip biases all centroids alike. The paper detector is also
+        # kept inside the object as it appears in view j: its edges would be gradient rings.
+        moves = [np.rint(cand.step * cand.w_v[best]).astype(int)]
+        if self.detector == "paper":
+            moves.append(cand.shift[best])
+        for moved in moves:
+            disc &= _shifted_window(search, moved, (bu0, bv0, bu1, bv1))
+        region = np.zeros((h, w), dtype=bool)
+        region[bv0:bv1, bu0:bu1] = disc
+        return region
+
+    def _inverse_depth_range(self, center_uv: np.ndarray) -> tuple[float, float]:
+        """Range of ``w = 1 / z`` of a virtual light seen at ``center_uv`` in the reference view.
+
+        The mirror point H lies on the ray at distance t, V beyond it with
+        ``|V - H| = |H - L|`` (H is on the bisector plane of L and V), so V's distance
+        along the ray is ``t + |t k - L|``, increasing in t: the object's depth range
+        maps to an interval of V's depth.
+        """
+        rig = self.rig
+        ray = rig.rays(center_uv)
+        unit = ray / np.linalg.norm(ray)
+        light = self.light_m - rig.reference_center_m
+        w_range = []
+        for z_obj in self.object_depth_m:
+            t = z_obj / unit[2]
+            distance = t + float(np.linalg.norm(t * unit - light))
+            w_range.append(1.0 / (distance * unit[2]))
+        return w_range[1], w_range[0]
+
+    def _mirror_inverse_depth(self, center_uv: np.ndarray, w_v: np.ndarray) -> np.ndarray:
+        """``1 / z`` of the mirror point H for virtual lights at inverse depths ``w_v``.
+
+        Inverting ``d = t + |t k - L|`` for the distance t of H along the unit ray k:
+        ``t = (d^2 - |L|^2) / (2 (d - k · L))``.
+        """
+        rig = self.rig
+        ray = rig.rays(center_uv)
+        unit = ray / np.linalg.norm(ray)
+        light = self.light_m - rig.reference_center_m
+        distance = 1.0 / (w_v * unit[2])
+        t = (distance ** 2 - light @ light) / (2.0 * (distance - unit @ light))
+        return 1.0 / (t * unit[2])
+
+    def _solve_joint(self, views, mask, centers, detections, missing) -> SRDEResult:
+        rig = self.rig
+        tri = robust_triangulate(rig, centers, max_residual_px=self.max_residual_px,
+                                 min_residual_px=self.min_residual_px)
+        found = np.all(np.isfinite(centers), axis=1)
+        if not tri.used.any():
+            plain = triangulate_rectified(rig, centers)
+            res = ", ".join(f"{j}: {plain.residuals_px[j]:.2f}" for j in np.flatnonzero(found))
+            return self._failed(
+                "inconsistent", f"triangulation: no two views agree on one virtual light within "
+                f"{self.max_residual_px:g} px; residuals of a joint fit per view (px) {{{res}}}",
+                centers=centers, detections=detections)
+        dropped = [f"{self._view(j)}: dropped as an outlier, {tri.residuals_px[j]:.2f} px from the "
+                   f"virtual light the other views agree on"
+                   for j in np.flatnonzero(found & ~tri.used)]
+        notes = tuple(missing) + tuple(dropped)
+        if tri.used.sum() < self.min_views:
+            return self._failed(
+                "too_few_views", f"triangulation: only {int(tri.used.sum())} views agree "
+                f"(min_views {self.min_views}); " + "; ".join(notes),
+                centers=centers, used=tri.used, detections=detections)
+        return self._finish(mask, tri.point_m, tri.inverse_depth_per_m, tri.used, centers,
+                            detections, notes, views=views)
+
+    def _solve_paper(self, mask, centers, detections, missing) -> SRDEResult:
+        """Per-pair virtual lights, per-pair disparity maps, pixel-wise median."""
+        rig = self.rig
+        pairs = adjacent_pairs(rig)
+        found = np.all(np.isfinite(centers), axis=1)
+        pairs = [p for p in pairs if found[p[0]] and found[p[1]]]
+        if not pairs:
+            return self._failed(
+                "too_few_views", "pairs: no pair of neighbouring cameras has a highlight in "
+                "both views; " + "; ".join(missing), centers=centers, detections=detections)
+        points = pairwise_virtual_lights(rig, centers, pairs)
+        depth = points[:, 2] - rig.reference_center_m[2]
+        notes = list(missing)
+        keep = []
+        for (i, j), point, z in zip(pairs, points, depth, strict=True):
+            pair = np.zeros(rig.n_cameras, dtype=bool)
+            pair[[i, j]] = True
+            shift = max_shift_px(rig, 1.0 / z, pair) if np.isfinite(z) else 0.0
+            if shift < MIN_VIRTUAL_LIGHT_SHIFT_PX or z <= 0:
+                where = "at infinity" if shift < MIN_VIRTUAL_LIGHT_SHIFT_PX else f"z = {z:.3f} m"
+                notes.append(f"pair ({i}, {j}): virtual light {where}, pair dropped")
+                continue
+            keep.append(((i, j), point))
+        if not keep:
+            status = "behind_cameras" if np.any(depth[np.isfinite(depth)] < 0) else "at_infinity"
+            return self._failed(status, "pairs: every pair's virtual light is behind the cameras "
+                                "or at infinity; " + "; ".join(notes[len(missing):]),
+                                centers=centers, detections=detections)
+        used = np.zeros(rig.n_cameras, dtype=bool)
+        for (i, j), _ in keep:
+            used[[i, j]] = True
+        pair_points = np.stack([p for _, p in keep])
+        # The single V reported (and checked) is the component-wise median of the pairs'.
+        point = np.median(pair_points, axis=0)
+        w = 1.0 / (point[2] - rig.reference_center_m[2])
+        result = self._finish(mask, point, w, used, centers, detections, tuple(notes))
+        if not result.ok:
+            return result
+        box, inside = _mask_box(mask)
+        planes = [plane_from_lights(self.light_m, p, rig.reference_center_m) for p in pair_points]
+        stack = np.stack([plane_disparity(plane, rig, window=box)[inside] for plane in planes])
+        with warnings.catch_warnings():  # pixels every pair's plane misses stay NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            median = np.nanmedian(stack, axis=0)
+        disparity = _paste(median, box, inside, mask.shape)
+        return SRDEResult("ok", "", disparity, result.plane, result.virtual_light_m, centers,
+                          used, result.residual_px, self.method, result.notes, detections)
+
+    def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None
+                ) -> SRDEResult:
+        """Check the virtual light and the plane, refine it (given views); disparity."""
+        rig = self.rig
+        fail = {"centers": centers, "used": used, "detections": detections}
+        shift = max_shift_px(rig, w, used) if np.isfinite(w) else 0.0
+        if shift < MIN_VIRTUAL_LIGHT_SHIFT_PX:
+            return self._failed(
+                "at_infinity", f"virtual light: its image moves only {shift:.3f} px across the "
+                f"used views (needs {MIN_VIRTUAL_LIGHT_SHIFT_PX:g} px); it is at infinity", **fail)
+        if w < 0:
+            return self._failed(
+                "behind_cameras", f"virtual light: triangulated at z = {1.0 / w:.3f} m, behind "
+                f"the cameras (image shift {shift:.2f} px the wrong way)", **fail)
+        light = self.light_m
+        gap = float(np.linalg.norm(point - light))
+        reach = float(np.linalg.norm(light - rig.reference_center_m))
+        if gap < LIGHT_ON_PLANE_FRACTION * reach:
+            return self._failed(
+                "light_on_plane", f"plane: the virtual light is {gap * 1000:.1f} mm from the light "
+                f"({gap / reach:.2%} of its {reach:.3f} m distance, limit "
+                f"{LIGHT_ON_PLANE_FRACTION:.0%}); the light lies (nearly) on the plane", **fail)
+        plane = plane_from_lights(light, point, rig.reference_center_m)
+        if plane.signed_distance(light) <= 0:
+            return self._failed(
+                "light_behind_plane", f"plane: the light is {-plane.signed_distance(light):.3f} m "
+                "behind the plane, on the far side from the cameras", **fail)
+        behind = np.flatnonzero(used & (plane.signed_distance(rig.centers_m) <= 0))
+        if behind.size:
+            return self._failed(
+                "inconsistent", "plane: the estimated plane leaves "
+                + ", ".join(self._view(j) for j in behind)
+                + " on its far side, where its highlight cannot be seen", **fail)
+        residual = _rms_residual(rig, point, centers, used)
+        refinement = None
+        if views is not None and self.refine:
+            refinement = refine_plane(views, rig, light, mask, plane,
+                                      centers_uv=np.where(used[:, None], centers, np.nan),
+                                      lobe=self.refine_lobe)
+            if refinement.ok:
+                plane = refinement.plane
+                point = plane.mirror(light)
+            else:
+                notes = (*notes, f"refinement: kept the geometric plane; {refinement.reason}")
+        # Rays of the mask's bounding box are separable; a ray per mask pixel costs more.
+        box, inside = _mask_box(mask)
+        angle = incidence_angle_deg(plane, rig, window=box)[inside]
+        steep = angle > self.max_incidence_deg
+        if steep.any():
+            worst = int(np.argmax(angle))
+            uv = _mask_uv(mask)
+            return self._failed(
+                "grazing", f"plane: {int(steep.sum())} of {uv.shape[0]} mask pixels see it at more "
+                f"than {self.max_incidence_deg:g} deg incidence (worst {angle[worst]:.1f} deg at "
+                f"pixel ({uv[worst, 0]:.0f}, {uv[worst, 1]:.0f}))", plane=plane, point=point,
+                **fail)
+        disparity = _paste(plane_disparity(plane, rig, window=box)[inside], box, inside,
+                           mask.shape)
+        return SRDEResult("ok", "", disparity, plane, np.asarray(point, dtype=np.float64),
+                          centers, used, residual, self.method, tuple(notes), detections,
+                          refinement)
+
+    def _failed(self, status: str, reason: str, *, centers=None, used=None, detections=(),
+                plane=None, point=None) -> SRDEResult:
+        rig = self.rig
+        n = rig.n_cameras
+        residual = float("nan")
+        if centers is not None and used is not None and point is not None:
+            residual = _rms_residual(rig, point, centers, used)
+        return SRDEResult(
+            status, reason, np.full((rig.height, rig.width), np.nan, dtype=np.float32), plane,
+            None if point is None else np.asarray(point, dtype=np.float64),
+            np.full((n, 2), np.nan) if centers is None else centers,
+            np.zeros(n, dtype=bool) if used is None else used, residual, self.method, (),
+            tuple(detections))
+
+
+def _shifted_window(mask: np.ndarray, shift_uv, box: tuple[int, int, int, int]) -> np.ndarray:
+    """``mask`` moved by ``shift_uv`` pixels, read over ``box = (u0, v0, u1, v1)``.
+
+    Pixel ``(u, v)`` of the result is ``mask[v - dv, u - du]``, False where that falls
+    outside the image; a slice copy, not a per-pixel gather.
+    """
+    du, dv = (int(s) for s in shift_uv)
+    u0, v0, u1, v1 = box
+    h, w = mask.shape
+    out = np.zeros((v1 - v0, u1 - u0), dtype=bool)
+    src_v0, src_v1 = max(v0 - dv, 0), min(v1 - dv, h)
+    src_u0, src_u1 = max(u0 - du, 0), min(u1 - du, w)
+    if src_v1 > src_v0 and src_u1 > src_u0:
+        out[src_v0 + dv - v0:src_v1 + dv - v0, src_u0 + du - u0:src_u1 + du - u0] = \
+            mask[src_v0:src_v1, src_u0:src_u1]
+    return out
+
+
+def _mask_box(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
+    """Return the mask's bounding box ``(u0, v0, u1, v1)`` and the mask cropped to it."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    v0, v1, u0, u1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (u0, v0, u1, v1), mask[v0:v1, u0:u1]
+
+
+def _paste(values: np.ndarray, box, inside: np.ndarray, shape) -> np.ndarray:
+    """Return an ``(H, W)`` float32 map, NaN except ``values`` at the box's ``inside`` pixels."""
+    u0, v0, u1, v1 = box
+    out = np.full(shape, np.nan, dtype=np.float32)
+    out[v0:v1, u0:u1][inside] = values
+    return out
+
+
+def _mask_uv(mask: np.ndarray) -> np.ndarray:
+    """Pixel coordinates ``(u, v)`` of the mask's pixels in row-major order, ``(M, 2)``."""
+    vv, uu = np.nonzero(mask)
+    return np.stack([uu, vv], axis=1).astype(np.float64)
+
+
+def _rms_residual(rig, point, centers, used) -> float:
+    pred = np.stack([rig.project(point, j) for j in range(rig.n_cameras)])
+    err = np.linalg.norm(pred - centers, axis=1)[used]
+    return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")

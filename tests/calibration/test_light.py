@@ -1,0 +1,399 @@
+"""Tests of light calibration from the highlight on an ArUco plate (paper §V-C-1)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from srde_fusion.calibration.board import Board, PlatePose, estimate_plate_pose
+from srde_fusion.calibration.light import (
+    LightEstimate,
+    calibrate_light_files,
+    closest_point_to_rays,
+    estimate_light,
+    find_plate_highlights,
+    highlight_normal,
+    light_from_reflections,
+    plate_highlight_region,
+    plate_scene,
+    read_capture,
+    reflect_highlights,
+)
+from srde_fusion.cli import main
+from srde_fusion.errors import FileFormatError, LightError
+from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.io.files import write_image
+from srde_fusion.synthetic.scenes import render
+
+# The light sits about 1 m from the plates (the paper: 1.15 m).
+LIGHT_M = np.array([0.15, -0.35, 0.1])
+# Three plate poses, tilted differently; the highlight near each plate's centre.
+PLATES = (
+    dict(center_m=(0.03, 0.02, 1.0)),
+    dict(center_m=(-0.08, 0.05, 0.9), aim_m=(-0.06, 0.06, 0.9), rotation_rad=0.2),
+    dict(center_m=(0.1, -0.03, 1.1), aim_m=(0.08, -0.02, 1.1), rotation_rad=-0.15),
+)
+# Bounds on the light error, metres. Measured on these renderings (2x2 supersampling):
+# exact centres 0.3-0.9 mm for one plate pose, 0.1 mm for the three together; detected
+# centres 1.6 mm (one) and 1.2 mm (three); 0.3 px Gaussian noise on exact centres, over
+# 10 seeds, 5.2 mm mean / 11 mm worst for one pose and 3.2 mm mean / 4.7 mm worst for three.
+EXACT_TOL_M = 0.01
+DETECTED_TOL_M = 0.005
+NOISE_ONE_CAPTURE_MEAN_TOL_M = 0.01
+NOISE_ONE_CAPTURE_MAX_TOL_M = 0.025
+NOISE_THREE_CAPTURES_MEAN_TOL_M = 0.005
+NOISE_THREE_CAPTURES_MAX_TOL_M = 0.01
+NOISE_PX = 0.3
+NOISE_SEEDS = 10
+
+
+def _plate_kwargs(spec: dict) -> dict:
+    kw = dict(spec)
+    aim = kw.pop("aim_m", None)
+    if aim is not None:
+        kw["normal"] = highlight_normal(aim, LIGHT_M)
+    return kw
+
+
+@pytest.fixture(scope="module")
+def board() -> Board:
+    return Board.corner_layout()
+
+
+@pytest.fixture(scope="module")
+def captures(rig3x3, board):
+    """Rendered plate captures: (views, true pose, exact highlight centres) per pose."""
+    out = []
+    for spec in PLATES:
+        kw = _plate_kwargs(spec)
+        scene = plate_scene(board, rig3x3, LIGHT_M, **kw)
+        rendering = render(scene, rig3x3, supersample=2)
+        truth = PlatePose.from_center_normal(
+            kw["center_m"], scene.objects[0].normal, rotation_rad=kw.get("rotation_rad", 0.0)
+        )
+        out.append((rendering.views, truth, rendering.highlight_uv[0]))
+    return out
+
+
+@pytest.fixture(scope="module")
+def poses(captures, rig3x3, board):
+    return [estimate_plate_pose(views, rig3x3, board) for views, _, _ in captures]
+
+
+def _error_m(estimate: LightEstimate) -> float:
+    return float(np.linalg.norm(estimate.position_m - LIGHT_M))
+
+
+# ---------------------------------------------------------------------- rays
+@given(
+    st.lists(st.floats(-1, 1), min_size=3, max_size=3),
+    st.integers(2, 12),
+    st.integers(0, 2**31 - 1),
+)
+def test_closest_point_to_rays_recovers_their_common_point(point, n_rays, seed):
+    rng = np.random.default_rng(seed)
+    p = np.array(point)
+    directions = rng.normal(size=(n_rays, 3))
+    directions[:, 2] = np.abs(directions[:, 2]) + 0.5  # no two rays parallel by chance
+    origins = p - rng.uniform(0.2, 2.0, size=(n_rays, 1)) * directions
+    found, distances = closest_point_to_rays(origins, directions)
+    assert np.allclose(found, p, atol=1e-9)
+    assert np.all(distances < 1e-9)
+
+
+def test_closest_point_to_rays_distances():
+    # Two skew lines 2 m apart: the midpoint, 1 m from each.
+    point, distances = closest_point_to_rays([[0, 0, 0], [0, 2, 0]], [[1, 0, 0], [0, 0, 1]])
+    assert np.allclose(point, [0, 1, 0])
+    assert np.allclose(distances, [1, 1])
+
+
+def test_closest_point_to_rays_errors():
+    with pytest.raises(LightError, match="expected at least 2 rays"):
+        closest_point_to_rays([[0, 0, 0]], [[0, 0, 1]])
+    with pytest.raises(LightError, match="nearly parallel rays"):
+        closest_point_to_rays([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 1]] * 3)
+
+
+def test_reflected_rays_obey_the_law_of_reflection(captures, rig3x3):
+    _, truth, exact = captures[1]
+    hits, directions = reflect_highlights(truth, exact, rig3x3)
+    n = truth.plane.n
+    incoming = hits - rig3x3.centers_m
+    incoming /= np.linalg.norm(incoming, axis=1, keepdims=True)
+    # equal angles on both sides of the normal, in the plane of incidence
+    assert np.allclose(directions @ n, -(incoming @ n))
+    coplanar = np.einsum("ij,ij->i", np.cross(incoming, np.broadcast_to(n, (9, 3))), directions)
+    assert np.allclose(coplanar, 0, atol=1e-12)
+    # and they pass through the light
+    to_light = LIGHT_M - hits
+    assert np.allclose(np.cross(to_light, directions), 0, atol=1e-9)
+    assert np.all(np.abs(truth.plane.signed_distance(hits)) < 1e-12)
+
+
+def test_light_from_true_poses_and_exact_centres_is_exact(captures, rig3x3):
+    truths = [t for _, t, _ in captures]
+    exact = [e for _, _, e in captures]
+    for refine in (False, True):
+        estimate = light_from_reflections(truths, exact, rig3x3, refine=refine)
+        assert _error_m(estimate) < 1e-9
+        assert estimate.residual_m < 1e-9
+        assert estimate.n_rays == 27
+        assert estimate.views_used == (tuple(range(9)),) * 3
+
+
+# ---------------------------------------------------------------------- rendered plates
+def test_poses_from_markers_are_accurate(captures, poses):
+    for (_, truth, _), pose in zip(captures, poses, strict=True):
+        assert np.linalg.norm(pose.center_m - truth.center_m) < 1e-3
+        assert float(pose.normal @ truth.normal) > np.cos(1e-3)
+
+
+def test_light_from_exact_centres_and_marker_poses(captures, poses, rig3x3):
+    exact = [e for _, _, e in captures]
+    for c in range(3):
+        single = light_from_reflections([poses[c]], [exact[c]], rig3x3)
+        assert _error_m(single) < EXACT_TOL_M, c
+        assert single.n_rays == 9
+    combined = light_from_reflections(poses, exact, rig3x3)
+    assert _error_m(combined) < EXACT_TOL_M
+    assert combined.n_rays == 27
+    assert combined.refined
+    # the refinement moved the plates, and says how well they fit
+    assert all(p.reprojection_error_px < 0.2 for p in combined.plate_poses)
+
+
+def test_highlight_noise_bound_and_more_captures_help(captures, poses, rig3x3):
+    exact = [e for _, _, e in captures]
+    one, three = [], []
+    for seed in range(NOISE_SEEDS):
+        rng = np.random.default_rng(seed)
+        noisy = [e + rng.normal(0.0, NOISE_PX, e.shape) for e in exact]
+        one.append(_error_m(light_from_reflections(poses[:1], noisy[:1], rig3x3)))
+        three.append(_error_m(light_from_reflections(poses, noisy, rig3x3)))
+    assert np.mean(one) < NOISE_ONE_CAPTURE_MEAN_TOL_M
+    assert np.max(one) < NOISE_ONE_CAPTURE_MAX_TOL_M
+    assert np.mean(three) < NOISE_THREE_CAPTURES_MEAN_TOL_M
+    assert np.max(three) < NOISE_THREE_CAPTURES_MAX_TOL_M
+    assert np.mean(three) < np.mean(one)
+
+
+def test_estimate_light_from_rendered_captures(captures, rig3x3, board):
+    single = estimate_light([captures[0][0]], rig3x3, board)
+    combined = estimate_light([views for views, _, _ in captures], rig3x3, board)
+    assert _error_m(single) < DETECTED_TOL_M
+    assert _error_m(combined) < DETECTED_TOL_M
+    assert combined.n_captures == 3
+    assert combined.n_rays == sum(len(v) for v in combined.views_used) >= 20
+    # the formal uncertainty shrinks with more rays
+    assert np.all(combined.position_std_m < single.position_std_m)
+    # per-view reasons line up with the views used
+    for used, reasons in zip(combined.views_used, combined.view_reasons, strict=True):
+        assert all((r == "") == (i in used) for i, r in enumerate(reasons))
+    detected = combined.highlight_centers_px[0]
+    ok = np.all(np.isfinite(detected), axis=1)
+    assert np.abs(detected[ok] - captures[0][2][ok]).max() < 0.5
+    assert "light position: (+0.1" in combined.summary()
+
+
+def test_highlight_region_is_the_plate_without_its_markers(captures, poses, rig3x3, board):
+    region = plate_highlight_region(rig3x3, board, poses[0], 4)
+    centre = np.rint(captures[0][2][4]).astype(int)
+    assert region[centre[1], centre[0]]
+    marker = rig3x3.project(poses[0].to_array(board.marker_corners_m[0].mean(axis=0)))
+    assert not region[int(marker[1]), int(marker[0])]
+    plate_px = rig3x3.project(poses[0].center_m)
+    assert region.sum() < 0.7 * 180 * 126  # plate is about 180 x 126 px at 1 m
+    assert not region[0, 0] and region[int(plate_px[1]), int(plate_px[0])]
+
+
+# ---------------------------------------------------------------------- failures
+def _render(rig, board, **kw):
+    return render(plate_scene(board, rig, LIGHT_M, **kw), rig, supersample=2).views
+
+
+def test_no_markers_says_how_many_each_view_had(rig3x3, board):
+    blank = [np.zeros((480, 640, 3), np.uint8)] * 9
+    with pytest.raises(
+        LightError,
+        match=r"capture 0: plate markers: .* \(markers per view: "
+        r"cam0: 0, cam1: 0, .*cam8: 0\)",
+    ):
+        estimate_light([blank], rig3x3, board)
+
+
+def test_no_highlight_on_the_plate(rig3x3, board):
+    # Facing the reference camera squarely, the mirror image of the light (above) lands
+    # above the plate.
+    views = _render(rig3x3, board, center_m=(0.03, 0.02, 1.0), normal=(0.0, 0.0, -1.0))
+    with pytest.raises(
+        LightError,
+        match=r"capture 0: expected a usable highlight on the plate in "
+        r"at least 2 views, got 0: cam0: no highlight on the plate",
+    ):
+        estimate_light([views], rig3x3, board)
+
+
+def test_highlight_hidden_under_a_marker(rig3x3, board):
+    center = np.array([0.03, 0.02, 1.0])
+    pose = PlatePose.from_center_normal(center, highlight_normal(center, LIGHT_M))
+    on_marker = pose.to_array(board.marker_corners_m[0].mean(axis=0))
+    views = _render(rig3x3, board, center_m=center, normal=highlight_normal(on_marker, LIGHT_M))
+    with pytest.raises(LightError, match=r"cam4: highlight (partly )?under marker 0"):
+        estimate_light([views], rig3x3, board)
+    centers, reasons = find_plate_highlights(
+        views, rig3x3, board, estimate_plate_pose(views, rig3x3, board)
+    )
+    assert np.all(np.isnan(centers))
+    assert "cam0: highlight under marker 0" in reasons
+
+
+def test_plate_nearly_edge_on(captures, rig3x3, board):
+    with pytest.raises(
+        LightError,
+        match=r"capture 0: expected a plate facing the cameras \(angle "
+        r"between plate normal and line of sight <= 10 deg\), got 1\d\.\d deg .*"
+        r"nearly edge-on",
+    ):
+        estimate_light([captures[0][0]], rig3x3, board, max_incidence_deg=10)
+    # A given pose at 80 deg to the line of sight, with the default limit.
+    center = np.array([0.0, 0.0, 1.0])
+    steep = PlatePose.from_center_normal(
+        center, [0.0, -np.sin(np.radians(80)), -np.cos(np.radians(80))]
+    )
+    virtual = steep.plane.mirror(LIGHT_M)
+    exact = np.array([rig3x3.project(virtual, i) for i in range(9)])
+    with pytest.raises(LightError, match="nearly edge-on"):
+        light_from_reflections([steep], [exact], rig3x3)
+
+
+def test_inconsistent_rays(captures, rig3x3):
+    _, truth, exact = captures[0]
+    wrong = exact.copy()
+    wrong[[0, 2, 6, 8]] += [[25.0, 0.0], [-25.0, 0.0], [0.0, 25.0], [0.0, -25.0]]
+    with pytest.raises(
+        LightError,
+        match=r"rays: expected reflected rays that meet \(mean distance "
+        r"to the light <= 10 mm\), got \d+\.\d mm",
+    ):
+        light_from_reflections([truth], [wrong], rig3x3, refine=False)
+
+
+def test_light_behind_the_plate(captures, rig3x3):
+    _, truth, exact = captures[0]
+    # Centres pushed outwards: the reflected rays diverge and only meet behind the plate.
+    spread = exact + 4.0 * (exact - exact[4])
+    with pytest.raises(LightError, match="light: expected a light in front of the plate"):
+        light_from_reflections([truth], [spread], rig3x3, refine=False, max_residual_m=10.0)
+
+
+def test_input_errors(captures, rig3x3, board):
+    _, truth, exact = captures[0]
+    with pytest.raises(LightError, match=r"highlight_centers_px\[0\]: expected shape \(9, 2\)"):
+        light_from_reflections([truth], [exact[:4]], rig3x3)
+    with pytest.raises(LightError, match="expected one \\(N, 2\\) array per plate pose"):
+        light_from_reflections([truth, truth], [exact], rig3x3)
+    with pytest.raises(LightError, match="max_residual_m: expected a positive number"):
+        light_from_reflections([truth], [exact], rig3x3, max_residual_m=-1)
+    with pytest.raises(LightError, match="captures: expected a non-empty list"):
+        estimate_light([], rig3x3, board)
+    with pytest.raises(LightError, match="min_views: expected a positive integer"):
+        estimate_light([captures[0][0]], rig3x3, board, min_views=0)
+    only_one = np.full((9, 2), np.nan)
+    only_one[4] = exact[4]
+    with pytest.raises(LightError, match="expected at least 2 highlight rays"):
+        light_from_reflections([truth], [only_one], rig3x3)
+
+
+# ---------------------------------------------------------------------- files and command
+@pytest.fixture(scope="module")
+def capture_dirs(tmp_path_factory, captures, rig3x3, board):
+    root = tmp_path_factory.mktemp("light")
+    board.to_json(root / "board.json")
+    rig3x3.to_json(root / "rig.json")
+    dirs = []
+    for c, (views, _, _) in enumerate(captures[:2]):
+        folder = root / f"capture{c}"
+        folder.mkdir()
+        for name, view in zip(rig3x3.camera_names, views, strict=True):
+            write_image(folder / f"{name}.png", view)
+        dirs.append(folder)
+    return root, dirs
+
+
+def test_read_capture(capture_dirs, captures, rig3x3):
+    _, dirs = capture_dirs
+    views = read_capture(dirs[0], rig3x3)
+    assert all(np.array_equal(a, b) for a, b in zip(views, captures[0][0], strict=True))
+    with pytest.raises(FileFormatError, match="expected an existing folder"):
+        read_capture(dirs[0] / "nope", rig3x3)
+    stereo = CameraRig.stereo(0.1, fx=600.0, image_size=(640, 480))
+    with pytest.raises(FileFormatError, match=r"expected one image left\.<png\|jpg"):
+        read_capture(dirs[0], stereo)
+
+
+def test_calibrate_light_command_writes_the_light_into_rig_json(capture_dirs, tmp_path, capsys):
+    root, dirs = capture_dirs
+    rig_path = tmp_path / "rig.json"
+    rig_path.write_text((root / "rig.json").read_text())
+    before = rig_path.read_text()
+    code = main(
+        [
+            "calibrate-light",
+            *map(str, dirs),
+            "--board",
+            str(root / "board.json"),
+            "--rig",
+            str(rig_path),
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "light position:" in out and "residual:" in out
+    assert (tmp_path / "rig.json.bak").read_text() == before
+    light = np.array(json.loads(rig_path.read_text())["light"]["position"])
+    assert np.linalg.norm(light - LIGHT_M) < DETECTED_TOL_M
+    assert CameraRig.from_json(rig_path).light_position_m is not None
+
+
+def test_calibrate_light_dry_run_and_errors(capture_dirs, tmp_path, capsys):
+    root, dirs = capture_dirs
+    estimate, rig = calibrate_light_files(
+        dirs[:1], root / "board.json", root / "rig.json", write=False
+    )
+    assert rig.light_position_m is not None
+    assert "light" not in json.loads((root / "rig.json").read_text())
+    assert np.linalg.norm(estimate.position_m - LIGHT_M) < DETECTED_TOL_M
+    code = main(
+        [
+            "calibrate-light",
+            str(dirs[0]),
+            "--board",
+            str(root / "board.json"),
+            "--rig",
+            str(root / "rig.json"),
+            "--dry-run",
+            "--no-refine",
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "left unchanged (--dry-run)" in out and "(1 sigma, ray intersection)" in out
+    assert "light" not in json.loads((root / "rig.json").read_text())
+    assert not (root / "rig.json.bak").exists()
+    code = main(
+        [
+            "calibrate-light",
+            str(dirs[0]),
+            "--board",
+            str(tmp_path / "none.json"),
+            "--rig",
+            str(root / "rig.json"),
+        ]
+    )
+    assert code == 2
+    assert "expected an existing board.json" in capsys.readouterr().err

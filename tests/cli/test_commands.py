@@ -1,0 +1,211 @@
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from srde_fusion.cli import main
+from srde_fusion.cli.commands import fuse_scene, run_demo, srde_scene
+from srde_fusion.io.files import read_disparity, read_image, read_mask, read_scene, write_scene
+from srde_fusion.synthetic.scenes import default_rig, render_dataset
+
+HALF_RIG = default_rig().scaled(0.5)  # 320x240 keeps the rendered tests quick
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """Two rendered scenes (320x240, one glossy object each, textured background)."""
+    root = tmp_path_factory.mktemp("dataset")
+    render_dataset(root, n_scenes=2, seed=5, rig=HALF_RIG, background="textured",
+                   progress=False)
+    return root
+
+
+FLAT_PX = 15.0
+
+
+@pytest.fixture(scope="module")
+def flat_backbone(tmp_path_factory):
+    """An ONNX 'stereo network' that answers 15 px everywhere."""
+    import torch
+
+    class Flat(torch.nn.Module):
+        def forward(self, left, right):
+            return torch.full_like(left[:, :1], FLAT_PX) + 0.0 * right[:, :1]
+
+    path = tmp_path_factory.mktemp("model") / "flat.onnx"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the legacy exporter announces its deprecation
+        torch.onnx.export(Flat().eval(), (torch.zeros(1, 3, 24, 32), torch.zeros(1, 3, 24, 32)),
+                          str(path), input_names=["left", "right"], output_names=["disp"],
+                          dynamic_axes={"left": {2: "h", 3: "w"}, "right": {2: "h", 3: "w"},
+                                        "disp": {2: "h", 3: "w"}}, dynamo=False)
+    return path
+
+
+def flat(left, right):
+    """A backbone that answers 15 px everywhere."""
+    return np.full(left.shape[:2], FLAT_PX, np.float32)
+
+
+def run_cli(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+# ---------------------------------------------------------------- demo
+def test_demo_end_to_end(tmp_path, capsys):
+    code, out, err = run_cli(capsys, "demo", "--out", tmp_path / "demo", "--scale", "0.5")
+    assert code == 0, err
+    demo = tmp_path / "demo"
+    for name in ("fused_disparity.pfm", "fused_disparity.png", "backbone_disparity.pfm",
+                 "srde_disparity.pfm", "source.png", "report.json", "figure.png"):
+        assert (demo / name).is_file(), name
+    assert (demo / "scene" / "rig.json").is_file()
+    fused = read_disparity(demo / "fused_disparity.pfm")
+    kitti = read_disparity(demo / "fused_disparity.png")
+    assert fused.shape == kitti.shape == (240, 320)
+    assert np.nanmax(np.abs(fused - kitti)) <= 1 / 512 + 1e-6  # KITTI's 1/256 px steps
+    source = read_mask(demo / "source.png")
+    report = json.loads((demo / "report.json").read_text())
+    assert report["fusion"]["pixels_from_srde"] == int(np.count_nonzero(source))
+    assert read_image(demo / "figure.png").shape[2] in (3, 4)
+    # The printed table compares the three maps over the full scene and the objects.
+    assert "### Full scene" in out and "### Objects (masked)" in out
+    for row in ("| backbone |", "| srde |", "| fused |"):
+        assert out.count(row) == 2
+    assert err == ""
+    # The stand-in fails on the glossy objects; the fused map does not.
+    scores = report["scores"]
+    assert report["fusion"]["n_srde"] >= 1
+    assert scores["hybrid"]["masked"]["epe"] < 0.2 * scores["backbone"]["masked"]["epe"]
+    assert scores["hybrid"]["full"]["epe"] < scores["backbone"]["full"]["epe"]
+
+
+def test_run_demo_with_a_callable_backbone(tmp_path):
+    run = run_demo(tmp_path, backbone=flat, scale=0.5, seed=3, n_objects=1)
+    assert run.scene_dir == tmp_path / "scene"
+    assert read_scene(run.scene_dir).rig.light_position_m is not None
+    outside = run.fusion.source == 0
+    assert np.all(run.fusion.disparity[outside] == np.float32(FLAT_PX))
+    assert set(run.files) >= {"fused_pfm", "figure_png", "report_json"}
+
+
+# ---------------------------------------------------------------- fuse / srde / eval
+def test_fuse_command_with_an_onnx_backbone(dataset, flat_backbone, tmp_path, capsys):
+    scene = dataset / "scene_0000"
+    code, out, err = run_cli(capsys, "fuse", scene, "--backbone", flat_backbone,
+                             "--preset", "generic", "--out", tmp_path / "fused")
+    assert code == 0, err
+    assert out.startswith("object 1: ")
+    fused = read_disparity(tmp_path / "fused" / "fused_disparity.pfm")
+    source = read_mask(tmp_path / "fused" / "source.png")
+    assert np.all(fused[source == 0] == FLAT_PX)  # the backbone's pixels, untouched
+    report = json.loads((tmp_path / "fused" / "report.json").read_text())
+    assert report["masks"] == "user (scene mask.png)"
+    assert report["fusion"]["pixels_from_srde"] == int(np.count_nonzero(source))
+
+
+def test_fuse_scene_with_a_mask_file_and_auto_mask(dataset, tmp_path):
+    scene = read_scene(dataset / "scene_0001")
+    labels = scene.mask_labels
+    np.save(tmp_path / "mask.npy", labels)
+    with_file = fuse_scene(scene.path, tmp_path / "a", backbone=flat, mask=tmp_path / "mask.npy")
+    auto = fuse_scene(scene.path, tmp_path / "b", backbone=flat, auto_mask=True)
+    assert with_file.fusion.objects[0].pixel_count == int(np.count_nonzero(labels))
+    report = json.loads((tmp_path / "b" / "report.json").read_text())
+    assert report["masks"].startswith("auto")
+    assert len(auto.fusion.objects) >= 1
+
+
+def test_srde_command(dataset, tmp_path, capsys):
+    code, out, err = run_cli(capsys, "srde", dataset / "scene_0000", "--out", tmp_path / "s")
+    assert code == 0, err
+    assert out.startswith("object 1: ok")
+    srde = read_disparity(tmp_path / "s" / "srde_disparity.pfm")
+    scene = read_scene(dataset / "scene_0000")
+    mask = scene.mask_labels > 0
+    assert np.all(np.isnan(srde[~mask]))
+    assert np.nanmean(np.abs(srde[mask] - scene.gt_disparity[mask])) < 0.5
+    # Without --out nothing is written, and the result is still returned.
+    run = srde_scene(dataset / "scene_0000")
+    assert run.files == {} and run.fusion.objects[0].srde.ok
+
+
+def test_eval_command(dataset, tmp_path, capsys):
+    code, out, err = run_cli(capsys, "eval", dataset, "--backbone", "default",
+                             "--out", tmp_path / "e", "--quiet")
+    assert code == 0, err
+    assert "2 scene(s), 2 object(s)" in out
+    assert "### Full scene" in out and "### Objects (masked)" in out
+    assert "±" in out
+    data = json.loads((tmp_path / "e" / "eval.json").read_text())
+    masked = data["summary"]["hybrid"]["masked"]["epe"]["mean"]
+    assert masked < 0.2 * data["summary"]["backbone"]["masked"]["epe"]["mean"]
+    assert len(data["scenes"]) == 2
+    assert (tmp_path / "e" / "eval.md").read_text().startswith("## ")
+
+
+# ---------------------------------------------------------------- bad input
+def assert_one_line_error(code, out, err, command, match):
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"srde-fusion {command}: error: ")
+    assert match in lines[0]
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("argv, command, match", [
+    (["fuse", "no/such/scene", "--backbone", "default", "--out", "x"], "fuse",
+     "expected a scene folder"),
+    (["srde", "no/such/scene"], "srde", "expected a scene folder"),
+    (["eval", "no/such/dataset", "--backbone", "default"], "eval", "expected a dataset folder"),
+    (["demo", "--seed", "seven"], "demo", "invalid int value"),
+    (["demo", "--scale", "9"], "demo", "scale: expected a factor in [0.1, 4]"),
+    (["fuse", "x", "--out", "y"], "fuse", "--backbone"),
+    (["srde", "x", "--light", "1,2"], "srde", "expected X,Y,Z in metres"),
+])
+def test_bad_input_exits_2_with_one_line(capsys, tmp_path, monkeypatch, argv, command, match):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as info:
+        code = main(argv)
+        raise SystemExit(code)
+    code = info.value.code
+    out, err = capsys.readouterr()
+    assert_one_line_error(code, out, err, command, match)
+
+
+def test_bad_backbone_file_exits_2(dataset, tmp_path, capsys):
+    (tmp_path / "junk.onnx").write_bytes(b"junk")
+    code, out, err = run_cli(capsys, "fuse", dataset / "scene_0000", "--backbone",
+                             tmp_path / "junk.onnx", "--out", tmp_path / "o")
+    assert_one_line_error(code, out, err, "fuse", "junk.onnx")
+
+
+def test_scene_without_light_exits_2(dataset, flat_backbone, tmp_path, capsys):
+    scene = read_scene(dataset / "scene_0000")
+    folder = write_scene(tmp_path / "dark", scene.views, scene.rig.with_light(None),
+                         mask=scene.mask_labels)
+    code, out, err = run_cli(capsys, "fuse", folder, "--backbone", flat_backbone,
+                             "--out", tmp_path / "o")
+    assert_one_line_error(code, out, err, "fuse", "light: expected a light position")
+
+
+def test_eval_user_masks_needs_masks(dataset, flat_backbone, tmp_path, capsys):
+    scene = read_scene(dataset / "scene_0000")
+    write_scene(tmp_path / "ds" / "a", scene.views, scene.rig, gt_disparity=scene.gt_disparity)
+    code, out, err = run_cli(capsys, "eval", tmp_path / "ds", "--backbone", flat_backbone,
+                             "--quiet")
+    assert_one_line_error(code, out, err, "eval", "expected a mask.png for --masks user")
+
+
+def test_every_command_has_help(capsys):
+    for command in ("demo", "fuse", "srde", "eval"):
+        with pytest.raises(SystemExit) as info:
+            main([command, "--help"])
+        assert info.value.code == 0
+        assert f"usage: srde-fusion {command}" in capsys.readouterr().out
