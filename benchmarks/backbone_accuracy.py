@@ -32,8 +32,8 @@ import numpy as np
 from skimage import data as skdata
 from srde_fusion.adapters import default_model_info, load_backbone
 
-from srde_fusion.evaluation.metrics import evaluate, summarize
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.evaluation import evaluate, summarize
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 KEYS = ("epe", "bad1", "bad2", "d1", "invalid")

@@ -53,10 +53,10 @@ import cv2
 import numpy as np
 
 from srde_fusion.errors import SRDEError
-from srde_fusion.evaluation.metrics import evaluate
-from srde_fusion.fusion.fuse import DEFAULT_BORDER_CHECK, BorderCheck, fuse
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.evaluation import evaluate
+from srde_fusion.fusion import DEFAULT_BORDER_CHECK, BorderCheck, fuse
+from srde_fusion.srde import SRDE
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "degradation"

@@ -27,13 +27,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from srde_fusion.evaluation.evaluate import METHODS, mask_iou, score_fusion
-from srde_fusion.evaluation.metrics import format_markdown_table, summarize
+from srde_fusion.evaluation import METHODS, format_markdown_table, mask_iou, score_fusion, summarize
 from srde_fusion.fusion.fuse import DEFAULT_BORDER_CHECK, _border_band, _textured, fuse
-from srde_fusion.geometry.plane import Plane, plane_disparity
-from srde_fusion.masks.stages import HighlightSegmenter
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.geometry import Plane, plane_disparity
+from srde_fusion.masks import HighlightSegmenter
+from srde_fusion.srde import SRDE
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "fusion_eval"

@@ -25,18 +25,19 @@ from pathlib import Path
 
 import numpy as np
 
-from srde_fusion.calibration.board import Board, estimate_plate_pose
-from srde_fusion.calibration.light import (
+from srde_fusion.calibration import (
+    Board,
     estimate_light,
+    estimate_plate_pose,
     highlight_normal,
     light_from_reflections,
     plate_scene,
 )
 from srde_fusion.errors import SRDEError
-from srde_fusion.evaluation.metrics import evaluate
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.synthetic.scenes import random_scene, render
+from srde_fusion.evaluation import evaluate
+from srde_fusion.geometry import CameraRig
+from srde_fusion.srde import SRDE
+from srde_fusion.synthetic import random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 LIGHT_M = np.array([0.2, -0.45, 0.1])

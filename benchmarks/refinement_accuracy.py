@@ -36,12 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from srde_fusion.evaluation.metrics import evaluate
-from srde_fusion.geometry.plane import plane_disparity
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.srde.refine.plane import refine_plane
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.evaluation import evaluate
+from srde_fusion.geometry import CameraRig, plane_disparity
+from srde_fusion.srde import SRDE, refine_plane
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "refinement_accuracy"

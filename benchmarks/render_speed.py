@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

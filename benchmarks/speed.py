@@ -36,12 +36,10 @@ import torch
 from srde_fusion.adapters import load_backbone
 
 from srde_fusion.errors import BackboneError
-from srde_fusion.fusion.fuse import fuse
+from srde_fusion.fusion import fuse
 from srde_fusion.imaging import luminance
-from srde_fusion.srde.batched import BatchedSRDE
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.srde.refine.plane import refine_plane
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.srde import SRDE, BatchedSRDE, refine_plane
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 NAME = "speed"

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from srde_fusion.evaluation.metrics import PAPER_KEYS, evaluate, format_markdown_table, summarize
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.evaluation import PAPER_KEYS, evaluate, format_markdown_table, summarize
+from srde_fusion.geometry import CameraRig
+from srde_fusion.srde import SRDE
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "srde_accuracy"

@@ -20,8 +20,8 @@ from pathlib import Path
 
 from srde_fusion.adapters import load_backbone
 
-from srde_fusion.evaluation.evaluate import evaluate_dataset
-from srde_fusion.synthetic.scenes import render_dataset
+from srde_fusion.evaluation import evaluate_dataset
+from srde_fusion.synthetic import render_dataset
 
 N_SCENES = 3
 

@@ -15,9 +15,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from srde_fusion.evaluation.metrics import evaluate
-from srde_fusion.fusion.fuse import postprocess
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.evaluation import evaluate
+from srde_fusion.fusion import postprocess
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 # SGBM settings for 640x480: disparities up to 128 px, 5x5 blocks.
 SGBM_MAX_DISPARITY_PX = 128

@@ -18,9 +18,9 @@ import torch
 import torch.nn.functional as F
 from srde_fusion.adapters import StereoSpec, TorchStereo
 
-from srde_fusion.evaluation.metrics import evaluate
-from srde_fusion.fusion.fuse import HybridStereo
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.evaluation import evaluate
+from srde_fusion.fusion import HybridStereo
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 
 class MyStereoNet(torch.nn.Module):

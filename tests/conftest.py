@@ -7,7 +7,7 @@ import os
 import pytest
 from hypothesis import settings
 
-from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.geometry import CameraRig
 
 # The machines running the suite are shared; timing-based failures would only be noise.
 settings.register_profile("srde", deadline=None, max_examples=50)

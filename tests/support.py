@@ -9,8 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from srde_fusion.geometry.plane import Plane, plane_disparity
-from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.geometry import CameraRig, Plane, plane_disparity
 from srde_fusion.imaging import linear_to_srgb, srgb_to_linear
 
 W, H = 200, 150

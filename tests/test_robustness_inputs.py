@@ -14,11 +14,10 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from srde_fusion.errors import DisparityError, ImageError, LightError, MaskError, SRDEError
-from srde_fusion.evaluation.metrics import evaluate
-from srde_fusion.fusion.fuse import fuse, postprocess
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.srde.estimator import SRDE, SRDE_STATUSES
-from srde_fusion.srde.highlight import detect_highlight
+from srde_fusion.evaluation import evaluate
+from srde_fusion.fusion import fuse, postprocess
+from srde_fusion.geometry import CameraRig
+from srde_fusion.srde import SRDE, SRDE_STATUSES, detect_highlight
 from tests.support import H, W, box_mask, grid_rig, highlight_views, true_centers
 
 

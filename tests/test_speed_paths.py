@@ -18,11 +18,11 @@ from hypothesis import strategies as st
 from srde_fusion.cli import main
 from srde_fusion.cli.commands import _worker_backbone
 from srde_fusion.errors import SRDEError
-from srde_fusion.evaluation.evaluate import BackboneLoader, evaluate_dataset
-from srde_fusion.geometry.plane import Plane, incidence_angle_deg, plane_depth, plane_disparity
+from srde_fusion.evaluation import BackboneLoader, evaluate_dataset
+from srde_fusion.geometry import Plane, incidence_angle_deg, plane_depth, plane_disparity
 from srde_fusion.imaging import SATURATION_LEVEL_U8, saturation_mask
 from srde_fusion.srde.estimator import _mask_box, _paste, _shifted_window
-from srde_fusion.synthetic.scenes import default_rig, render_dataset
+from srde_fusion.synthetic import default_rig, render_dataset
 
 # Grid rays and per-pixel rays differ only in the order of float64 operations; arccos
 # near a head-on ray (0 deg) turns that into a few 1e-12 deg absolute.

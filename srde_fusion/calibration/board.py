@@ -39,7 +39,7 @@ from .._checks import (
     load_json_source,
 )
 from ..errors import BoardError, LightError
-from ..geometry.plane import Plane
+from ..geometry import Plane
 from ..imaging import luminance
 
 __all__ = [

@@ -39,7 +39,7 @@ from scipy.optimize import least_squares
 
 from .._checks import check_point3, check_views
 from ..errors import FileFormatError, LightError, RigError
-from ..geometry.rig import CameraRig
+from ..geometry import CameraRig
 from .board import (
     DEFAULT_MAX_REPROJECTION_PX,
     Board,
@@ -648,7 +648,7 @@ def _find_one(
     camera: int,
     detector_options: dict[str, Any],
 ) -> tuple[np.ndarray | None, str]:
-    from ..srde.highlight import detect_highlight
+    from ..srde import detect_highlight
 
     name = rig.camera_names[camera]
     plate, labels = _plate_maps(rig, board, pose, camera)
@@ -738,7 +738,7 @@ def read_capture(folder: str | os.PathLike, rig: CameraRig) -> list[np.ndarray]:
     FileFormatError
         A missing folder, or a camera without exactly one image.
     """
-    from ..io.files import IMAGE_EXTENSIONS, read_image
+    from ..io import IMAGE_EXTENSIONS, read_image
 
     root = Path(folder)
     if not root.is_dir():
@@ -1003,7 +1003,7 @@ def plate_scene(
     -------
     srde_fusion.synthetic.scenes.Scene
     """
-    from ..synthetic.scenes import Light, Material, PlanarObject, Scene
+    from ..synthetic import Light, Material, PlanarObject, Scene
 
     light = check_point3(light_position_m, "light_position_m")
     center = check_point3(center_m, "center_m")

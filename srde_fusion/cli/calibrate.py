@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..calibration.board import Board, write_board
+from ..calibration import Board, write_board
 from ..calibration.light import (
     DEFAULT_MAX_INCIDENCE_DEG,
     DEFAULT_MAX_RESIDUAL_M,

@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import FileFormatError, SRDEError
-from ..fusion.fuse import FusionResult, HybridStereo, fuse
-from ..geometry.rig import CameraRig
-from ..io.files import SceneData, read_scene, write_disparity, write_mask, write_scene
-from ..masks.stages import HighlightSegmenter, UserMasks
+from ..fusion import FusionResult, HybridStereo, fuse
+from ..geometry import CameraRig
+from ..io import SceneData, read_scene, write_disparity, write_mask, write_scene
+from ..masks import HighlightSegmenter, UserMasks
 
 __all__ = [
     "DemoResult",
@@ -86,8 +86,7 @@ class DemoResult(SceneRun):
 
 
 def _scores_table(scores: dict) -> str:
-    from ..evaluation.evaluate import METHODS, TABLE_KEYS
-    from ..evaluation.metrics import format_markdown_table
+    from ..evaluation import METHODS, TABLE_KEYS, format_markdown_table
 
     parts = []
     for region, title in (("full", "Full scene"), ("masked", "Objects (masked)")):
@@ -151,8 +150,7 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
     -------
     SceneRun
     """
-    from ..evaluation.evaluate import score_fusion
-    from ..evaluation.figures import comparison_figure, save_figure
+    from ..evaluation import comparison_figure, save_figure, score_fusion
 
     out = Path(out_dir)
     try:
@@ -225,7 +223,7 @@ def run_demo(out_dir: str | os.PathLike = "demo_out", *, seed: int = DEMO_SEED,
     -------
     DemoResult
     """
-    from ..synthetic.scenes import default_rig, random_scene, render, scene_to_dict
+    from ..synthetic import default_rig, random_scene, render, scene_to_dict
 
     if not (isinstance(scale, (int, float)) and 0.1 <= scale <= 4.0):
         raise SRDEError(f"scale: expected a factor in [0.1, 4], got {scale!r}")
@@ -337,7 +335,7 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
         Its ``fusion`` has an all-invalid backbone, so ``fusion.disparity`` is SRDE's
         map where SRDE succeeded and NaN elsewhere.
     """
-    from ..srde.estimator import SRDE
+    from ..srde import SRDE
 
     scene = read_scene(scene_dir)
     rig = scene.rig if light is None else scene.rig.with_light(light)
@@ -405,7 +403,7 @@ def _cli_srde(args: argparse.Namespace) -> int:
     if not run.fusion.objects:
         print("no glossy object found")
     if run.scores is not None:
-        from ..evaluation.metrics import format_markdown_table
+        from ..evaluation import format_markdown_table
 
         print()
         print(format_markdown_table({"srde": run.scores["srde"]["masked"]},
@@ -416,8 +414,8 @@ def _cli_srde(args: argparse.Namespace) -> int:
 
 
 def _cli_eval(args: argparse.Namespace) -> int:
-    from ..evaluation.evaluate import BackboneLoader, evaluate_dataset
-    from ..io.files import list_scenes
+    from ..evaluation import BackboneLoader, evaluate_dataset
+    from ..io import list_scenes
 
     jobs = (os.cpu_count() or 1) if args.jobs is None else args.jobs
     if jobs < 1:

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..geometry.rig import CameraRig
-from ..synthetic.scenes import BACKGROUNDS, render_dataset
-from ..synthetic.shading import LOBES
+from ..geometry import CameraRig
+from ..synthetic import BACKGROUNDS, LOBES, render_dataset
 
 __all__ = ["register"]
 

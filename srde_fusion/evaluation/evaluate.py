@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import MaskError, SRDEError
-from ..fusion.fuse import DEFAULT_BORDER_CHECK, BorderCheck, FusionResult, fuse
-from ..io.files import SceneData, list_scenes, read_scene
-from ..masks.stages import HighlightSegmenter, UserMasks
+from ..fusion import DEFAULT_BORDER_CHECK, BorderCheck, FusionResult, fuse
+from ..io import SceneData, list_scenes, read_scene
+from ..masks import HighlightSegmenter, UserMasks
 from .metrics import PAPER_KEYS, evaluate, format_markdown_table, summarize
 
 __all__ = [
@@ -332,7 +332,7 @@ def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
         The scene's rig has no light.
     """
     from ..errors import DisparityError, LightError
-    from ..srde.estimator import SRDE
+    from ..srde import SRDE
 
     if not isinstance(scene, SceneData):
         scene = read_scene(scene)

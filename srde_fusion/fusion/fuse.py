@@ -35,8 +35,7 @@ import numpy as np
 
 from .._checks import check_disparity, check_mask, check_views
 from ..errors import BackboneError, LightError, MaskError, RigError, SRDEError
-from ..geometry.plane import plane_disparity
-from ..geometry.rig import CameraRig
+from ..geometry import CameraRig, plane_disparity
 from ..imaging import REC709_LUMA, saturation_mask, to_float
 
 __all__ = [
@@ -615,7 +614,7 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
         raise SRDEError(f"border_check: expected a BorderCheck or None, got "
                         f"{type(border_check).__name__}")
     if srde is None and mask_list:
-        from ..srde.estimator import SRDE
+        from ..srde import SRDE
 
         srde = SRDE(rig)
 
@@ -736,7 +735,7 @@ def _decide(k: int, result: Any, srde_disp: np.ndarray, mask: np.ndarray, n_mask
 
 
 def _resolve_masker(masks: Any) -> Masker:
-    from ..masks.stages import HighlightSegmenter, UserMasks
+    from ..masks import HighlightSegmenter, UserMasks
 
     if masks is None:
         return HighlightSegmenter()
@@ -790,7 +789,7 @@ def postprocess(disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraR
     w, h = rig.image_size
     backbone = check_disparity(disparity, (h, w), "disparity")
     masker = _resolve_masker(masks)
-    from ..srde.estimator import SRDE
+    from ..srde import SRDE
 
     return fuse(backbone, views, rig, masker(views, rig), SRDE(rig, method=srde_method),
                 border_check=border_check)
@@ -847,7 +846,7 @@ class HybridStereo:
     def srde(self) -> Any:
         """The SRDE estimator for this rig (built on first use)."""
         if self._srde is None:
-            from ..srde.estimator import SRDE
+            from ..srde import SRDE
 
             self._srde = SRDE(self.rig, method=self.srde_method)
         return self._srde

@@ -36,7 +36,7 @@ import numpy as np
 
 from .._checks import check_disparity, check_image, check_views
 from ..errors import FileFormatError, MaskError, RigError
-from ..geometry.rig import Camera, CameraRig, Intrinsics
+from ..geometry import Camera, CameraRig, Intrinsics
 
 __all__ = [
     "KITTI_DISPARITY_SCALE",

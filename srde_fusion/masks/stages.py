@@ -24,9 +24,9 @@ from scipy import ndimage
 
 from .._checks import check_views
 from ..errors import BackboneError, FileFormatError, MaskError, SRDEError
-from ..geometry.rig import CameraRig
+from ..geometry import CameraRig
 from ..imaging import luminance, saturation_mask, to_float
-from ..io.files import masks_from_labels, read_mask
+from ..io import masks_from_labels, read_mask
 
 __all__ = [
     "Masker",

@@ -39,12 +39,15 @@ import numpy as np
 
 from .._checks import check_mask, check_point3, check_views
 from ..errors import LightError, RigError, SRDEError
-from ..geometry.plane import Plane, incidence_angle_deg, plane_disparity, plane_from_lights
-from ..geometry.rig import CameraRig
-from ..geometry.triangulation import (
+from ..geometry import (
+    CameraRig,
+    Plane,
     adjacent_pairs,
+    incidence_angle_deg,
     max_shift_px,
     pairwise_virtual_lights,
+    plane_disparity,
+    plane_from_lights,
     robust_triangulate,
     triangulate_rectified,
 )

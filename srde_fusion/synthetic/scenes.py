@@ -35,8 +35,7 @@ import cv2
 import numpy as np
 
 from ..errors import LightError, RigError, SceneError, SRDEError
-from ..geometry.plane import Plane
-from ..geometry.rig import CameraRig
+from ..geometry import CameraRig, Plane
 from ..imaging import REC709_LUMA, linear_to_srgb
 from .shading import LOBES, specular_brdf, widened_roughness
 
@@ -1571,7 +1570,7 @@ def render_dataset(
     """
     from tqdm import tqdm
 
-    from ..io.files import write_scene
+    from ..io import write_scene
 
     if isinstance(n_scenes, bool) or not isinstance(n_scenes, (int, np.integer)) or n_scenes < 1:
         raise SceneError(f"n_scenes: expected a positive integer, got {n_scenes!r}")

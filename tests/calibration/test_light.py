@@ -9,12 +9,14 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from srde_fusion.calibration.board import Board, PlatePose, estimate_plate_pose
-from srde_fusion.calibration.light import (
+from srde_fusion.calibration import (
+    Board,
     LightEstimate,
+    PlatePose,
     calibrate_light_files,
     closest_point_to_rays,
     estimate_light,
+    estimate_plate_pose,
     find_plate_highlights,
     highlight_normal,
     light_from_reflections,
@@ -25,9 +27,9 @@ from srde_fusion.calibration.light import (
 )
 from srde_fusion.cli import main
 from srde_fusion.errors import FileFormatError, LightError
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.io.files import write_image
-from srde_fusion.synthetic.scenes import render
+from srde_fusion.geometry import CameraRig
+from srde_fusion.io import write_image
+from srde_fusion.synthetic import render
 
 # The light sits about 1 m from the plates (the paper: 1.15 m).
 LIGHT_M = np.array([0.15, -0.35, 0.1])

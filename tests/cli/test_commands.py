@@ -8,8 +8,8 @@ import pytest
 
 from srde_fusion.cli import main
 from srde_fusion.cli.commands import fuse_scene, run_demo, srde_scene
-from srde_fusion.io.files import read_disparity, read_image, read_mask, read_scene, write_scene
-from srde_fusion.synthetic.scenes import default_rig, render_dataset
+from srde_fusion.io import read_disparity, read_image, read_mask, read_scene, write_scene
+from srde_fusion.synthetic import default_rig, render_dataset
 
 HALF_RIG = default_rig().scaled(0.5)  # 320x240 keeps the rendered tests quick
 

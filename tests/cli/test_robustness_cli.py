@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from srde_fusion.cli import main
-from srde_fusion.io.files import write_scene
+from srde_fusion.io import write_scene
 from tests.support import box_mask, grid_rig, highlight_views, true_centers
 
 

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from srde_fusion.errors import DisparityError, MaskError, SRDEError
-from srde_fusion.evaluation.metrics import (
+from srde_fusion.evaluation import (
     METRIC_KEYS,
     PAPER_KEYS,
     THRESHOLD_KEYS,

@@ -18,9 +18,8 @@ from srde_fusion.errors import (
     MaskError,
     SRDEError,
 )
-from srde_fusion.fusion.fuse import BorderCheck, FusionResult, HybridStereo, fuse, postprocess
-from srde_fusion.geometry.plane import Plane, plane_disparity
-from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.fusion import BorderCheck, FusionResult, HybridStereo, fuse, postprocess
+from srde_fusion.geometry import CameraRig, Plane, plane_disparity
 
 H, W = 48, 64
 
@@ -480,8 +479,8 @@ def test_hybrid_stereo_rejects_a_backbone_that_is_not_callable(rig):
 
 # ---------------------------------------------------------------- with real SRDE
 def test_postprocess_fixes_the_objects_of_a_rendered_scene():
-    from srde_fusion.evaluation.metrics import evaluate
-    from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+    from srde_fusion.evaluation import evaluate
+    from srde_fusion.synthetic import default_rig, random_scene, render
 
     rig = default_rig().scaled(0.5)
     scene = random_scene(2, rig, n_objects=2, background="textured")

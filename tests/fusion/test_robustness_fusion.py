@@ -20,12 +20,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from srde_fusion.errors import DisparityError, MaskError, RigError, SRDEError
-from srde_fusion.evaluation.metrics import evaluate
-from srde_fusion.fusion.fuse import HybridStereo, fuse, postprocess
-from srde_fusion.geometry.plane import Plane
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.srde.highlight import detect_highlight
+from srde_fusion.evaluation import evaluate
+from srde_fusion.fusion import HybridStereo, fuse, postprocess
+from srde_fusion.geometry import CameraRig, Plane
+from srde_fusion.srde import SRDE, detect_highlight
 from tests.support import (
     PLANE,
     H,

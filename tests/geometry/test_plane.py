@@ -11,19 +11,17 @@ import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
 
-from srde_fusion.geometry.plane import (
+from srde_fusion.geometry import (
+    CameraRig,
     Plane,
+    adjacent_pairs,
     incidence_angle_deg,
+    max_shift_px,
     mirror_point,
+    pairwise_virtual_lights,
     plane_depth,
     plane_disparity,
     plane_from_lights,
-)
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.geometry.triangulation import (
-    adjacent_pairs,
-    max_shift_px,
-    pairwise_virtual_lights,
     robust_triangulate,
     triangulate_rectified,
 )

@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from srde_fusion.errors import RigError
-from srde_fusion.geometry.rig import RIG_FORMAT, Camera, CameraRig, Intrinsics
+from srde_fusion.geometry import RIG_FORMAT, Camera, CameraRig, Intrinsics
 
 B_M = 0.085
 

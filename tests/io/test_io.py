@@ -20,8 +20,8 @@ from srde_fusion.errors import (
     MaskError,
     RigError,
 )
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.io.files import (
+from srde_fusion.geometry import CameraRig
+from srde_fusion.io import (
     KITTI_DISPARITY_MAX_PX,
     KITTI_DISPARITY_SCALE,
     labels_from_masks,

@@ -20,8 +20,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from srde_fusion.errors import FileFormatError, RigError, SRDEError
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.io.files import (
+from srde_fusion.geometry import CameraRig
+from srde_fusion.io import (
     list_scenes,
     read_disparity,
     read_image,

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from srde_fusion.errors import FileFormatError, MaskError, SRDEError
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.io.files import write_mask
-from srde_fusion.masks.stages import HighlightSegmenter, OnnxMasker, UserMasks
+from srde_fusion.geometry import CameraRig
+from srde_fusion.io import write_mask
+from srde_fusion.masks import HighlightSegmenter, OnnxMasker, UserMasks
 
 H, W = 48, 64
 
@@ -291,7 +291,7 @@ def test_segmenter_drops_a_bright_spot_in_texture(small_array):
 
 
 def test_segmenter_on_a_rendered_scene():
-    from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+    from srde_fusion.synthetic import default_rig, random_scene, render
 
     rig = default_rig()  # the segmenter's scales are set for 640x480
     scene = random_scene(3, rig, n_objects=2, background="textured")

@@ -14,7 +14,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from srde_fusion.errors import ImageError, SRDEError
-from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.geometry import CameraRig
+from srde_fusion.srde import SRDE
 from srde_fusion.srde.batched import (
     BatchedSRDE,
     _extend,
@@ -22,8 +23,7 @@ from srde_fusion.srde.batched import (
     _smooth_at,
     label_components,
 )
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 # The contract: torch and numpy paths agree within this much disparity on rendered scenes.
 DISPARITY_TOL_PX = 0.05

@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 
 from srde_fusion.errors import ImageError, LightError, MaskError, RigError, SRDEError
-from srde_fusion.evaluation.metrics import evaluate
-from srde_fusion.geometry.plane import Plane, plane_disparity
-from srde_fusion.geometry.rig import CameraRig
+from srde_fusion.evaluation import evaluate
+from srde_fusion.geometry import CameraRig, Plane, plane_disparity
 from srde_fusion.imaging import linear_to_srgb
-from srde_fusion.srde.estimator import SRDE, SRDE_STATUSES, SRDEResult
+from srde_fusion.srde import SRDE, SRDE_STATUSES, SRDEResult
 
 W, H = 320, 240
 

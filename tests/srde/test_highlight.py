@@ -8,7 +8,7 @@ import pytest
 
 from srde_fusion.errors import ImageError, MaskError, SRDEError
 from srde_fusion.imaging import linear_to_srgb, luminance
-from srde_fusion.srde.highlight import BLOB_CENTERS, HighlightDetection, detect_highlight
+from srde_fusion.srde import BLOB_CENTERS, HighlightDetection, detect_highlight
 
 H, W = 96, 128
 SUPERSAMPLE = 8

@@ -17,9 +17,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from srde_fusion.errors import ImageError, LightError, MaskError, SRDEError
-from srde_fusion.geometry.plane import Plane, plane_disparity, plane_from_lights
-from srde_fusion.geometry.rig import CameraRig
-from srde_fusion.srde.estimator import SRDE
+from srde_fusion.geometry import CameraRig, Plane, plane_disparity, plane_from_lights
+from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine.plane import (
     _I_FORE,
     _I_SPEC,
@@ -34,7 +33,7 @@ from srde_fusion.srde.refine.plane import (
     _warp_change_px,
     refine_plane,
 )
-from srde_fusion.synthetic.scenes import random_scene, render
+from srde_fusion.synthetic import random_scene, render
 
 # Tolerances, in one place. Disparity errors are masked mean absolute errors (EPE), px.
 ROUGH_REFINED_EPE_PX = 0.02  # brief target 0.01 px at 640x480; 320x240 has 4x fewer pixels

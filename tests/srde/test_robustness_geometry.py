@@ -15,10 +15,9 @@ import re
 import numpy as np
 import pytest
 
-from srde_fusion.fusion.fuse import fuse
-from srde_fusion.geometry.plane import Plane
-from srde_fusion.geometry.rig import CameraRig, Intrinsics
-from srde_fusion.srde.estimator import SRDE
+from srde_fusion.fusion import fuse
+from srde_fusion.geometry import CameraRig, Intrinsics, Plane
+from srde_fusion.srde import SRDE
 from tests.support import (
     PLANE,
     W,

@@ -9,10 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from srde_fusion.geometry.plane import Plane
-from srde_fusion.srde.estimator import SRDE
-from srde_fusion.srde.refine.plane import refine_plane
-from srde_fusion.synthetic.scenes import default_rig, random_scene, render
+from srde_fusion.geometry import Plane
+from srde_fusion.srde import SRDE, refine_plane
+from srde_fusion.synthetic import default_rig, random_scene, render
 
 SEED = 3003
 #: A plane triangulated from two highlight centres with 16 px of noise each (cameras 2

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from srde_fusion import CameraRig, LightError, RigError, SRDEError
-from srde_fusion.geometry.plane import plane_disparity
+from srde_fusion.geometry import plane_disparity
 from srde_fusion.imaging import luminance
-from srde_fusion.synthetic.scenes import (
+from srde_fusion.synthetic import (
     Light,
     Material,
     PlanarObject,
@@ -615,7 +615,7 @@ def test_random_scene_bad_seed_and_rig(small_rig):
 # ------------------------------------------------------------------ command
 def test_render_command_writes_scene_folders(tmp_path, small_rig):
     from srde_fusion.cli import main
-    from srde_fusion.io.files import read_scene
+    from srde_fusion.io import read_scene
 
     rig_path = tmp_path / "rig.json"
     small_rig.to_json(rig_path)

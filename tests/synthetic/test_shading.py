@@ -3,7 +3,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from srde_fusion.synthetic.shading import (
+from srde_fusion.synthetic import (
     blinn_phong_exponent,
     ggx_ndf,
     schlick_fresnel,

@@ -52,8 +52,7 @@ import numpy as np
 
 from ..._checks import check_mask, check_point3, check_views
 from ...errors import ImageError, SRDEError
-from ...geometry.plane import Plane, plane_from_lights
-from ...geometry.rig import CameraRig
+from ...geometry import CameraRig, Plane, plane_from_lights
 from ...imaging import REC709_LUMA, luminance, saturation_mask, srgb_to_linear
 
 __all__ = [
