@@ -24,6 +24,7 @@ __all__ = [
     "load_json_source",
     "dump_json",
     "check_image",
+    "Views",
     "check_views",
     "check_mask",
     "check_disparity",
@@ -168,9 +169,27 @@ def check_image(image: Any, name: str = "image") -> np.ndarray:
     raise ImageError(f"{name}: expected dtype uint8 or float in [0, 1], got {image.dtype}")
 
 
+class Views(tuple):
+    """Views that :func:`check_views` has validated: a tuple of images, ``(H, W[, 3])``.
+
+    Inner layers (fusion -> SRDE -> refinement) pass this type on, so each public entry
+    point can call :func:`check_views` without reading the pixels again: validating a
+    ``Views`` of the expected count and size costs nothing. The images are the caller's
+    arrays (not copies) and must not be modified while in use.
+    """
+
+    __slots__ = ()
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """``(width, height)`` of every view, pixels."""
+        h, w = self[0].shape[:2]
+        return (w, h)
+
+
 def check_views(
     views: Any, n_cameras: int | None = None, image_size: tuple[int, int] | None = None
-) -> list[np.ndarray]:
+) -> Views:
     """Validate the list of views of a rig.
 
     Parameters
@@ -184,9 +203,13 @@ def check_views(
 
     Returns
     -------
-    list of numpy.ndarray
-        The validated images.
+    Views
+        The validated images; given a ``Views`` of the expected count and size, the
+        same object, without another pass over the pixels.
     """
+    if isinstance(views, Views) and (n_cameras is None or len(views) == n_cameras) and (
+            image_size is None or views.image_size == tuple(image_size)):
+        return views
     if isinstance(views, np.ndarray) and views.ndim in (3, 4) and views.shape[0] != 0:
         views = list(views)
     if not isinstance(views, Sequence) or isinstance(views, (str, bytes)):
@@ -210,7 +233,7 @@ def check_views(
             f"views: expected images of the rig's size {image_size[0]}x{image_size[1]}, "
             f"got {shape0[1]}x{shape0[0]}"
         )
-    return checked
+    return Views(checked)
 
 
 def check_mask(

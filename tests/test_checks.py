@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from srde_fusion._checks import (
+    Views,
     check_disparity,
     check_image,
     check_mask,
@@ -60,10 +61,21 @@ def test_check_views_list_and_stack():
     out = check_views(views, 3, (5, 4))
     assert len(out) == 3 and all(v.shape == (4, 5, 3) for v in out)
     stacked = check_views(np.zeros((3, 4, 5, 3), np.uint8), 3)
-    assert isinstance(stacked, list) and len(stacked) == 3
+    assert isinstance(stacked, Views) and len(stacked) == 3
     grey_stack = check_views(np.zeros((2, 4, 5), np.float32), 2)
     assert [v.shape for v in grey_stack] == [(4, 5), (4, 5)]
     assert check_views(tuple(views))[0] is views[0]
+
+
+def test_check_views_passes_validated_views_through_without_reading_them():
+    views = check_views([np.zeros((4, 5, 3), np.uint8) for _ in range(2)], 2, (5, 4))
+    assert check_views(views, 2, (5, 4)) is views
+    assert check_views(views) is views
+    # a different expectation is checked again, with the usual message
+    with pytest.raises(ImageError, match="expected 3 images"):
+        check_views(views, 3)
+    with pytest.raises(ImageError, match=r"rig's size 6x4, got 5x4"):
+        check_views(views, 2, (6, 4))
 
 
 def test_check_views_accepts_mixed_grey_and_rgb_of_one_size():

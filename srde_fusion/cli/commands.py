@@ -23,8 +23,8 @@ import numpy as np
 from ..errors import FileFormatError, SRDEError
 from ..fusion import FusionResult, HybridStereo, fuse
 from ..geometry import CameraRig
-from ..io import SceneData, read_scene, write_disparity, write_mask, write_scene
-from ..masks import HighlightSegmenter, UserMasks
+from ..io import read_scene, write_disparity, write_mask, write_scene
+from ..masks import HighlightSegmenter, resolve_masker
 
 __all__ = [
     "DemoResult",
@@ -273,13 +273,6 @@ def _worker_backbone(source: str, preset: str | None, threads: int) -> Any:
     return load_backbone(source, preset, session_options=options)
 
 
-def _scene_masks(scene: SceneData, mask: Any, auto: bool) -> tuple[Any, str]:
-    if mask is not None:
-        return UserMasks(mask), f"user ({mask})"
-    if scene.mask_labels is not None and not auto:
-        return UserMasks(scene.mask_labels), "user (scene mask.png)"
-    return HighlightSegmenter(), "auto (built-in highlight segmenter)"
-
 
 def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
                backbone: Any = "default", preset: str | None = None, mask: Any = None,
@@ -308,7 +301,9 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     SceneRun
     """
     scene = read_scene(scene_dir)
-    masker, source = _scene_masks(scene, mask, auto_mask)
+    choice = resolve_masker("auto" if auto_mask and mask is None else mask,
+                            scene_labels=scene.mask_labels, where=str(scene.path))
+    masker, source = choice.masker, choice.description
     model = HybridStereo(_load_backbone(backbone, preset), scene.rig, light, masker)
     result = model(scene.views)
     region = None
@@ -339,7 +334,9 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
 
     scene = read_scene(scene_dir)
     rig = scene.rig if light is None else scene.rig.with_light(light)
-    masker, source = _scene_masks(scene, mask, auto_mask)
+    choice = resolve_masker("auto" if auto_mask and mask is None else mask,
+                            scene_labels=scene.mask_labels, where=str(scene.path))
+    masker, source = choice.masker, choice.description
     masks = masker(list(scene.views), rig)
     nothing = np.full((rig.height, rig.width), np.nan, np.float32)
     result = fuse(nothing, scene.views, rig, masks, SRDE(rig, method=method) if masks else None,

@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MaskError, SRDEError
+from ..errors import SRDEError
 from ..fusion import DEFAULT_BORDER_CHECK, BorderCheck, FusionResult, fuse
 from ..io import SceneData, list_scenes, read_scene
-from ..masks import HighlightSegmenter, UserMasks
+from ..masks import resolve_masker
 from .metrics import PAPER_KEYS, evaluate, format_markdown_table, summarize
 
 __all__ = [
@@ -47,7 +47,6 @@ REGIONS = ("full", "masked")
 #: Columns of the markdown tables: the paper's metrics, then KITTI-style ones.
 TABLE_KEYS = (*PAPER_KEYS, "bad1", "d1", "coverage")
 #: Mask sources :func:`evaluate_scene` understands by name.
-MASK_SOURCES = ("user", "auto")
 
 
 def _with_coverage(metrics: dict[str, Any]) -> dict[str, Any]:
@@ -280,20 +279,6 @@ def _evaluate_in_worker(folder: str) -> SceneEvaluation:
                           **_WORKER["options"])
 
 
-def _masker_for(masks: Any, scene: SceneData) -> tuple[Any, str]:
-    if isinstance(masks, str):
-        if masks == "user":
-            if scene.mask_labels is None:
-                raise MaskError(f"{scene.path}: expected a mask.png for --masks user, got none")
-            return UserMasks(scene.mask_labels), "user"
-        if masks == "auto":
-            return HighlightSegmenter(), "auto"
-        raise SRDEError(f"masks: expected one of {list(MASK_SOURCES)} or a masker, got {masks!r}")
-    if callable(masks):
-        return masks, type(masks).__name__
-    raise SRDEError(f"masks: expected one of {list(MASK_SOURCES)} or a masker, got "
-                    f"{type(masks).__name__}")
-
 
 def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
                    masks: Any = "user", srde_method: str = "default",
@@ -342,7 +327,8 @@ def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
     rig = scene.rig
     if rig.light_position_m is None:
         raise LightError(f"{scene.path}: expected a light position in rig.json, got none")
-    masker, source = _masker_for(masks, scene)
+    choice = resolve_masker(masks, scene_labels=scene.mask_labels, where=str(scene.path))
+    masker, source = choice.masker, choice.description
     views = list(scene.views)
 
     t0 = time.perf_counter()

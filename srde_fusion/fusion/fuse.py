@@ -37,6 +37,7 @@ from .._checks import check_disparity, check_mask, check_views
 from ..errors import BackboneError, LightError, MaskError, RigError, SRDEError
 from ..geometry import CameraRig, plane_disparity
 from ..imaging import REC709_LUMA, saturation_mask, to_float
+from ..masks import resolve_masker
 
 __all__ = [
     "BorderCheck",
@@ -734,15 +735,6 @@ def _decide(k: int, result: Any, srde_disp: np.ndarray, mask: np.ndarray, n_mask
     return ObjectReport(k, "srde", reason, result, n_mask, n_take, **common)
 
 
-def _resolve_masker(masks: Any) -> Masker:
-    from ..masks import HighlightSegmenter, UserMasks
-
-    if masks is None:
-        return HighlightSegmenter()
-    if callable(masks) and not isinstance(masks, np.ndarray):
-        return masks
-    return UserMasks(masks)
-
 
 def _rig_with_light(rig: CameraRig, light: Any) -> CameraRig:
     if not isinstance(rig, CameraRig):
@@ -788,7 +780,7 @@ def postprocess(disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraR
     views = check_views(views, rig.n_cameras, rig.image_size)
     w, h = rig.image_size
     backbone = check_disparity(disparity, (h, w), "disparity")
-    masker = _resolve_masker(masks)
+    masker = resolve_masker(masks).masker
     from ..srde import SRDE
 
     return fuse(backbone, views, rig, masker(views, rig), SRDE(rig, method=srde_method),
@@ -837,7 +829,7 @@ class HybridStereo:
                             f"{type(backbone).__name__}")
         self.rig = _rig_with_light(rig, light)
         self.backbone = backbone
-        self.masker = _resolve_masker(masker)
+        self.masker = resolve_masker(masker).masker
         self.srde_method = srde_method
         self.border_check = border_check
         self._srde = None

@@ -6,6 +6,7 @@ Imports ``srde`` (the detector and triangulation), ``io`` and ``geometry``.
 
 from __future__ import annotations
 
+from .resolve import MASK_SOURCES, MaskerChoice, resolve_masker
 from .stages import (
     HighlightSegmenter,
     Masker,
@@ -15,6 +16,9 @@ from .stages import (
 )
 
 __all__ = [
+    "MASK_SOURCES",
+    "MaskerChoice",
+    "resolve_masker",
     "Masker",
     "UserMasks",
     "HighlightSegmenter",
