@@ -8,10 +8,7 @@ functions trust their inputs.
 
 from __future__ import annotations
 
-import json
-import os
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,8 +18,6 @@ from .errors import DisparityError, ImageError, LightError, MaskError, SRDEError
 __all__ = [
     "check_number",
     "check_keys",
-    "load_json_source",
-    "dump_json",
     "check_image",
     "Views",
     "check_views",
@@ -78,50 +73,6 @@ def check_keys(data: Any, allowed: set[str], required: set[str], where: str,
     if missing:
         raise error(f"{where}: missing key(s) {missing}")
     return data
-
-
-def load_json_source(source: Any, name: str, error: type[SRDEError]) -> Any:
-    """Parse JSON from a file path or from a JSON string (one starting with ``{``).
-
-    Parameters
-    ----------
-    source : str or os.PathLike
-    name : str
-        What the JSON describes (``"rig"`` for ``rig.json``), for messages.
-    error : type of SRDEError
-        Raised for a missing or unreadable file and for invalid JSON.
-    """
-    if isinstance(source, os.PathLike) or (
-        isinstance(source, str) and not source.lstrip().startswith("{")
-    ):
-        path = Path(source)
-        try:
-            found = path.is_file()
-        except OSError:  # a name the OS refuses to look up (too long, say)
-            found = False
-        if not found:
-            raise error(f"{name} file: expected an existing {name}.json, got {str(path)!r}")
-        try:
-            text = path.read_text(errors="replace")
-        except OSError as exc:
-            raise error(f"{path}: expected a readable {name}.json, got {exc}") from None
-        where = str(path)
-    elif isinstance(source, str):
-        text, where = source, f"{name} JSON"
-    else:
-        raise error(f"{name}: expected a path or a JSON string, got {type(source).__name__}")
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise error(f"{where}: expected valid JSON, got a parse error: {exc}") from None
-
-
-def dump_json(data: Any, path: str | os.PathLike | None = None) -> str:
-    """Serialise ``data`` as indented JSON; write it to ``path`` if given. Returns the text."""
-    text = json.dumps(data, indent=2) + "\n"
-    if path is not None:
-        Path(path).write_text(text)
-    return text
 
 
 def check_image(image: Any, name: str = "image") -> np.ndarray:

@@ -35,9 +35,8 @@ from .._checks import (
     check_keys,
     check_number,
     check_views,
-    dump_json,
-    load_json_source,
 )
+from .._json import dump_json, load_json_source
 from ..errors import BoardError, LightError
 from ..geometry import Plane
 from ..imaging import luminance

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .._json import json_safe
 from ..errors import FileFormatError, SRDEError
 from ..fusion import FusionResult, HybridStereo, fuse
 from ..geometry import CameraRig
@@ -95,25 +96,6 @@ def _scores_table(scores: dict) -> str:
     return "\n".join(parts)
 
 
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
-
-
-def _clean(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
 
 def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
                          image: np.ndarray, *, gt_disparity: np.ndarray | None = None,
@@ -188,8 +170,7 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
     if extra:
         report.update(extra)
     files["report_json"] = out / REPORT_JSON
-    files["report_json"].write_text(json.dumps(_clean(report), indent=2, allow_nan=False,
-                                               default=_json_default) + "\n")
+    files["report_json"].write_text(json.dumps(json_safe(report), indent=2, allow_nan=False) + "\n")
     return SceneRun(result, scores, files, tuple(notes))
 
 

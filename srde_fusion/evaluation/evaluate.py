@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .._json import json_safe
 from ..errors import SRDEError
 from ..fusion import DEFAULT_BORDER_CHECK, BorderCheck, FusionResult, fuse
 from ..io import SceneData, list_scenes, read_scene
@@ -145,24 +146,11 @@ class SceneEvaluation:
 
     def to_dict(self) -> dict[str, Any]:
         """Return a JSON-serialisable view (NaN becomes None)."""
-        return _json_safe({
+        return json_safe({
             "name": self.name, "mask_source": self.mask_source, "scores": self.scores,
             "mask_iou": list(self.mask_iou), "seconds": self.seconds, "fusion": self.report,
         })
 
-
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, Mapping):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    return value
 
 
 @dataclass(frozen=True)
@@ -228,7 +216,7 @@ class DatasetEvaluation:
                        for r, keys in regions.items()} for m, regions in self.summary().items()}
         run = {"jobs": self.jobs, "wall_s": self.wall_s,
                "scenes_per_second": self.scenes_per_second}
-        return _json_safe({"counts": self.counts(), "mask_iou_mean": self.mean_mask_iou(),
+        return json_safe({"counts": self.counts(), "mask_iou_mean": self.mean_mask_iou(),
                            "summary": summary, "run": run,
                            "scenes": [s.to_dict() for s in self.scenes]})
 

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 from .._checks import check_disparity, check_mask, check_views
+from .._json import json_safe
 from ..errors import BackboneError, LightError, MaskError, RigError, SRDEError
 from ..geometry import CameraRig, plane_disparity
 from ..imaging import REC709_LUMA, saturation_mask, to_float
@@ -231,15 +232,15 @@ class ObjectReport:
             "replaced_px": self.replaced_px,
             "border": {
                 "px": self.border_px,
-                "ratio_low": _json_float(self.border_ratio_low),
-                "ratio_high": _json_float(self.border_ratio_high),
-                "median_diff_px": _json_float(self.border_median_diff_px),
+                "ratio_low": json_safe(self.border_ratio_low),
+                "ratio_high": json_safe(self.border_ratio_high),
+                "median_diff_px": json_safe(self.border_median_diff_px),
             },
             "trimmed_px": self.trimmed_px,
             "photo": {
                 "px": self.photo_px,
-                "cost_srde": _json_float(self.photo_cost_srde),
-                "cost_backbone": _json_float(self.photo_cost_backbone),
+                "cost_srde": json_safe(self.photo_cost_srde),
+                "cost_backbone": json_safe(self.photo_cost_backbone),
             },
             "srde": _srde_to_dict(self.srde),
         }
@@ -298,18 +299,6 @@ class FusionResult:
         }
 
 
-def _json_float(value: Any) -> float | None:
-    if value is None:
-        return None
-    value = float(value)
-    return value if math.isfinite(value) else None
-
-
-def _json_array(value: Any) -> Any:
-    if value is None:
-        return None
-    arr = np.asarray(value, dtype=np.float64)
-    return [_json_array(v) for v in arr] if arr.ndim else _json_float(arr)
 
 
 def _srde_to_dict(result: Any) -> dict[str, Any]:
@@ -321,13 +310,13 @@ def _srde_to_dict(result: Any) -> dict[str, Any]:
         "reason": str(getattr(result, "reason", "")),
         "method": getattr(result, "method", None),
         "plane": None if plane is None else {
-            "normal": _json_array(plane.normal),
-            "offset_m": _json_float(plane.offset_m),
+            "normal": json_safe(plane.normal),
+            "offset_m": json_safe(plane.offset_m),
         },
-        "virtual_light_m": _json_array(getattr(result, "virtual_light_m", None)),
-        "highlight_centers_px": _json_array(getattr(result, "highlight_centers", None)),
+        "virtual_light_m": json_safe(getattr(result, "virtual_light_m", None)),
+        "highlight_centers_px": json_safe(getattr(result, "highlight_centers", None)),
         "used_views": None if used is None else [bool(u) for u in np.asarray(used).ravel()],
-        "residual_px": _json_float(getattr(result, "residual_px", None)),
+        "residual_px": json_safe(getattr(result, "residual_px", None)),
     }
 
 

@@ -15,13 +15,14 @@ from typing import Any
 
 import numpy as np
 
-from .._checks import check_keys, check_number, dump_json, load_json_source
+from .._checks import check_keys, check_number
+from .._json import dump_json, load_json_source
 from ..errors import RigError
+from ..imaging import IMAGE_ENCODINGS
 
 __all__ = ["Intrinsics", "Camera", "CameraRig", "RIG_FORMAT"]
 
 RIG_FORMAT = "srde-rig/1"
-IMAGE_ENCODINGS = ("srgb", "linear")
 # Centres must be coplanar to this tolerance for the array to count as rectified.
 _COPLANAR_TOL_M = 1e-6
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from .._checks import check_image, check_mask
 from ..errors import SRDEError
-from ..imaging import luminance, saturation_mask
+from ..imaging import IMAGE_ENCODINGS, luminance, saturation_mask
 
 __all__ = [
     "HighlightDetection",
@@ -51,7 +51,6 @@ BLOB_CENTERS = ("weighted", "core", "lobe")
 #: The blob centre used by default (chosen by measurement, see the module docstring).
 DEFAULT_BLOB_CENTER = "weighted"
 
-_IMAGE_ENCODINGS = ("srgb", "linear")
 # Blob detector: the level between background and peak that delimits the blob (half max).
 _BLOB_LEVEL = 0.5
 # The blob's peak is read from a slightly smoothed image so one hot pixel cannot set it.
@@ -116,8 +115,8 @@ def _check_options(method, encoding, window, k, min_extent_px, blob_center, min_
                    min_area_px) -> None:
     if method not in HIGHLIGHT_METHODS:
         raise SRDEError(f"method: expected one of {list(HIGHLIGHT_METHODS)}, got {method!r}")
-    if encoding not in _IMAGE_ENCODINGS:
-        raise SRDEError(f"encoding: expected one of {list(_IMAGE_ENCODINGS)}, got {encoding!r}")
+    if encoding not in IMAGE_ENCODINGS:
+        raise SRDEError(f"encoding: expected one of {list(IMAGE_ENCODINGS)}, got {encoding!r}")
     if blob_center not in BLOB_CENTERS:
         raise SRDEError(f"blob_center: expected one of {list(BLOB_CENTERS)}, got {blob_center!r}")
     if (isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 3
