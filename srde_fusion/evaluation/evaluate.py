@@ -276,7 +276,7 @@ def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
     Parameters
     ----------
     scene : SceneData or path
-        A scene folder (or one loaded with :func:`~srde_fusion.io.files.read_scene`) with a
+        A scene folder (or one loaded with :func:`~srde_fusion.io.read_scene`) with a
         light in its ``rig.json`` and a ground-truth disparity.
     backbone : callable
         ``backbone(left, right) -> (H, W)`` disparity in pixels.

@@ -1,0 +1,82 @@
+"""File plumbing shared by the readers and writers.
+
+Existence checks, bytes in and out,
+image codecs. Every failure is a :class:`~srde_fusion.errors.FileFormatError` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import FileFormatError
+
+# ---------------------------------------------------------------------- helpers
+def _exists(path: Path, kind: str) -> bool:
+    # A path the OS refuses to look up (name too long, no permission on a parent folder)
+    # is reported like a missing one, as a FileFormatError, not as an OSError.
+    try:
+        return path.is_dir() if kind == "dir" else path.is_file()
+    except OSError:
+        return False
+
+
+def _existing_file(path: str | os.PathLike, what: str) -> Path:
+    p = Path(path)
+    if not _exists(p, "file"):
+        raise FileFormatError(f"{p}: expected an existing {what} file, got no such file")
+    return p
+
+
+def _read_bytes(path: Path, what: str) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise FileFormatError(f"{path}: expected a readable {what} file, got {exc}") from None
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data)
+    except OSError as exc:
+        raise FileFormatError(f"{path}: could not write the file: {exc}") from None
+
+
+def _decode_image(path: Path, what: str) -> np.ndarray:
+    """Decode an image file with OpenCV, untouched (bit depth and channels as stored)."""
+    data = _read_bytes(_existing_file(path, what), what)
+    # imdecode on the bytes (rather than imread on the path) handles non-ASCII paths
+    # and gives us one place to turn a failed decode into a FileFormatError.
+    image = None
+    if data:
+        # OpenCV logs its decoder's complaints straight to stderr; the FileFormatError
+        # below says it once, so a command's failure stays one line.
+        log_level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+        try:
+            image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            image = None
+        finally:
+            cv2.utils.logging.setLogLevel(log_level)
+    if image is None:
+        raise FileFormatError(f"{path}: expected a readable {what}, got undecodable data")
+    return image
+
+
+def _encode_image(path: Path, image: np.ndarray) -> None:
+    ext = path.suffix.lower()
+    try:
+        ok, buf = cv2.imencode(ext, image)
+    except cv2.error as exc:
+        raise FileFormatError(
+            f"{path}: could not encode an image of shape {image.shape} and dtype {image.dtype} "
+            f"as {ext!r}: {exc}"
+        ) from None
+    if not ok:
+        raise FileFormatError(f"{path}: could not encode the image as {ext!r}")
+    _write_bytes(path, buf.tobytes())

@@ -1,0 +1,373 @@
+"""Two-camera rigs from other tools' calibration files.
+
+Middlebury ``calib.txt`` (cam0/cam1 matrices, baseline in mm, doffs) and OpenCV stereo
+calibration YAML (K1, D1, K2, D2, R, T; rectified input assumed, said so on load).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from .._checks import check_disparity
+from ..errors import FileFormatError, RigError
+from ..geometry import Camera, CameraRig, Intrinsics
+from ._files import _existing_file, _read_bytes
+
+__all__ = [
+    "MiddleburyCalib",
+    "read_middlebury_calib",
+    "read_opencv_stereo_yaml",
+]
+
+# A Middlebury calib.txt's doffs must match cx1 - cx0 to this tolerance, pixels.
+_DOFFS_TOL_PX = 0.05
+
+
+# Intrinsics of the two cameras of a "rectified" file must agree to this, pixels.
+_RECTIFIED_TOL_PX = 0.5
+
+
+# A baseline longer than this with units_per_m=1 is most likely in mm: warn, do not guess.
+_PLAUSIBLE_BASELINE_M = 5.0
+
+
+# ---------------------------------------------------------------------- Middlebury
+@dataclass(frozen=True)
+class MiddleburyCalib:
+    """A two-camera rig read from a Middlebury ``calib.txt``, with the file's extras.
+
+    Middlebury rectifies with *different* principal points: ``cx1 = cx0 + doffs``, and
+    its disparities satisfy ``z = f * B / (d + doffs)``. Our rigs share one principal
+    point, so our disparity is ``d_rig = d_file + doffs_px`` (:meth:`to_rig_disparity`),
+    and the right image (``im1``) would have to be shifted ``doffs_px`` to the right
+    to follow the rig exactly.
+
+    Attributes
+    ----------
+    rig : CameraRig
+        Cameras ``cam0`` (reference, at the origin) and ``cam1`` at ``+x``; intrinsics
+        of ``cam0``; baseline in metres.
+    doffs_px : float
+        ``cx1 - cx0`` in pixels.
+    ndisp : int or None
+        The file's conservative disparity bound, pixels.
+    vmin, vmax : float or None
+        The file's tight disparity bounds, pixels.
+    extras : dict
+        Other ``key=value`` lines, as text.
+    """
+
+    rig: CameraRig
+    doffs_px: float
+    ndisp: int | None = None
+    vmin: float | None = None
+    vmax: float | None = None
+    extras: Mapping[str, str] = field(default_factory=dict)
+
+    def to_rig_disparity(self, disparity_px: np.ndarray) -> np.ndarray:
+        """Convert a disparity map in the file's convention to the rig's, ``(H, W)`` float32."""
+        return check_disparity(disparity_px, name="disparity_px") + np.float32(self.doffs_px)
+_MATRIX_RE = re.compile(r"^\[(.*)\]$")
+
+
+def _parse_calib_matrix(text: str, key: str, path: Path) -> np.ndarray:
+    match = _MATRIX_RE.match(text.strip())
+    rows = match.group(1).split(";") if match else []
+    try:
+        matrix = np.array([[float(x) for x in row.split()] for row in rows], dtype=np.float64)
+    except ValueError:
+        matrix = np.empty(0)
+    if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+        raise FileFormatError(
+            f"{path}: {key}: expected a 3x3 matrix '[f 0 cx; 0 f cy; 0 0 1]', got {text!r}"
+        )
+    return matrix
+
+
+def read_middlebury_calib(
+    path: str | os.PathLike, *, image_size: tuple[int, int] | None = None
+) -> MiddleburyCalib:
+    """Read a Middlebury stereo ``calib.txt`` (2014/2021 layout).
+
+    Parameters
+    ----------
+    path : str or path-like
+        Lines ``key=value``: ``cam0``, ``cam1`` (3x3 matrices), ``baseline`` (mm),
+        ``doffs`` (px), ``width``, ``height``, ``ndisp``, ``vmin``, ``vmax``, ...
+    image_size : (int, int), optional
+        ``(width, height)`` for files without ``width``/``height``; if the file has them,
+        they must agree.
+
+    Returns
+    -------
+    MiddleburyCalib
+        The rig plus ``doffs_px``: ground-truth disparities from the dataset must be
+        converted with :meth:`MiddleburyCalib.to_rig_disparity` before comparing them
+        with disparities in the rig's convention.
+
+    Raises
+    ------
+    FileFormatError
+        Missing file, missing keys, malformed numbers or matrices, cameras that are not
+        rectified (different focal length or ``cy``), or ``doffs`` inconsistent with the
+        principal points.
+    """
+    p = _existing_file(path, "Middlebury calib.txt")
+    text = _read_bytes(p, "Middlebury calib.txt").decode("utf-8", errors="replace")
+    entries: dict[str, str] = {}
+    for number, line in enumerate(text.splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        key, sep, value = line.partition("=")
+        if not sep:
+            raise FileFormatError(f"{p}: line {number}: expected 'key=value', got {line!r}")
+        entries[key.strip()] = value.strip()
+    missing = [k for k in ("cam0", "cam1", "baseline") if k not in entries]
+    if missing:
+        raise FileFormatError(f"{p}: expected keys cam0, cam1 and baseline, missing {missing}")
+
+    def number(key: str) -> float | None:
+        if key not in entries:
+            return None
+        try:
+            value = float(entries[key])
+        except ValueError:
+            raise FileFormatError(f"{p}: {key}: expected a number, got {entries[key]!r}") from None
+        if not math.isfinite(value):
+            raise FileFormatError(f"{p}: {key}: expected a finite number, got {entries[key]!r}")
+        return value
+
+    k0 = _parse_calib_matrix(entries["cam0"], "cam0", p)
+    k1 = _parse_calib_matrix(entries["cam1"], "cam1", p)
+    for (r, c), label in (((0, 0), "fx"), ((1, 1), "fy"), ((1, 2), "cy")):
+        if abs(k0[r, c] - k1[r, c]) > _RECTIFIED_TOL_PX:
+            raise FileFormatError(
+                f"{p}: expected rectified cameras with equal {label}, got cam0 {k0[r, c]:g} "
+                f"and cam1 {k1[r, c]:g}"
+            )
+    doffs = float(k1[0, 2] - k0[0, 2])
+    doffs_file = number("doffs")
+    if doffs_file is not None and abs(doffs_file - doffs) > _DOFFS_TOL_PX:
+        raise FileFormatError(
+            f"{p}: expected doffs = cx1 - cx0 = {doffs:g} px, got doffs={doffs_file:g}"
+        )
+    baseline_mm = number("baseline")
+    if baseline_mm is None or baseline_mm <= 0:
+        raise FileFormatError(
+            f"{p}: baseline: expected a positive baseline in mm, got {entries['baseline']!r}"
+        )
+    width, height = number("width"), number("height")
+    if width is not None and height is not None:
+        if width != int(width) or height != int(height) or width <= 0 or height <= 0:
+            raise FileFormatError(
+                f"{p}: expected positive integer width/height, got {width:g}x{height:g}"
+            )
+        size = (int(width), int(height))
+        if image_size is not None and tuple(image_size) != size:
+            raise FileFormatError(
+                f"{p}: expected image_size {tuple(image_size)} to match the file's "
+                f"width/height, got {size}"
+            )
+    elif image_size is not None:
+        size = tuple(image_size)
+    else:
+        raise FileFormatError(
+            f"{p}: expected width and height in the file or image_size=(W, H), got neither"
+        )
+    ndisp = number("ndisp")
+    try:
+        intrinsics = Intrinsics(k0[0, 0], k0[1, 1], k0[0, 2], k0[1, 2])
+        rig = CameraRig(
+            size,
+            intrinsics,
+            (Camera("cam0", (0.0, 0.0, 0.0)), Camera("cam1", (baseline_mm / 1000.0, 0.0, 0.0))),
+        )
+    except RigError as exc:
+        raise FileFormatError(f"{p}: {exc}") from None
+    known = {"cam0", "cam1", "baseline", "doffs", "width", "height", "ndisp", "vmin", "vmax"}
+    return MiddleburyCalib(
+        rig=rig,
+        doffs_px=doffs,
+        ndisp=None if ndisp is None else int(ndisp),
+        vmin=number("vmin"),
+        vmax=number("vmax"),
+        extras={k: v for k, v in entries.items() if k not in known},
+    )
+
+
+# ---------------------------------------------------------------------- OpenCV YAML
+def _cv_error_text(exc: BaseException) -> str:
+    # OpenCV's own error may be wrapped (SystemError from a constructor): report the cause.
+    inner = exc.__cause__ or exc.__context__ or exc
+    lines = str(inner).strip().splitlines()
+    return lines[-1] if lines else type(inner).__name__
+
+
+def _fs_matrix(
+    fs: Any,
+    names: Sequence[str],
+    path: Path,
+    shape: tuple[int, ...] | None,
+    *,
+    required: bool = True,
+) -> np.ndarray | None:
+    for name in names:
+        node = fs.getNode(name)
+        if node.empty():
+            continue
+        mat = node.mat()
+        if mat is None:
+            raise FileFormatError(
+                f"{path}: {name}: expected an OpenCV matrix, got a non-matrix node"
+            )
+        mat = np.asarray(mat, dtype=np.float64)
+        if shape is not None and mat.size != int(np.prod(shape)):
+            raise FileFormatError(f"{path}: {name}: expected {shape} values, got shape {mat.shape}")
+        if not np.all(np.isfinite(mat)):
+            raise FileFormatError(f"{path}: {name}: expected finite values, got NaN or inf")
+        return mat.reshape(shape) if shape is not None else mat
+    if required:
+        raise FileFormatError(f"{path}: expected a matrix named {' or '.join(names)}, got none")
+    return None
+
+
+def _fs_image_size(fs: Any, path: Path) -> tuple[int, int] | None:
+    for name in ("image_size", "imageSize"):
+        node = fs.getNode(name)
+        if node.empty():
+            continue
+        values = node.mat() if node.isMap() else [node.at(i).real() for i in range(node.size())]
+        values = np.asarray(values, dtype=np.float64).ravel()
+        if values.size == 2:
+            return int(values[0]), int(values[1])
+        raise FileFormatError(f"{path}: {name}: expected [width, height], got {values.tolist()}")
+    w, h = fs.getNode("image_width"), fs.getNode("image_height")
+    if not w.empty() and not h.empty():
+        return int(w.real()), int(h.real())
+    return None
+
+
+def read_opencv_stereo_yaml(
+    path: str | os.PathLike, *, units_per_m: float = 1.0, image_size: tuple[int, int] | None = None
+) -> CameraRig:
+    """Read a two-camera rig from an OpenCV stereo calibration file (YAML/XML/JSON).
+
+    The file holds ``K1, D1, K2, D2, R, T`` as ``cv2.stereoCalibrate`` returns them
+    (``M1``/``M2`` are accepted for ``K1``/``K2``). The library works on rectified
+    images, so the images are assumed to be rectified already with ``K1`` as the
+    shared camera matrix: distortion and rotation are *not* applied, and a
+    ``UserWarning`` says so on every load.
+
+    Parameters
+    ----------
+    path : str or path-like
+    units_per_m : float
+        Length units of ``T`` per metre. ``T`` comes in the units of the calibration
+        pattern's square size: 1.0 (default) for metres, 1000.0 for millimetres.
+        The unit is never guessed; a baseline over 5 m with the default gets a warning.
+    image_size : (int, int), optional
+        ``(width, height)``; required unless the file has ``image_size``/``imageSize``
+        or ``image_width``/``image_height``.
+
+    Returns
+    -------
+    CameraRig
+        ``left`` (reference, at the origin) and ``right`` at ``(|T| / units_per_m, 0, 0)``.
+
+    Raises
+    ------
+    FileFormatError
+        Missing or unparsable file, missing matrices, no image size, or a second camera
+        that lies to the left of the first (swap the cameras).
+    """
+    p = _existing_file(path, "OpenCV stereo calibration")
+    if (
+        isinstance(units_per_m, bool)
+        or not isinstance(units_per_m, (int, float))
+        or not (math.isfinite(units_per_m) and units_per_m > 0)
+    ):
+        raise RigError(
+            f"units_per_m: expected a positive number (1000 for mm), got {units_per_m!r}"
+        )
+    try:
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+        opened = fs.isOpened()
+    # A parse error surfaces as cv2.error or, from the constructor, as SystemError.
+    except (cv2.error, SystemError) as exc:
+        raise FileFormatError(
+            f"{p}: expected an OpenCV FileStorage YAML/XML file, got a parse error: "
+            f"{_cv_error_text(exc)}"
+        ) from None
+    if not opened:
+        raise FileFormatError(
+            f"{p}: expected an OpenCV FileStorage YAML/XML file, could not open it"
+        )
+    try:
+        k1 = _fs_matrix(fs, ("K1", "M1"), p, (3, 3))
+        k2 = _fs_matrix(fs, ("K2", "M2"), p, (3, 3))
+        d1 = _fs_matrix(fs, ("D1",), p, None, required=False)
+        d2 = _fs_matrix(fs, ("D2",), p, None, required=False)
+        rot = _fs_matrix(fs, ("R",), p, (3, 3))
+        trans = _fs_matrix(fs, ("T",), p, (3,))
+        size = _fs_image_size(fs, p)
+    except cv2.error as exc:
+        raise FileFormatError(
+            f"{p}: expected OpenCV matrices K1, D1, K2, D2, R, T, got an error: "
+            f"{_cv_error_text(exc)}"
+        ) from None
+    finally:
+        fs.release()
+    if image_size is not None:
+        size = tuple(image_size)
+    if size is None:
+        raise FileFormatError(
+            f"{p}: expected an image size in the file or image_size=(W, H), got neither"
+        )
+    ignored = []
+    if any(d is not None and np.any(d != 0) for d in (d1, d2)):
+        ignored.append("non-zero distortion D1/D2")
+    if not np.allclose(rot, np.eye(3), atol=1e-6):
+        ignored.append("rotation R")
+    if not np.allclose(k1, k2, atol=_RECTIFIED_TOL_PX):
+        ignored.append("K2 != K1")
+    warnings.warn(
+        f"{p}: rectified images assumed; K1 is used for both cameras and the baseline is |T|"
+        + (f" ({', '.join(ignored)} ignored)" if ignored else ""),
+        UserWarning,
+        stacklevel=2,
+    )
+    # x2 = R x1 + T, so the second camera's centre in the first's frame is -R^T T.
+    center2 = -rot.T @ trans
+    if center2[0] <= 0:
+        raise FileFormatError(
+            f"{p}: expected the second camera to the right of the first (T_x < 0), got "
+            f"T = {trans.tolist()}; swap the cameras"
+        )
+    baseline_m = float(np.linalg.norm(trans)) / float(units_per_m)
+    if baseline_m > _PLAUSIBLE_BASELINE_M:
+        warnings.warn(
+            f"{p}: baseline of {baseline_m:g} m with units_per_m={units_per_m:g}; if T is in "
+            "millimetres, pass units_per_m=1000",
+            UserWarning,
+            stacklevel=2,
+        )
+    try:
+        intrinsics = Intrinsics(k1[0, 0], k1[1, 1], k1[0, 2], k1[1, 2])
+        return CameraRig(
+            size,
+            intrinsics,
+            (Camera("left", (0.0, 0.0, 0.0)), Camera("right", (baseline_m, 0.0, 0.0))),
+        )
+    except RigError as exc:
+        raise FileFormatError(f"{p}: {exc}") from None

@@ -1,0 +1,321 @@
+"""Scene folders: what the commands and the evaluation read and write.
+
+A scene folder holds ``rig.json``, one image per camera named after it (``cam0.png``),
+optional ``mask.png``, ``gt_disparity.pfm`` (or ``.npy``) and ``scene.json`` metadata; a
+dataset is a folder of scene folders (DESIGN §5). Every problem with a file raises
+:class:`~srde_fusion.errors.FileFormatError` naming the file and what was expected.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._checks import check_disparity, check_views
+from ..errors import FileFormatError, MaskError, RigError
+from ..geometry import CameraRig
+from ._files import _exists, _read_bytes, _write_bytes
+from .disparity import read_disparity, write_disparity
+from .images import (
+    IMAGE_EXTENSIONS,
+    _check_labels,
+    labels_from_masks,
+    masks_from_labels,
+    read_image,
+    read_mask,
+    write_image,
+    write_mask,
+)
+
+__all__ = [
+    "RIG_FILE",
+    "MASK_FILE",
+    "GT_DISPARITY_STEM",
+    "METADATA_FILE",
+    "SceneData",
+    "write_scene",
+    "read_scene",
+    "list_scenes",
+]
+
+RIG_FILE = "rig.json"
+MASK_FILE = "mask.png"
+GT_DISPARITY_STEM = "gt_disparity"
+METADATA_FILE = "scene.json"
+
+
+# ---------------------------------------------------------------------- scene folders
+@dataclass(frozen=True)
+class SceneData:
+    """One scene folder, loaded.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The folder.
+    name : str
+        The folder's name.
+    rig : CameraRig
+    views : tuple of numpy.ndarray, each (H, W, 3) or (H, W) uint8
+        One image per camera, in the rig's order.
+    mask_labels : numpy.ndarray, (H, W) int32, or None
+        Instance labels of the reference view (0 = background).
+    gt_disparity : numpy.ndarray, (H, W) float32, or None
+        Ground-truth disparity in pixels, NaN = invalid.
+    metadata : dict
+        Contents of ``scene.json`` (empty if absent).
+    """
+
+    path: Path
+    name: str
+    rig: CameraRig
+    views: tuple[np.ndarray, ...]
+    mask_labels: np.ndarray | None = None
+    gt_disparity: np.ndarray | None = None
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def masks(self) -> list[np.ndarray]:
+        """One ``(H, W)`` bool mask per object (empty list without a mask)."""
+        return [] if self.mask_labels is None else masks_from_labels(self.mask_labels)
+
+
+def _camera_file_stem(name: str) -> str:
+    if not re.fullmatch(r"[A-Za-z0-9_.\-]+", name) or name.startswith("."):
+        raise RigError(
+            "camera name: expected letters, digits, '_', '-' or '.' to name an image file, "
+            f"got {name!r}"
+        )
+    return name
+
+
+def write_scene(
+    folder: str | os.PathLike,
+    views: Sequence[np.ndarray],
+    rig: CameraRig,
+    *,
+    mask: np.ndarray | Sequence[np.ndarray] | None = None,
+    gt_disparity: np.ndarray | None = None,
+    metadata: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write a scene folder that :func:`read_scene` reads back.
+
+    Parameters
+    ----------
+    folder : str or path-like
+        Created if needed; existing files of the same names are overwritten.
+    views : sequence of numpy.ndarray, (H, W, 3) RGB or (H, W), uint8 or float in [0, 1]
+        One image per rig camera, written as ``<camera name>.png``.
+    rig : CameraRig
+        Written as ``rig.json``.
+    mask : numpy.ndarray (H, W) int/bool labels, or sequence of (H, W) bool masks, optional
+        Objects in the reference view, written as 8-bit labels to ``mask.png``.
+    gt_disparity : numpy.ndarray, (H, W), float, optional
+        Ground truth in pixels (NaN = invalid), written to ``gt_disparity.pfm``.
+    metadata : dict, optional
+        JSON-serialisable extras (e.g. virtual light, planes), written to ``scene.json``.
+
+    Returns
+    -------
+    pathlib.Path
+        The folder.
+
+    Raises
+    ------
+    ImageError, MaskError, DisparityError
+        Views, mask or ground truth that do not fit the rig.
+    FileFormatError
+        Metadata that is not a JSON-serialisable dict, or a write failure.
+    """
+    if not isinstance(rig, CameraRig):
+        raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
+    checked = check_views(views, rig.n_cameras, rig.image_size)
+    hw = (rig.height, rig.width)
+    labels = None
+    if mask is not None:
+        labels = (
+            _check_labels(mask, "mask") if isinstance(mask, np.ndarray) else labels_from_masks(mask)
+        )
+        if labels.shape != hw:
+            raise MaskError(f"mask: expected shape {hw} (the rig's image size), got {labels.shape}")
+    gt = None if gt_disparity is None else check_disparity(gt_disparity, hw, "gt_disparity")
+    meta_text = None
+    if metadata is not None:
+        if not isinstance(metadata, Mapping):
+            raise FileFormatError(
+                f"metadata: expected a JSON-serialisable dict, got {type(metadata).__name__}"
+            )
+        try:
+            meta_text = json.dumps(dict(metadata), indent=2, allow_nan=False) + "\n"
+        except (TypeError, ValueError) as exc:
+            raise FileFormatError(
+                f"metadata: expected a JSON-serialisable dict, got {exc}"
+            ) from None
+    stems = [_camera_file_stem(name) for name in rig.camera_names]
+
+    out = Path(folder)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FileFormatError(f"{out}: could not create the scene folder: {exc}") from None
+    _write_bytes(out / RIG_FILE, rig.to_json().encode("utf-8"))
+    for stem, image in zip(stems, checked, strict=True):
+        write_image(out / f"{stem}.png", image)
+    if labels is not None:
+        write_mask(out / MASK_FILE, labels)
+    if gt is not None:
+        write_disparity(out / f"{GT_DISPARITY_STEM}.pfm", gt)
+    if meta_text is not None:
+        _write_bytes(out / METADATA_FILE, meta_text.encode("utf-8"))
+    return out
+
+
+def _find_one(folder: Path, stem: str, extensions: Sequence[str], what: str) -> Path | None:
+    found = [folder / f"{stem}{ext}" for ext in extensions if (folder / f"{stem}{ext}").is_file()]
+    if len(found) > 1:
+        raise FileFormatError(
+            f"{folder}: expected one {what} file, got {len(found)}: {sorted(f.name for f in found)}"
+        )
+    return found[0] if found else None
+
+
+def read_scene(folder: str | os.PathLike) -> SceneData:
+    """Load a scene folder written by :func:`write_scene` (or by hand).
+
+    Parameters
+    ----------
+    folder : str or path-like
+        Holds ``rig.json``, one image per camera named after it (any of
+        :data:`IMAGE_EXTENSIONS`), optional ``mask.png``, ``gt_disparity.pfm`` or
+        ``gt_disparity.npy``, and ``scene.json``.
+
+    Returns
+    -------
+    SceneData
+
+    Raises
+    ------
+    FileFormatError
+        Missing folder, ``rig.json`` or view; two files for one camera; image files
+        named like cameras the rig does not have; images, mask or ground truth whose
+        size differs from the rig's; malformed ``scene.json``.
+    RigError
+        An invalid ``rig.json`` (the message names the file).
+    """
+    path = Path(folder)
+    if not _exists(path, "dir"):
+        raise FileFormatError(f"{path}: expected a scene folder, got no such directory")
+    rig_path = path / RIG_FILE
+    if not rig_path.is_file():
+        raise FileFormatError(f"{path}: expected a scene folder with {RIG_FILE}, got none")
+    try:
+        rig = CameraRig.from_json(rig_path)
+    except RigError as exc:
+        message = str(exc)
+        raise RigError(
+            message if message.startswith(str(rig_path)) else f"{rig_path}: {message}"
+        ) from None
+    hw = (rig.height, rig.width)
+
+    names = rig.camera_names
+    views = []
+    missing = []
+    for name in names:
+        found = _find_one(path, name, IMAGE_EXTENSIONS, f"image for camera {name!r}")
+        if found is None:
+            missing.append(name)
+            continue
+        image = read_image(found)
+        if image.shape[:2] != hw:
+            raise FileFormatError(
+                f"{found}: expected the rig's image size {rig.width}x{rig.height}, "
+                f"got {image.shape[1]}x{image.shape[0]}"
+            )
+        views.append(image)
+    if missing:
+        raise FileFormatError(
+            f"{path}: expected one image per camera ({', '.join(n + '.png' for n in names)}), "
+            f"missing {missing}"
+        )
+    # An image named like a camera the rig does not have (cam9.png next to cam0..cam8)
+    # usually means the rig.json and the images do not belong together.
+    prefixes = {m.group(1) for m in (re.fullmatch(r"(.*?)\d+", n) for n in names) if m}
+    if prefixes:
+        pattern = re.compile(rf"({'|'.join(re.escape(x) for x in sorted(prefixes))})\d+")
+        extra = sorted(
+            f.name
+            for f in path.iterdir()
+            if f.is_file()
+            and f.suffix.lower() in IMAGE_EXTENSIONS
+            and pattern.fullmatch(f.stem)
+            and f.stem not in names
+        )
+        if extra:
+            raise FileFormatError(
+                f"{path}: expected images only for the rig's cameras {names}, got extra {extra}"
+            )
+
+    labels = None
+    if (path / MASK_FILE).is_file():
+        labels = read_mask(path / MASK_FILE)
+        if labels.shape != hw:
+            raise FileFormatError(
+                f"{path / MASK_FILE}: expected the rig's image size {rig.width}x{rig.height}, "
+                f"got {labels.shape[1]}x{labels.shape[0]}"
+            )
+    gt = None
+    gt_path = _find_one(path, GT_DISPARITY_STEM, (".pfm", ".npy"), "ground-truth disparity")
+    if gt_path is not None:
+        gt = read_disparity(gt_path)
+        if gt.shape != hw:
+            raise FileFormatError(
+                f"{gt_path}: expected the rig's image size {rig.width}x{rig.height}, "
+                f"got {gt.shape[1]}x{gt.shape[0]}"
+            )
+    metadata: dict[str, Any] = {}
+    meta_path = path / METADATA_FILE
+    if meta_path.is_file():
+        try:
+            metadata = json.loads(_read_bytes(meta_path, "scene metadata").decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise FileFormatError(
+                f"{meta_path}: expected valid JSON, got a parse error: {exc}"
+            ) from None
+        if not isinstance(metadata, dict):
+            raise FileFormatError(
+                f"{meta_path}: expected a JSON object, got {type(metadata).__name__}"
+            )
+    return SceneData(
+        path=path,
+        name=path.name,
+        rig=rig,
+        views=tuple(views),
+        mask_labels=labels,
+        gt_disparity=gt,
+        metadata=metadata,
+    )
+
+
+def list_scenes(dataset_dir: str | os.PathLike) -> list[Path]:
+    """Scene folders of a dataset: its sub-folders that hold a ``rig.json``, sorted by name.
+
+    Raises
+    ------
+    FileFormatError
+        The folder does not exist or holds no scene folder.
+    """
+    root = Path(dataset_dir)
+    if not _exists(root, "dir"):
+        raise FileFormatError(f"{root}: expected a dataset folder, got no such directory")
+    scenes = sorted(p for p in root.iterdir() if p.is_dir() and (p / RIG_FILE).is_file())
+    if not scenes:
+        hint = " (it is itself a scene folder)" if (root / RIG_FILE).is_file() else ""
+        raise FileFormatError(f"{root}: expected sub-folders holding {RIG_FILE}, got none{hint}")
+    return scenes
