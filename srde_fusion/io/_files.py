@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import FileFormatError
 
+
 # ---------------------------------------------------------------------- helpers
 def _exists(path: Path, kind: str) -> bool:
     # A path the OS refuses to look up (name too long, no permission on a parent folder)
