@@ -7,7 +7,7 @@ so training needs no data set. The bundled default was made with::
     srde-fusion train-standin --out adapters/weights/standin.onnx --size default \\
         --steps 800 --seed 0
 
-Why procedural pairs and not the rendered scenes of :mod:`srde_fusion.synthetic.scenes`: rendering
+Why procedural pairs and not the rendered scenes of :mod:`srde_fusion.synthetic`: rendering
 one scene takes seconds, too slow to draw fresh pairs at every step on a CPU, and the
 procedural layers give exact disparity with occlusions at any range. A variant with 30 %
 dark exposures (like the dim rendered scenes) was trained the same way and measured

@@ -2,7 +2,7 @@
 
 Two data sets:
 
-* rendered scenes (``srde_fusion.synthetic.scenes``, textured background, one glossy planar
+* rendered scenes (``srde_fusion.synthetic``, textured background, one glossy planar
   object each) on the paper's rig, stereo pair only, evaluated over the whole image,
   the textured background and the glossy objects separately;
 * the Middlebury 2014 "Motorcycle" pair bundled with scikit-image

@@ -1,7 +1,7 @@
 """Hybrid stereo on rendered scenes: backbone alone vs SRDE alone vs fused.
 
 A fixed set of hybrid scenes (textured room, one to three flat glossy objects, one
-light, 3x3 array, 640x480) is rendered with ``srde_fusion.synthetic.scenes``. For each backbone
+light, 3x3 array, 640x480) is rendered with ``srde_fusion.synthetic``. For each backbone
 (the bundled stand-in network and OpenCV SGBM as a classical pipeline) and each mask
 source (the ground-truth masks as "user" masks, and the built-in highlight segmenter),
 the backbone's map, SRDE alone and the fused map are scored against ground truth over

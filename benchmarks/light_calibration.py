@@ -29,15 +29,13 @@ from srde_fusion.calibration import (
     Board,
     estimate_light,
     estimate_plate_pose,
-    highlight_normal,
     light_from_reflections,
-    plate_scene,
 )
 from srde_fusion.errors import SRDEError
 from srde_fusion.evaluation import evaluate
 from srde_fusion.geometry import CameraRig
 from srde_fusion.srde import SRDE
-from srde_fusion.synthetic import random_scene, render
+from srde_fusion.synthetic import highlight_normal, plate_scene, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 LIGHT_M = np.array([0.2, -0.45, 0.1])

@@ -4,7 +4,7 @@ SRDE's geometric plane comes from highlight centroids, which rough lobes bias (i
 falloff, foreshortening, clipping). ``srde_fusion.srde.refine.plane.refine_plane`` fits a lobe model
 to the highlights of all views to remove that bias. This benchmark measures it against
 the geometric plane and against another way to de-bias the centres, on scenes rendered
-by ``srde_fusion.synthetic.scenes`` under the paper's conditions:
+by ``srde_fusion.synthetic`` under the paper's conditions:
 
 * rigs: the paper's 3 x 3 array and a two-camera stereo rig (85 mm baselines,
   640 x 480 px, fx = 600 px);

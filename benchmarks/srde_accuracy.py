@@ -3,7 +3,7 @@
 A fixed set of scenes under the paper's conditions (3 x 3 array, 85 mm baselines,
 640 x 480 px, fx = 600 px; one flat glossy object, one small light of varied size;
 varied roughness, tilt and distance; sensor noise; clipped highlights) is rendered with
-``srde_fusion.synthetic.scenes``, and every configuration estimates the object's disparity from
+``srde_fusion.synthetic``, and every configuration estimates the object's disparity from
 the views and its mask. Metrics are the paper's (masked EPE, RMSE, bmp0.1/0.01/0.001) as
 mean ± std over the scenes a configuration succeeded on; ``ok`` counts those scenes.
 

@@ -24,13 +24,11 @@ import numpy as np
 from srde_fusion.calibration import (
     Board,
     calibrate_light_files,
-    highlight_normal,
-    plate_scene,
     write_board,
 )
 from srde_fusion.geometry import CameraRig
 from srde_fusion.io import write_image
-from srde_fusion.synthetic import default_rig, render
+from srde_fusion.synthetic import default_rig, highlight_normal, plate_scene, render
 
 # The light to be found: above and to the right of the array, about 1.1 m from the plates.
 TRUE_LIGHT_M = np.array([0.2, -0.45, 0.1])

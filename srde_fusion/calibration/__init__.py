@@ -21,18 +21,23 @@ from .board import (
     rotation_to_vector,
     write_board,
 )
-from .light import (
-    LightEstimate,
+from .captures import (
     calibrate_light_files,
-    closest_point_to_rays,
     estimate_light,
-    find_plate_highlights,
-    highlight_normal,
-    light_from_reflections,
-    plate_highlight_region,
-    plate_scene,
     read_capture,
+)
+from .light import (
+    DEFAULT_MAX_INCIDENCE_DEG,
+    DEFAULT_MAX_RESIDUAL_M,
+    DEFAULT_MIN_VIEWS,
+    LightEstimate,
+    closest_point_to_rays,
+    light_from_reflections,
     reflect_highlights,
+)
+from .plate_highlights import (
+    find_plate_highlights,
+    plate_highlight_region,
 )
 
 __all__ = [
@@ -50,15 +55,16 @@ __all__ = [
     "rotation_from_vector",
     "rotation_to_vector",
     "write_board",
+    "estimate_light",
+    "read_capture",
+    "calibrate_light_files",
+    "DEFAULT_MAX_INCIDENCE_DEG",
+    "DEFAULT_MAX_RESIDUAL_M",
+    "DEFAULT_MIN_VIEWS",
     "LightEstimate",
     "closest_point_to_rays",
     "reflect_highlights",
     "light_from_reflections",
     "plate_highlight_region",
     "find_plate_highlights",
-    "estimate_light",
-    "read_capture",
-    "calibrate_light_files",
-    "highlight_normal",
-    "plate_scene",
 ]

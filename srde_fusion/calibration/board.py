@@ -734,7 +734,7 @@ class PlatePose:
         if np.dot(n, -c) < 0:
             n = -n
         z = -n
-        # The same in-plane axes as the renderer's planar objects (srde_fusion.synthetic.scenes):
+        # The same in-plane axes as the renderer's planar objects (srde_fusion.synthetic):
         # the array x axis projected onto the plate, or y when the plate faces along x.
         ref = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
         x = ref - np.dot(ref, n) * n

@@ -26,69 +26,54 @@ plate seen nearly edge-on, rays that do not meet, a light behind the plate.
 from __future__ import annotations
 
 import math
-import os
-import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._checks import check_point3, check_views
-from ..errors import FileFormatError, LightError, RigError
+from ..errors import LightError
 from ..geometry import CameraRig
 from .board import (
-    DEFAULT_MAX_REPROJECTION_PX,
-    Board,
     PlatePose,
-    estimate_plate_pose,
     project_points,
-    render_board_image,
     rotation_from_vector,
     rotation_to_vector,
 )
 
 __all__ = [
+    "DEFAULT_MAX_INCIDENCE_DEG",
+    "DEFAULT_MAX_RESIDUAL_M",
+    "DEFAULT_MIN_VIEWS",
     "LightEstimate",
     "closest_point_to_rays",
     "reflect_highlights",
     "light_from_reflections",
-    "plate_highlight_region",
-    "find_plate_highlights",
-    "estimate_light",
-    "read_capture",
-    "calibrate_light_files",
-    "highlight_normal",
-    "plate_scene",
 ]
 
 #: Largest angle (degrees) between the plate normal and a camera's line of sight to the
 #: plate centre. Beyond it the pose and the reflected rays are too sensitive to errors.
 DEFAULT_MAX_INCIDENCE_DEG = 70.0
+
+
 #: Largest mean distance (metres) of the light to the reflected rays.
 DEFAULT_MAX_RESIDUAL_M = 0.01
+
+
 #: Views per capture that must show a usable highlight.
 DEFAULT_MIN_VIEWS = 2
+
+
 # Rays whose directions span less than this (smallest eigenvalue of sum(I - d d^T) per
 # ray) do not fix a point: they are parallel to within about a milliradian.
 _MIN_RAY_SPREAD = 1e-6
-# The highlight search keeps this far (metres, on the plate) from the plate edge, and
-# this fraction of a marker's side away from each marker (the marker's black edges
-# would otherwise pass for highlight gradients).
-_EDGE_MARGIN_FRACTION = 0.1
-_MARKER_MARGIN_FRACTION = 0.15
-# ...and this many pixels from both, once projected.
-_REGION_EROSION_PX = 2
+
+
 # Joint refinement: residual kinds are weighted by their RMS, re-estimated this many
 # times, and never taken below this (exact synthetic centres would get infinite weight).
 _REWEIGHT_ROUNDS = 2
 _MIN_SIGMA_PX = 0.01
-# A blob closer than this (pixels) to the search region's border beyond its own radius
-# is taken to be cut by it.
-_CLIP_MARGIN_PX = 1.0
 
 
 # ---------------------------------------------------------------------- the solve
@@ -553,485 +538,3 @@ def _rays(poses, centers, rig):
             f"highlights: expected at least 2 highlight rays over all captures, got {o.shape[0]}"
         )
     return o, np.concatenate(directions), np.concatenate(caps), np.concatenate(views)
-
-
-# ---------------------------------------------------------------------- highlights on the plate
-def _inset_outline(board: Board) -> np.ndarray:
-    w, h = board.plate_size_m
-    margin = _EDGE_MARGIN_FRACTION * board.marker_size_m
-    return np.array(
-        [
-            [-w / 2 + margin, -h / 2 + margin, 0.0],
-            [w / 2 - margin, -h / 2 + margin, 0.0],
-            [w / 2 - margin, h / 2 - margin, 0.0],
-            [-w / 2 + margin, h / 2 - margin, 0.0],
-        ]
-    )
-
-
-def _grown_markers(board: Board) -> np.ndarray:
-    corners = board.marker_corners_m
-    centre = corners.mean(axis=1, keepdims=True)
-    grow = _MARKER_MARGIN_FRACTION * board.marker_size_m * math.sqrt(2)
-    offset = corners - centre
-    return centre + offset * (1.0 + grow / np.linalg.norm(offset, axis=2, keepdims=True))
-
-
-def _fill(polygons_px: np.ndarray, size: tuple[int, int], values: Sequence[int]) -> np.ndarray:
-    w, h = size
-    out = np.zeros((h, w), np.int32)
-    # Sub-pixel polygon vertices through cv2's fixed-point shift.
-    shift = 4
-    for poly, value in zip(polygons_px, values, strict=True):
-        if not np.all(np.isfinite(poly)):
-            continue
-        pts = np.rint((poly + 0.0) * (1 << shift)).astype(np.int32)
-        cv2.fillConvexPoly(out, pts, int(value), lineType=cv2.LINE_8, shift=shift)
-    return out
-
-
-def _plate_maps(
-    rig: CameraRig, board: Board, pose: PlatePose, camera: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """(plate area inside the edge margin, marker labels 1..M with margins) in one view."""
-    outline = rig.project(pose.to_array(_inset_outline(board)), camera)
-    plate = _fill(outline[None], rig.image_size, [1]) > 0
-    markers = rig.project(pose.to_array(_grown_markers(board)), camera)
-    labels = _fill(markers, rig.image_size, range(1, len(board.markers) + 1))
-    return plate, labels
-
-
-def plate_highlight_region(
-    rig: CameraRig, board: Board, pose: PlatePose, camera: int
-) -> np.ndarray:
-    """Return where the highlight is searched in one view: the plate minus its markers.
-
-    Parameters
-    ----------
-    rig : CameraRig
-    board : Board
-    pose : PlatePose
-    camera : int
-        View index.
-
-    Returns
-    -------
-    numpy.ndarray, (H, W), bool
-        The plate inside a margin from its edge, without the markers and a margin
-        around them, eroded by a few pixels.
-    """
-    return _free_region(*_plate_maps(rig, board, pose, camera))
-
-
-def _free_region(plate: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    free = (plate & (labels == 0)).astype(np.uint8)
-    kernel = np.ones((2 * _REGION_EROSION_PX + 1,) * 2, np.uint8)
-    return cv2.erode(free, kernel).astype(bool)
-
-
-def _clipped_by(center_uv: np.ndarray, area_px: int, blocked: np.ndarray) -> bool:
-    """Whether a round blob of this area around ``center_uv`` reaches a blocked pixel."""
-    if not blocked.any():
-        return False
-    dist = cv2.distanceTransform((~blocked).astype(np.uint8), cv2.DIST_L2, 5)
-    h, w = blocked.shape
-    u = int(np.clip(round(center_uv[0]), 0, w - 1))
-    v = int(np.clip(round(center_uv[1]), 0, h - 1))
-    return float(dist[v, u]) < math.sqrt(max(area_px, 1) / math.pi) + _CLIP_MARGIN_PX
-
-
-def _find_one(
-    view: np.ndarray,
-    rig: CameraRig,
-    board: Board,
-    pose: PlatePose,
-    camera: int,
-    detector_options: dict[str, Any],
-) -> tuple[np.ndarray | None, str]:
-    from ..srde import detect_highlight
-
-    name = rig.camera_names[camera]
-    plate, labels = _plate_maps(rig, board, pose, camera)
-    region = _free_region(plate, labels)
-    det = detect_highlight(view, region, encoding=rig.image_encoding, **detector_options)
-    if det.found:
-        center = np.asarray(det.center_uv, dtype=np.float64)
-        # A blob cut by a marker or by the plate edge has a biased centre: drop the view.
-        if _clipped_by(center, det.area_px, labels > 0):
-            near = _nearest_marker(center, labels, board)
-            return None, f"{name}: highlight partly under marker {near}"
-        if _clipped_by(center, det.area_px, ~plate):
-            return None, f"{name}: highlight cut by the plate edge"
-        return center, ""
-    # Nothing in the free area: is the highlight on a marker, or absent?
-    det_all = detect_highlight(view, plate, encoding=rig.image_encoding, **detector_options)
-    if det_all.found:
-        h, w = labels.shape
-        u, v = np.clip(np.rint(det_all.center_uv).astype(int), 0, (w - 1, h - 1))
-        # Only a centre on a marker counts: glow of a highlight beside the plate also
-        # brightens the plate near its edge, next to the corner markers.
-        if labels[v, u] > 0:
-            return None, f"{name}: highlight under marker {board.markers[labels[v, u] - 1].id}"
-    return None, f"{name}: no highlight on the plate ({det.reason})"
-
-
-def _nearest_marker(center_uv: np.ndarray, labels: np.ndarray, board: Board) -> int:
-    v, u = np.nonzero(labels)
-    k = int(np.argmin((u - center_uv[0]) ** 2 + (v - center_uv[1]) ** 2))
-    return int(board.markers[labels[v[k], u[k]] - 1].id)
-
-
-def find_plate_highlights(
-    views: Sequence[np.ndarray],
-    rig: CameraRig,
-    board: Board,
-    pose: PlatePose,
-    *,
-    method: str = "blob",
-    **detector_options: Any,
-) -> tuple[np.ndarray, tuple[str, ...]]:
-    """Find the highlight centre on the plate in each view.
-
-    Each view is searched inside :func:`plate_highlight_region`. A highlight that
-    reaches a marker or the plate edge is not used (its centre would be biased); one
-    found only on a marker is reported as hidden under it.
-
-    Parameters
-    ----------
-    views : sequence of numpy.ndarray, (H, W, 3) or (H, W)
-        One image per rig camera.
-    rig : CameraRig
-    board : Board
-    pose : PlatePose
-    method : {"blob", "paper"}
-        Highlight detector (:func:`srde_fusion.srde.highlight.detect_highlight`).
-    **detector_options
-        Further keyword options of the detector.
-
-    Returns
-    -------
-    centers_px : numpy.ndarray, (N, 2), float64
-        ``(u, v)`` per view; NaN where the view has no usable highlight.
-    reasons : tuple of str
-        Per view, ``""`` or why there is no centre.
-    """
-    views = check_views(views, rig.n_cameras, rig.image_size)
-    options = {"method": method, **detector_options}
-    centers = np.full((rig.n_cameras, 2), np.nan)
-    reasons = []
-    for i, view in enumerate(views):
-        center, reason = _find_one(view, rig, board, pose, i, options)
-        if center is not None:
-            centers[i] = center
-        reasons.append(reason)
-    return centers, tuple(reasons)
-
-
-# ---------------------------------------------------------------------- the whole calibration
-def read_capture(folder: str | os.PathLike, rig: CameraRig) -> list[np.ndarray]:
-    """Read the views of one plate capture: one image per camera, named after it.
-
-    A scene folder works too (its ``rig.json`` and other files are ignored).
-
-    Raises
-    ------
-    FileFormatError
-        A missing folder, or a camera without exactly one image.
-    """
-    from ..io import IMAGE_EXTENSIONS, read_image
-
-    root = Path(folder)
-    if not root.is_dir():
-        raise FileFormatError(f"capture folder: expected an existing folder, got {str(root)!r}")
-    views = []
-    for name in rig.camera_names:
-        found = [
-            root / f"{name}{ext}" for ext in IMAGE_EXTENSIONS if (root / f"{name}{ext}").is_file()
-        ]
-        if len(found) != 1:
-            raise FileFormatError(
-                f"{root}: expected one image {name}.<{'|'.join(e[1:] for e in IMAGE_EXTENSIONS)}> "
-                f"for camera {name}, got {len(found)}"
-            )
-        views.append(read_image(found[0]))
-    return views
-
-
-def estimate_light(
-    captures: Sequence[Any],
-    rig: CameraRig,
-    board: Board,
-    *,
-    method: str = "blob",
-    refine: bool = True,
-    min_views: int = DEFAULT_MIN_VIEWS,
-    min_marker_views: int = 1,
-    max_incidence_deg: float = DEFAULT_MAX_INCIDENCE_DEG,
-    max_residual_m: float = DEFAULT_MAX_RESIDUAL_M,
-    max_reprojection_px: float = DEFAULT_MAX_REPROJECTION_PX,
-    **detector_options: Any,
-) -> LightEstimate:
-    """Calibrate the light from one or more captures of the ArUco plate.
-
-    For each capture: the plate pose from the markers of all views; the highlight
-    centre on the plate in each view; its reflected ray. Then one least-squares point
-    for the rays of all captures, refined jointly with the plate poses
-    (:func:`light_from_reflections`).
-
-    Parameters
-    ----------
-    captures : sequence of (sequence of images, or folder path)
-        Each capture is the N views of one plate pose (``(H, W, 3)`` uint8 RGB or
-        floats in [0, 1], rig order), or a folder holding one image per camera named
-        after it.
-    rig : CameraRig
-    board : Board
-    method : {"blob", "paper"}
-        Highlight detector.
-    refine : bool
-        Refine light and plate poses jointly after the ray intersection.
-    min_views : int
-        Views per capture that must yield a highlight ray.
-    min_marker_views : int
-        Views per capture that must show markers.
-    max_incidence_deg : float
-        Largest angle between plate normal and a camera's line of sight.
-    max_residual_m : float
-        Largest accepted mean distance of the light to the rays, metres.
-    max_reprojection_px : float
-        Largest accepted RMS marker reprojection error of a plate pose, pixels.
-    **detector_options
-        Further options of :func:`srde_fusion.srde.highlight.detect_highlight`.
-
-    Returns
-    -------
-    LightEstimate
-
-    Raises
-    ------
-    LightError
-        Markers in too few views (with the count per view), a plate nearly edge-on,
-        too few views with a usable highlight (with the reason per view: none on the
-        plate, under a marker, cut by the edge), or inconsistent rays.
-    ImageError, FileFormatError
-        Views that do not fit the rig, or unreadable capture folders.
-    """
-    if not isinstance(rig, CameraRig):
-        raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
-    if not isinstance(board, Board):
-        raise LightError(f"board: expected a Board, got {type(board).__name__}")
-    if (
-        isinstance(captures, (str, os.PathLike))
-        or not isinstance(captures, Sequence)
-        or not captures
-    ):
-        raise LightError(
-            f"captures: expected a non-empty list of captures (each a list of views "
-            f"or a folder), got {type(captures).__name__} {captures!r:.80}"
-        )
-    if isinstance(min_views, bool) or not isinstance(min_views, int) or min_views < 1:
-        raise LightError(f"min_views: expected a positive integer, got {min_views!r}")
-    max_incidence_deg = _check_positive(max_incidence_deg, "max_incidence_deg")
-    max_residual_m = _check_positive(max_residual_m, "max_residual_m")
-    poses, centers, reasons = [], [], []
-    for c, capture in enumerate(captures):
-        label = f"capture {c}" + (
-            f" ({capture})" if isinstance(capture, (str, os.PathLike)) else ""
-        )
-        views = read_capture(capture, rig) if isinstance(capture, (str, os.PathLike)) else capture
-        views = check_views(views, rig.n_cameras, rig.image_size)
-        try:
-            pose = estimate_plate_pose(
-                views,
-                rig,
-                board,
-                min_views=min_marker_views,
-                max_reprojection_px=max_reprojection_px,
-            )
-        except LightError as exc:
-            raise LightError(f"{label}: {exc}") from None
-        _incidence_check(pose, rig, pose.views_used, max_incidence_deg, label)
-        found, why = find_plate_highlights(
-            views, rig, board, pose, method=method, **detector_options
-        )
-        n_found = int(np.all(np.isfinite(found), axis=1).sum())
-        if n_found < min_views:
-            details = "; ".join(r for r in why if r)
-            raise LightError(
-                f"{label}: expected a usable highlight on the plate in at least "
-                f"{min_views} views, got {n_found}: {details}"
-            )
-        poses.append(pose)
-        centers.append(found)
-        reasons.append(why)
-    return light_from_reflections(
-        poses,
-        centers,
-        rig,
-        refine=refine,
-        view_reasons=reasons,
-        max_incidence_deg=max_incidence_deg,
-        max_residual_m=max_residual_m,
-    )
-
-
-def calibrate_light_files(
-    capture_dirs: Sequence[str | os.PathLike],
-    board_path: str | os.PathLike,
-    rig_path: str | os.PathLike,
-    *,
-    write: bool = True,
-    **options: Any,
-) -> tuple[LightEstimate, CameraRig]:
-    """Calibrate from capture folders and store the light in ``rig.json``.
-
-    The previous ``rig.json`` is kept as ``rig.json.bak``.
-
-    Parameters
-    ----------
-    capture_dirs : sequence of path
-        One folder per plate pose, one image per camera named after it.
-    board_path : path
-        The plate's ``board.json``.
-    rig_path : path
-        The rig's ``rig.json``; rewritten with the light when ``write`` is true.
-    write : bool
-        Whether to write the light into ``rig_path``.
-    **options
-        Keyword options of :func:`estimate_light`.
-
-    Returns
-    -------
-    (LightEstimate, CameraRig)
-        The estimate and the rig with the light set.
-    """
-    rig = CameraRig.from_json(rig_path)
-    board = Board.from_json(board_path)
-    estimate = estimate_light(list(capture_dirs), rig, board, **options)
-    new_rig = rig.with_light(estimate.position_m)
-    if write:
-        path = Path(rig_path)
-        shutil.copy2(path, path.with_name(path.name + ".bak"))
-        new_rig.to_json(path)
-    return estimate, new_rig
-
-
-# ---------------------------------------------------------------------- synthetic plates
-def highlight_normal(point_m: Any, light_m: Any, camera_m: Any = (0.0, 0.0, 0.0)) -> np.ndarray:
-    """Return the plate normal that puts the highlight at ``point_m`` seen from ``camera_m``.
-
-    The mirror normal is the half vector between the directions to the light and to
-    the camera.
-
-    Returns
-    -------
-    numpy.ndarray, (3,)
-        Unit normal, pointing towards the camera side.
-
-    Examples
-    --------
-    >>> highlight_normal([0, 0, 1.0], [0, -1.0, 1.0], [0, 0, 0]).round(4).tolist()
-    [0.0, -0.7071, -0.7071]
-    """
-    p = check_point3(point_m, "point_m")
-    to_light = check_point3(light_m, "light_m") - p
-    to_camera = check_point3(camera_m, "camera_m") - p
-    half = to_light / np.linalg.norm(to_light) + to_camera / np.linalg.norm(to_camera)
-    norm = np.linalg.norm(half)
-    if norm < 1e-9:
-        raise LightError(
-            "light_m: expected a light not exactly behind the point as seen from the "
-            "camera, got opposite directions"
-        )
-    return half / norm
-
-
-#: Linear level of the white plate (diffuse, at its centre) that ``plate_scene`` exposes for.
-PLATE_WHITE_LEVEL = 0.3
-
-
-def plate_scene(
-    board: Board,
-    rig: CameraRig,
-    light_position_m: Any,
-    *,
-    center_m: Any,
-    normal: Any = None,
-    rotation_rad: float = 0.0,
-    texture_dpi: float = 100.0,
-    albedo: float = 0.8,
-    roughness: float = 0.005,
-    light_radius_m: float = 0.003,
-    ambient: float = 0.05,
-    noise_std: float = 0.0,
-):
-    """Build a synthetic scene of the calibration plate lit by a small light.
-
-    The plate is a glossy white rectangle of ``board.plate_size_m`` carrying the
-    board's markers as texture; its local axes are those of
-    :meth:`PlatePose.from_center_normal` with the same arguments, which is therefore
-    its true pose. The exposure puts the white plate at a fixed linear level, so the
-    highlight clips as on a real camera.
-
-    Parameters
-    ----------
-    board : Board
-    rig : CameraRig
-    light_position_m : array_like, (3,)
-        The light, array frame, metres.
-    center_m : array_like, (3,)
-        Plate centre, array frame, metres.
-    normal : array_like, (3,), optional
-        Normal of the printed side; by default the one that puts the highlight at the
-        plate centre as seen from the reference camera (:func:`highlight_normal`).
-    rotation_rad : float
-        In-plane rotation of the plate.
-    texture_dpi : float
-        Resolution of the marker texture.
-    albedo : float
-        Diffuse albedo of the white plate, in [0, 1].
-    roughness : float
-        Specular lobe width (GGX alpha).
-    light_radius_m : float
-        Radius of the spherical light.
-    ambient : float
-        Ambient radiance per unit albedo, relative to the plate's direct light.
-    noise_std : float
-        Sensor noise, linear units.
-
-    Returns
-    -------
-    srde_fusion.synthetic.scenes.Scene
-    """
-    from ..synthetic import Light, Material, PlanarObject, Scene
-
-    light = check_point3(light_position_m, "light_position_m")
-    center = check_point3(center_m, "center_m")
-    n = (
-        highlight_normal(center, light, rig.reference_center_m)
-        if normal is None
-        else check_point3(normal, "normal")
-    )
-    texture = render_board_image(board, texture_dpi)
-    plate = PlanarObject(
-        "rectangle",
-        tuple(center),
-        tuple(n),
-        board.plate_size_m,
-        rotation_rad=rotation_rad,
-        material=Material(diffuse_rgb=(albedo,) * 3, roughness=roughness),
-        texture=texture,
-    )
-    to_light = light - center
-    dist2 = float(to_light @ to_light)
-    cos_l = abs(float(to_light @ np.asarray(plate.normal))) / math.sqrt(dist2)
-    # Diffuse radiance of the white plate per unit exposure (the renderer's Lambert term).
-    direct = albedo / math.pi * cos_l / dist2
-    exposure = PLATE_WHITE_LEVEL / (direct * (1.0 + ambient))
-    return Scene(
-        (plate,),
-        Light(tuple(light), radius_m=light_radius_m),
-        ambient=ambient * direct,
-        exposure=exposure,
-        noise_std=noise_std,
-    )

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from ..calibration import Board, write_board
-from ..calibration.light import (
+from ..calibration import (
     DEFAULT_MAX_INCIDENCE_DEG,
     DEFAULT_MAX_RESIDUAL_M,
     DEFAULT_MIN_VIEWS,
+    Board,
     calibrate_light_files,
+    write_board,
 )
 
 __all__ = ["register"]

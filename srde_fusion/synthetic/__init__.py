@@ -5,7 +5,23 @@ Imports ``geometry``, ``imaging``, ``calibration`` (printed plates) and ``io``.
 
 from __future__ import annotations
 
-from .scenes import (
+from .datasets import (
+    default_rig,
+    render_dataset,
+    scene_from_dict,
+    scene_to_dict,
+)
+from .plates import (
+    highlight_normal,
+    plate_scene,
+)
+from .random_scenes import (
+    random_scene,
+)
+from .render import (
+    render,
+)
+from .scene import (
     BACKGROUNDS,
     SHAPES,
     Light,
@@ -13,13 +29,6 @@ from .scenes import (
     PlanarObject,
     Rendering,
     Scene,
-    SceneError,
-    default_rig,
-    random_scene,
-    render,
-    render_dataset,
-    scene_from_dict,
-    scene_to_dict,
 )
 from .shading import (
     LOBES,
@@ -32,18 +41,19 @@ from .shading import (
 )
 
 __all__ = [
-    "SceneError",
+    "default_rig",
+    "render_dataset",
+    "scene_to_dict",
+    "scene_from_dict",
+    "highlight_normal",
+    "plate_scene",
+    "random_scene",
+    "render",
     "Material",
     "PlanarObject",
     "Light",
     "Scene",
     "Rendering",
-    "render",
-    "random_scene",
-    "default_rig",
-    "render_dataset",
-    "scene_to_dict",
-    "scene_from_dict",
     "SHAPES",
     "BACKGROUNDS",
     "LOBES",

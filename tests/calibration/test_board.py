@@ -19,15 +19,13 @@ from srde_fusion.calibration import (
     PlatePose,
     detect_markers,
     estimate_plate_pose,
-    highlight_normal,
-    plate_scene,
     project_points,
     render_board_image,
     write_board,
 )
 from srde_fusion.cli import main
 from srde_fusion.errors import BoardError, LightError
-from srde_fusion.synthetic import PlanarObject, render
+from srde_fusion.synthetic import PlanarObject, highlight_normal, plate_scene, render
 
 LIGHT_M = np.array([0.15, -0.35, 0.1])
 # Tolerances measured on renderings with 2x2 supersampling (see test bodies).

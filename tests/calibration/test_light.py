@@ -18,10 +18,8 @@ from srde_fusion.calibration import (
     estimate_light,
     estimate_plate_pose,
     find_plate_highlights,
-    highlight_normal,
     light_from_reflections,
     plate_highlight_region,
-    plate_scene,
     read_capture,
     reflect_highlights,
 )
@@ -29,7 +27,7 @@ from srde_fusion.cli import main
 from srde_fusion.errors import FileFormatError, LightError
 from srde_fusion.geometry import CameraRig
 from srde_fusion.io import write_image
-from srde_fusion.synthetic import render
+from srde_fusion.synthetic import highlight_normal, plate_scene, render
 
 # The light sits about 1 m from the plates (the paper: 1.15 m).
 LIGHT_M = np.array([0.15, -0.35, 0.1])

@@ -324,7 +324,7 @@ def test_light_comes_from_the_rig(rig):
 
 
 # ---------------------------------------------------------------------------- rendered scenes
-scenes = pytest.importorskip("srde_fusion.synthetic.scenes")
+scenes = pytest.importorskip("srde_fusion.synthetic")
 
 #: Masked EPE bounds on rendered sharp-lobe scenes (the paper reports 0.029 px mean).
 SHARP_EPE_MEAN_PX = 0.015

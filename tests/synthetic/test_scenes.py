@@ -4,7 +4,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from srde_fusion import CameraRig, LightError, RigError, SRDEError
+from srde_fusion import CameraRig, LightError, RigError, SceneError, SRDEError
 from srde_fusion.geometry import plane_disparity
 from srde_fusion.imaging import luminance
 from srde_fusion.synthetic import (
@@ -12,7 +12,6 @@ from srde_fusion.synthetic import (
     Material,
     PlanarObject,
     Scene,
-    SceneError,
     random_scene,
     render,
     scene_from_dict,

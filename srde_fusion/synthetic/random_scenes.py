@@ -1,0 +1,424 @@
+"""Random scenes under the paper's conditions (Methods, synthetic data).
+
+Textureless objects of random shape, colour, size and pose; one light of random size,
+colour and intensity that no camera sees directly; every object's highlight inside the
+object in every view. Deterministic from a seed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+from scipy import ndimage
+
+from ..errors import SceneError
+from ..geometry import CameraRig
+from ..imaging import REC709_LUMA
+from .render import _cast, _shade_points
+from .scene import (
+    BACKGROUNDS,
+    SHAPES,
+    Light,
+    Material,
+    PlanarObject,
+    Scene,
+    _check_rig,
+    _finite,
+    _range,
+)
+from .shading import LOBES
+from .surfaces import _background_surfaces, _surface
+
+__all__ = [
+    "random_scene",
+]
+
+# ---------------------------------------------------------------------------------- sampling
+def _light_visible(
+    position_m: np.ndarray, radius_m: float, rig: CameraRig, *, margin_px: float = 2.0
+) -> bool:
+    """Whether any camera could image any part of the light sphere directly."""
+    k = rig.intrinsics
+    w, h = rig.image_size
+    for c in rig.centers_m:
+        rel = position_m - c
+        if rel[2] + radius_m <= 0.0:
+            continue  # entirely behind the camera plane
+        if rel[2] - radius_m <= 1e-3:
+            return True  # straddles the camera plane: inside the frustum for all we know
+        u = k.fx * rel[0] / rel[2] + k.cx
+        v = k.fy * rel[1] / rel[2] + k.cy
+        r_px = max(k.fx, k.fy) * radius_m / (rel[2] - radius_m) + margin_px
+        if -r_px - 0.5 < u < w - 0.5 + r_px and -r_px - 0.5 < v < h - 0.5 + r_px:
+            return True
+    return False
+
+
+def _mirror_points_local(
+    obj: PlanarObject, light_m: np.ndarray, rig: CameraRig
+) -> np.ndarray | None:
+    """Local coordinates ``(N, 2)`` of the mirror point seen by each camera (None = none)."""
+    plane = obj.plane
+    virtual = plane.mirror(light_m)
+    centers = rig.centers_m
+    toward = virtual - centers
+    denom = toward @ plane.n
+    if np.any(np.abs(denom) < 1e-12):
+        return None
+    s = (plane.offset_m - centers @ plane.n) / denom
+    if np.any((s <= 0) | (s >= 1)):
+        return None
+    return obj.local_coords(centers + s[:, None] * toward)
+
+
+def _random_outline(rng: np.random.Generator, shape: str, w: float, h: float) -> tuple | None:
+    """Convex local vertices inside the ``w x h`` box for triangles and polygons."""
+    if shape == "triangle":
+        # Three angles at least 80 degrees apart keep the triangle fat enough to hold
+        # a highlight that moves across the array.
+        base = rng.uniform(0, 2 * np.pi)
+        gaps = rng.dirichlet([4.0, 4.0, 4.0]) * (2 * np.pi - 3 * np.radians(80)) + np.radians(80)
+        angles = base + np.concatenate([[0.0], np.cumsum(gaps[:2])])
+    elif shape == "polygon":
+        count = int(rng.integers(5, 9))
+        # Jittered regular angles: convex (points on an ellipse) and never a sliver.
+        angles = np.sort(
+            np.mod(
+                np.linspace(0, 2 * np.pi, count, endpoint=False)
+                + rng.uniform(-0.25, 0.25, size=count) * 2 * np.pi / count
+                + rng.uniform(0, 2 * np.pi),
+                2 * np.pi,
+            )
+        )
+    else:
+        return None
+    pts = np.column_stack([w / 2 * np.cos(angles), h / 2 * np.sin(angles)])
+    return tuple(map(tuple, pts))
+
+
+def _random_color(rng: np.random.Generator) -> tuple[float, float, float]:
+    hue = rng.uniform(0.0, 1.0)
+    sat = rng.uniform(0.0, 0.9)
+    value = rng.uniform(0.15, 0.7)
+    rgb = np.clip(np.abs(np.mod(hue * 6.0 + np.array([0.0, 4.0, 2.0]), 6.0) - 3.0) - 1.0, 0, 1)
+    return tuple(float(c) for c in value * (1.0 - sat + sat * rgb))
+
+
+def _diffuse_unit(
+    obj: PlanarObject, point_m: np.ndarray, light: Light, ambient: float
+) -> tuple[float, float]:
+    """(direct, ambient) luminance of the diffuse term at a point, per unit exposure."""
+    to_light = np.asarray(light.position_m) - point_m
+    dist2 = float(to_light @ to_light)
+    cos_l = max(0.0, float(to_light @ np.asarray(obj.normal)) / math.sqrt(dist2))
+    albedo = float(np.dot(obj.material.diffuse_rgb, REC709_LUMA))
+    color = float(np.dot(light.color_rgb, REC709_LUMA))
+    return albedo / np.pi * light.intensity * cos_l / dist2 * color, ambient * albedo
+
+
+def _specular_peak(obj: PlanarObject, light: Light, rig: CameraRig) -> float:
+    """Luminance of the specular lobe at the reference mirror point, per unit exposure."""
+    local = _mirror_points_local(obj, np.asarray(light.position_m), rig)
+    eye = rig.reference_center_m
+    rel = obj.to_world(local[rig.reference]) - eye
+    surf = _surface(replace(obj, material=replace(obj.material, diffuse_rgb=(0.0, 0.0, 0.0))), 1)
+    radiance = _shade_points(
+        surf,
+        np.array([rel[0] / rel[2]]),
+        np.array([rel[1] / rel[2]]),
+        np.array([rel[2]]),
+        eye,
+        Scene((obj,), light, ambient=0.0),
+    )
+    return float(radiance[0] @ REC709_LUMA)
+
+
+def random_scene(
+    seed: int,
+    rig: CameraRig,
+    *,
+    n_objects: int = 1,
+    background: str = "none",
+    lobe: str = "ggx",
+    roughness: tuple[float, float] | float = (0.005, 0.03),
+    light_radius_m: tuple[float, float] | float = (0.002, 0.01),
+    distance_m: tuple[float, float] = (0.6, 1.4),
+    max_tilt_deg: float = 30.0,
+    size_m: tuple[float, float] = (0.15, 0.4),
+    shapes: Sequence[str] = SHAPES,
+    highlight_margin_m: float = 0.02,
+    light_offset_m: tuple[float, float] = (0.1, 0.6),
+    clip_ratio: tuple[float, float] | float = (1.5, 4.0),
+    diffuse_level: tuple[float, float] | float = (0.03, 0.12),
+    noise_std: float = 0.002,
+    max_attempts: int = 2000,
+) -> Scene:
+    """Sample a scene under the paper's conditions, deterministically from ``seed``.
+
+    One light is placed beside or behind the array, outside every camera's field of
+    view. Each object is then placed so that the light's mirror reflection reaches the
+    array: a reference-view point on the object is drawn, the object's normal is the
+    bisector of the directions to the reference camera and to the light there, and the
+    object is accepted only if its mirror point (where the line from each camera centre
+    to the virtual light crosses the plane) lies inside its outline, at least
+    ``highlight_margin_m`` from the edge, in every view, unoccluded; if its normal is
+    within ``max_tilt_deg`` of the optical axis; if every view sees the whole object; and,
+    for several objects, if the objects do not overlap in the reference view.
+    The exposure puts the objects' diffuse shading at ``diffuse_level`` (linear) and the
+    specular scale makes the highlight core ``clip_ratio`` times the clipping level.
+
+    Parameters
+    ----------
+    seed : int
+        Seed; the same seed and rig give the same scene.
+    rig : CameraRig
+    n_objects : int
+        Number of objects, each with its own highlight.
+    background : {"none", "textured"}
+    lobe : {"ggx", "blinn_phong"}
+        Specular lobe of every object.
+    roughness, light_radius_m : float or (float, float)
+        Lobe roughness and light radius (metres), fixed or uniform in a range.
+    distance_m : (float, float)
+        Depth range of the reference mirror point, metres.
+    max_tilt_deg : float
+        Largest angle between an object's normal and the optical axis.
+    size_m : (float, float)
+        Range of the larger object extent, metres (the other is 0.6-1 times it).
+    shapes : sequence of str
+        Shapes to draw from.
+    highlight_margin_m : float
+        Smallest distance from every view's mirror point to the object's edge.
+    light_offset_m : (float, float)
+        Range of the light's lateral distance beyond the array's extent, metres.
+    clip_ratio : float or (float, float)
+        Highlight peak over the clipping level (> 1 clips).
+    diffuse_level : float or (float, float)
+        Linear level of the objects' diffuse shading (0.03-0.12 is mid-dark in sRGB).
+    noise_std : float
+        Sensor noise of the scene (linear units).
+    max_attempts : int
+        Light placements to try before giving up.
+
+    Returns
+    -------
+    Scene
+        Build the rig that knows the light with ``rig.with_light(scene.light.position_m)``.
+
+    Raises
+    ------
+    SceneError
+        Invalid options, or no valid scene found in ``max_attempts`` tries.
+
+    Examples
+    --------
+    >>> rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, image_size=(640, 480))
+    >>> scene = random_scene(3, rig)
+    >>> len(scene.objects), scene == random_scene(3, rig)
+    (1, True)
+    """
+    rig = _check_rig(rig)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SceneError(f"seed: expected a non-negative integer, got {seed!r}")
+    if isinstance(n_objects, bool) or not isinstance(n_objects, (int, np.integer)) or n_objects < 1:
+        raise SceneError(f"n_objects: expected a positive integer, got {n_objects!r}")
+    if background not in BACKGROUNDS:
+        raise SceneError(f"background: expected one of {list(BACKGROUNDS)}, got {background!r}")
+    if lobe not in LOBES:
+        raise SceneError(f"lobe: expected one of {list(LOBES)}, got {lobe!r}")
+    rough = _range(roughness, "roughness", low=0.0, high=1.0)
+    radius = _range(light_radius_m, "light_radius_m", low=0.0, low_open=False)
+    dist = _range(distance_m, "distance_m", low=0.0)
+    sizes = _range(size_m, "size_m", low=0.0)
+    offsets = _range(light_offset_m, "light_offset_m", low=0.0, low_open=False)
+    clip = _range(clip_ratio, "clip_ratio", low=0.0)
+    level = _range(diffuse_level, "diffuse_level", low=0.0, high=1.0)
+    max_tilt = _finite(max_tilt_deg, "max_tilt_deg", low=0.0, low_open=True, high=89.0)
+    margin = _finite(highlight_margin_m, "highlight_margin_m", low=0.0)
+    noise = _finite(noise_std, "noise_std", low=0.0)
+    shapes = tuple(shapes) if not isinstance(shapes, str) else (shapes,)
+    bad = [s for s in shapes if s not in SHAPES]
+    if not shapes or bad:
+        raise SceneError(
+            f"shapes: expected a non-empty subset of {list(SHAPES)}, got {list(shapes)}"
+        )
+    if (
+        isinstance(max_attempts, bool)
+        or not isinstance(max_attempts, (int, np.integer))
+        or max_attempts < 1
+    ):
+        raise SceneError(f"max_attempts: expected a positive integer, got {max_attempts!r}")
+
+    rng = np.random.default_rng(seed)
+    k = rig.intrinsics
+    w_px, h_px = rig.image_size
+    ref = rig.reference
+    ref_center = rig.reference_center_m
+    array_center = rig.centers_m.mean(axis=0)
+    extent = float(np.max(np.linalg.norm(rig.centers_m - array_center, axis=1)))
+    xs = (np.arange(w_px) - k.cx) / k.fx
+    ys = (np.arange(h_px) - k.cy) / k.fy
+
+    def sample_light() -> Light | None:
+        phi = rng.uniform(0, 2 * np.pi)
+        lateral = extent + rng.uniform(*offsets)
+        pos = array_center + np.array(
+            [lateral * math.cos(phi), lateral * math.sin(phi), rng.uniform(-0.3, 0.15)]
+        )
+        r = rng.uniform(*radius)
+        if (
+            _light_visible(pos, r, rig)
+            or np.min(np.linalg.norm(rig.centers_m - pos, axis=1)) < 0.05
+        ):
+            return None
+        tint = rng.uniform(0.75, 1.0, size=3)
+        return Light(tuple(pos), r, tuple(tint / tint.max()), rng.uniform(0.5, 2.0))
+
+    def sample_object(
+        light: Light, placed: list[PlanarObject], ref_masks: list[np.ndarray]
+    ) -> tuple[PlanarObject, np.ndarray] | None:
+        light_m = np.asarray(light.position_m)
+        z = rng.uniform(*dist)
+        uv = rng.uniform([0.2 * w_px, 0.2 * h_px], [0.8 * w_px, 0.8 * h_px])
+        p0 = rig.backproject(uv, z)
+        to_cam = ref_center - p0
+        to_light = light_m - p0
+        normal = to_cam / np.linalg.norm(to_cam) + to_light / np.linalg.norm(to_light)
+        normal /= np.linalg.norm(normal)
+        if math.degrees(math.acos(min(1.0, -normal[2]))) > max_tilt:
+            return None
+        shape = shapes[rng.integers(len(shapes))]
+        big = rng.uniform(*sizes)
+        w, h = (big, big * rng.uniform(0.6, 1.0))[:: 1 if rng.random() < 0.5 else -1]
+        mat = Material(
+            diffuse_rgb=_random_color(rng),
+            specular=1.0,
+            roughness=rng.uniform(*rough),
+            lobe=lobe,
+            f0=rng.uniform(0.03, 0.06),
+        )
+        probe = PlanarObject(
+            shape,
+            tuple(p0),
+            tuple(normal),
+            (w, h),
+            rng.uniform(0, 2 * np.pi),
+            _random_outline(rng, shape, w, h),
+            mat,
+        )
+        # Put the reference mirror point near the middle of the outline.
+        e1, e2 = probe.axes
+        shift = rng.uniform(-0.15, 0.15, size=2) * np.array([w, h])
+        obj = replace(probe, center_m=tuple(p0 - shift[0] * e1 - shift[1] * e2))
+        local = _mirror_points_local(obj, light_m, rig)
+        if local is None or obj.inner_distance_m(local).min() < margin:
+            return None
+        for cam in range(rig.n_cameras):
+            rel = obj.to_world(obj.outline_local()) - rig.centers_m[cam]
+            if rel[:, 2].min() <= 0.05:
+                return None
+            u = k.fx * rel[:, 0] / rel[:, 2] + k.cx
+            v = k.fy * rel[:, 1] / rel[:, 2] + k.cy
+            if u.min() < 2 or v.min() < 2 or u.max() > w_px - 3 or v.max() > h_px - 3:
+                return None
+        surf = _surface(obj, 1)
+        _, index = _cast([surf], rig, ref, xs, ys)
+        mask = index == 0
+        if not mask.any():
+            return None
+
+        grown = ndimage.binary_dilation(mask, iterations=3)
+        if any((grown & m).any() for m in ref_masks):
+            return None
+        # No object may hide another's highlight in any view.
+        everyone = placed + [obj]
+        for a in everyone:
+            mirror = a.to_world(_mirror_points_local(a, light_m, rig))
+            for b in everyone:
+                if b is a:
+                    continue
+                if _occludes(b, rig.centers_m, mirror):
+                    return None
+        return obj, mask
+
+    for _ in range(max_attempts):
+        light = sample_light()
+        if light is None:
+            continue
+        placed: list[PlanarObject] = []
+        masks: list[np.ndarray] = []
+        for _ in range(n_objects):
+            for _ in range(60):
+                found = sample_object(light, placed, masks)
+                if found is not None:
+                    placed.append(found[0])
+                    masks.append(found[1])
+                    break
+            else:
+                break
+        if len(placed) == n_objects:
+            break
+    else:
+        raise SceneError(
+            f"random_scene: expected to find a valid scene in {max_attempts} attempts, got none; "
+            "widen size_m, distance_m or max_tilt_deg, or lower highlight_margin_m"
+        )
+
+    ambient = 0.02
+    base = Scene(
+        tuple(placed),
+        light,
+        ambient=ambient,
+        background=background,
+        background_seed=int(rng.integers(0, 2**31 - 1)),
+        noise_std=noise,
+    )
+    target = rng.uniform(*level)
+    mirror_points = [
+        o.to_world(_mirror_points_local(o, np.asarray(light.position_m), rig)[ref]) for o in placed
+    ]
+    direct_o, amb_o = np.mean(
+        [_diffuse_unit(o, p, light, 1.0) for o, p in zip(placed, mirror_points, strict=True)],
+        axis=0,
+    )
+    if background == "textured":
+        # Solve exposure and ambient so that objects sit at `target` and the textured
+        # background around 1.5-3x brighter: a stereo network needs to see its texture.
+        wall = _background_surfaces(base, rig, with_textures=False)[0]
+        wall_obj = replace(wall.shape, material=Material(diffuse_rgb=(0.5, 0.5, 0.5), specular=0.0))
+        direct_b, amb_b = _diffuse_unit(wall_obj, wall.center_m, light, 1.0)
+        target_b = target * rng.uniform(1.5, 3.0)
+        system = np.array([[direct_o, amb_o], [direct_b, amb_b]])
+        exposure, exposed_ambient = np.linalg.solve(system, [target, target_b])
+        if exposed_ambient < 0 or exposure <= 0:
+            exposure, exposed_ambient = target / (direct_o + ambient * amb_o), 0.0
+            exposed_ambient = ambient * exposure
+        ambient = exposed_ambient / exposure
+    else:
+        exposure = target / (direct_o + ambient * amb_o)
+    scene = replace(base, ambient=float(ambient), exposure=float(exposure))
+    # The specular scale sets the highlight core to `ratio` times the clipping level, so
+    # clipped highlights have a controlled size whatever the albedo and roughness.
+    ratio = rng.uniform(*clip)
+    scaled = []
+    for obj in placed:
+        peak = _specular_peak(obj, light, rig) * exposure
+        scaled.append(replace(obj, material=replace(obj.material, specular=float(ratio / peak))))
+    return replace(scene, objects=tuple(scaled))
+
+
+def _occludes(obj: PlanarObject, centers_m: np.ndarray, points_m: np.ndarray) -> bool:
+    """Whether ``obj`` cuts any segment from ``centers_m[i]`` to ``points_m[i]``."""
+    plane = obj.plane
+    toward = points_m - centers_m
+    denom = toward @ plane.n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (plane.offset_m - centers_m @ plane.n) / denom
+    hit = np.isfinite(s) & (s > 0) & (s < 1)
+    if not hit.any():
+        return False
+    crossing = centers_m[hit] + s[hit, None] * toward[hit]
+    return bool(obj.contains(crossing).any())
