@@ -9,16 +9,8 @@ from .board import (
     BOARD_FORMAT,
     Board,
     BoardMarker,
-    MarkerDetection,
-    PlatePose,
     aruco_dictionary,
-    detect_markers,
-    estimate_plate_pose,
-    pose_from_detections,
-    project_points,
     render_board_image,
-    rotation_from_vector,
-    rotation_to_vector,
     write_board,
 )
 from .captures import (
@@ -35,25 +27,26 @@ from .light import (
     light_from_reflections,
     reflect_highlights,
 )
+from .markers import (
+    MarkerDetection,
+    detect_markers,
+)
 from .plate_highlights import (
     find_plate_highlights,
     plate_highlight_region,
+)
+from .plate_pose import (
+    PlatePose,
+    estimate_plate_pose,
+    pose_from_detections,
 )
 
 __all__ = [
     "BOARD_FORMAT",
     "Board",
     "BoardMarker",
-    "MarkerDetection",
-    "PlatePose",
     "aruco_dictionary",
-    "detect_markers",
-    "estimate_plate_pose",
-    "pose_from_detections",
-    "project_points",
     "render_board_image",
-    "rotation_from_vector",
-    "rotation_to_vector",
     "write_board",
     "estimate_light",
     "read_capture",
@@ -65,6 +58,11 @@ __all__ = [
     "closest_point_to_rays",
     "reflect_highlights",
     "light_from_reflections",
+    "MarkerDetection",
+    "detect_markers",
     "plate_highlight_region",
     "find_plate_highlights",
+    "PlatePose",
+    "estimate_plate_pose",
+    "pose_from_detections",
 ]

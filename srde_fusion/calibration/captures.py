@@ -20,11 +20,7 @@ from .._checks import check_views
 from ..errors import FileFormatError, LightError, RigError
 from ..geometry import CameraRig
 from ..io import IMAGE_EXTENSIONS, read_image
-from .board import (
-    DEFAULT_MAX_REPROJECTION_PX,
-    Board,
-    estimate_plate_pose,
-)
+from .board import Board
 from .light import (
     DEFAULT_MAX_INCIDENCE_DEG,
     DEFAULT_MAX_RESIDUAL_M,
@@ -35,6 +31,7 @@ from .light import (
     light_from_reflections,
 )
 from .plate_highlights import find_plate_highlights
+from .plate_pose import DEFAULT_MAX_REPROJECTION_PX, estimate_plate_pose
 
 __all__ = [
     "estimate_light",

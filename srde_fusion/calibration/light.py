@@ -34,13 +34,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..errors import LightError
-from ..geometry import CameraRig
-from .board import (
-    PlatePose,
-    project_points,
-    rotation_from_vector,
-    rotation_to_vector,
-)
+from ..geometry import CameraRig, project_points, rotation_from_vector, rotation_to_vector
+from .plate_pose import PlatePose
 
 __all__ = [
     "DEFAULT_MAX_INCIDENCE_DEG",

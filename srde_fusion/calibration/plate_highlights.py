@@ -17,10 +17,8 @@ import numpy as np
 from .._checks import check_views
 from ..geometry import CameraRig
 from ..srde import detect_highlight
-from .board import (
-    Board,
-    PlatePose,
-)
+from .board import Board
+from .plate_pose import PlatePose
 
 __all__ = [
     "plate_highlight_region",

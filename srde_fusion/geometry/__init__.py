@@ -19,6 +19,11 @@ from .rig import (
     Camera,
     CameraRig,
     Intrinsics,
+    project_points,
+)
+from .rotations import (
+    rotation_from_vector,
+    rotation_to_vector,
 )
 from .triangulation import (
     Triangulation,
@@ -40,6 +45,9 @@ __all__ = [
     "Camera",
     "CameraRig",
     "RIG_FORMAT",
+    "project_points",
+    "rotation_from_vector",
+    "rotation_to_vector",
     "Triangulation",
     "triangulate_rectified",
     "robust_triangulate",

@@ -20,7 +20,7 @@ from .._json import dump_json, load_json_source
 from ..errors import RigError
 from ..imaging import IMAGE_ENCODINGS
 
-__all__ = ["Intrinsics", "Camera", "CameraRig", "RIG_FORMAT"]
+__all__ = ["Intrinsics", "Camera", "CameraRig", "RIG_FORMAT", "project_points"]
 
 RIG_FORMAT = "srde-rig/1"
 # Centres must be coplanar to this tolerance for the array to count as rectified.
@@ -575,3 +575,12 @@ def _make_intrinsics(fx, fy, cx, cy, image_size, focal_length_mm, pixel_size_um)
             "pixel_size_um), got None"
         )
     return Intrinsics(fx, fx if fy is None else fy, cx, cy)
+
+
+def project_points(rig: CameraRig, points_m: np.ndarray, cameras: Any) -> np.ndarray:
+    """Project array-frame points ``(P, 3)``, each into its own camera ``(P,)``, pixels."""
+    rel = points_m - rig.centers_m[cameras]
+    k = rig.intrinsics
+    return np.stack(
+        [k.fx * rel[:, 0] / rel[:, 2] + k.cx, k.fy * rel[:, 1] / rel[:, 2] + k.cy], axis=1
+    )

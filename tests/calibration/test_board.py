@@ -19,12 +19,12 @@ from srde_fusion.calibration import (
     PlatePose,
     detect_markers,
     estimate_plate_pose,
-    project_points,
     render_board_image,
     write_board,
 )
 from srde_fusion.cli import main
 from srde_fusion.errors import BoardError, LightError
+from srde_fusion.geometry import project_points
 from srde_fusion.synthetic import PlanarObject, highlight_normal, plate_scene, render
 
 LIGHT_M = np.array([0.15, -0.35, 0.1])
