@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from srde_fusion.evaluation import METHODS, format_markdown_table, mask_iou, score_fusion, summarize
-from srde_fusion.fusion.fuse import DEFAULT_BORDER_CHECK, _border_band, _textured, fuse
+from srde_fusion.fusion import DEFAULT_BORDER_CHECK, border_band, fuse, textured_mask
 from srde_fusion.geometry import Plane, plane_disparity
 from srde_fusion.masks import HighlightSegmenter
 from srde_fusion.srde import SRDE
@@ -105,7 +105,7 @@ def rule_decisions(plane: Plane, rig, backbone: np.ndarray, mask: np.ndarray,
         diff = np.median(np.abs(srde_full[sel] - backbone[sel]))
         out["A: inner band, median abs. diff <= max(3 px, 15 %)"] = bool(
             diff <= max(3.0, 0.15 * np.median(backbone[sel])))
-    band = _border_band(mask, check.width_px) & textured & np.isfinite(backbone)
+    band = border_band(mask, check.width_px) & textured & np.isfinite(backbone)
     band &= np.isfinite(srde_full) & (srde_full > 0)
     if band.sum() >= check.min_px:
         ratio = backbone[band] / srde_full[band]
@@ -159,7 +159,7 @@ def run(n_scenes: int, backbone_names: list[str], seed0: int) -> dict:
         false_masks += sum(1 for m in auto if mask_iou(truth, [m]).max(initial=0.0) < 0.5)
         srde = SRDE(rig)
         srde_user = [srde.estimate(views, m) for m in truth]
-        textured = _textured(views[rig.reference], DEFAULT_BORDER_CHECK.min_gradient)
+        textured = textured_mask(views[rig.reference], DEFAULT_BORDER_CHECK.min_gradient)
         for bname, backbone in backbones.items():
             t0 = time.perf_counter()
             bb = backbone(*(views[j] for j in rig.stereo_pair))

@@ -6,24 +6,42 @@ Owns the per-object decision, its checks and the pipeline wrappers. Imports
 
 from __future__ import annotations
 
-from .fuse import (
+from .checks import (
     DEFAULT_BORDER_CHECK,
-    SOURCE_BACKBONE,
     BorderCheck,
-    FusionResult,
-    HybridStereo,
-    ObjectReport,
+    border_band,
+    textured_mask,
+)
+from .estimate import (
+    ObjectEstimate,
+    PlaneEstimator,
+    read_estimate,
+)
+from .fuse import (
     fuse,
+)
+from .pipeline import (
+    HybridStereo,
     postprocess,
+)
+from .report import (
+    SOURCE_BACKBONE,
+    FusionResult,
+    ObjectReport,
 )
 
 __all__ = [
+    "border_band",
+    "textured_mask",
     "BorderCheck",
-    "ObjectReport",
-    "FusionResult",
+    "DEFAULT_BORDER_CHECK",
+    "PlaneEstimator",
+    "ObjectEstimate",
+    "read_estimate",
     "fuse",
     "postprocess",
     "HybridStereo",
+    "ObjectReport",
+    "FusionResult",
     "SOURCE_BACKBONE",
-    "DEFAULT_BORDER_CHECK",
 ]

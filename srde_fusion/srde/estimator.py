@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from .._checks import check_mask, check_point3, check_views
+from .._json import json_safe
 from ..errors import LightError, RigError, SRDEError
 from ..geometry import (
     CameraRig,
@@ -170,6 +171,23 @@ class SRDEResult:
     def ok(self) -> bool:
         """Whether the estimate succeeded."""
         return self.status == "ok"
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (no pixel maps): status, reason, plane, virtual light, centres.
+
+        Non-finite numbers become ``None``.
+        """
+        return json_safe({
+            "status": self.status,
+            "reason": self.reason,
+            "method": self.method,
+            "plane": None if self.plane is None else {
+                "normal": self.plane.normal, "offset_m": self.plane.offset_m},
+            "virtual_light_m": self.virtual_light_m,
+            "highlight_centers_px": np.asarray(self.highlight_centers, dtype=np.float64),
+            "used_views": np.asarray(self.used_views, dtype=bool).ravel(),
+            "residual_px": self.residual_px,
+        })
 
     def __bool__(self) -> bool:
         return self.ok

@@ -501,3 +501,22 @@ def test_postprocess_fixes_the_objects_of_a_rendered_scene():
     assert evaluate(result.disparity, gt, objects)["epe"] < 0.2
     assert np.array_equal(result.disparity[~objects], gt[~objects])
     assert all(o.srde.ok and o.replaced_px == o.pixel_count for o in result.objects)
+
+
+# ---------------------------------------------------------------- validation happens once
+def test_postprocess_reads_the_views_for_validation_once(monkeypatch):
+    import srde_fusion._checks as checks
+    from srde_fusion.synthetic import default_rig, random_scene, render
+
+    rig = default_rig()
+    scene = random_scene(3, rig, n_objects=2, background="textured")
+    out = render(scene, rig)
+    calls = []
+    original = checks.check_image
+    monkeypatch.setattr(checks, "check_image", lambda *a, **k: calls.append(1) or original(*a, **k))
+    result = postprocess(out.disparity_px + 0.5, list(out.views),
+                         rig.with_light(scene.light.position_m), out.instance_mask)
+    assert len(result.objects) == 2
+    # postprocess -> fuse -> SRDE.estimate -> refine_plane pass the validated Views on:
+    # one check per view, not one per layer and object.
+    assert len(calls) == rig.n_cameras

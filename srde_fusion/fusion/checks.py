@@ -1,0 +1,341 @@
+"""The checks that decide whether an object keeps SRDE's plane or the backbone's values.
+
+All of them look where the backbone can be trusted: the textured surroundings along the
+object's outline (occlusion order), the mask's inner ring seen by the other views
+(photometric cost), and textured pixels at the mask's edge that are not the object (spill
+trim). :class:`BorderCheck` holds their thresholds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..errors import SRDEError
+from ..geometry import CameraRig, Plane, plane_disparity
+from ..imaging import REC709_LUMA, saturation_mask, to_float
+from .estimate import ObjectEstimate
+
+__all__ = [
+    "border_band",
+    "textured_mask",
+    "BorderCheck",
+    "DEFAULT_BORDER_CHECK",
+]
+
+@dataclass(frozen=True)
+class BorderCheck:
+    """How SRDE is checked against the backbone around an object's outline.
+
+    The *band* is every pixel within ``width_px`` of the mask's outline, inside or
+    outside, whose reference image shows texture (Sobel gradient of the encoded grey
+    image above ``min_gradient``), away from clipped highlights, and where the backbone
+    is valid. There the ratio ``backbone / srde`` is formed, with SRDE's plane extended
+    beyond the mask. At an occluding edge the backbone reports the object's disparity
+    (ratio 1) or the background's (ratio < 1), rarely more (something in front of the
+    object). SRDE is rejected when the ``low_quantile`` of the ratio is above
+    ``max_behind_ratio`` (SRDE puts the object behind what surrounds it) or when the
+    ``high_quantile`` is below ``min_front_ratio`` (SRDE puts it several times nearer
+    than anything seen along its outline).
+
+    Parameters
+    ----------
+    width_px : int
+        Half-width of the band around the outline, pixels.
+    min_gradient : float
+        Gradient magnitude (Sobel 3x3 on grey values in [0, 1]) above which a band pixel
+        counts as textured.
+    low_quantile, high_quantile : float
+        The quantiles of ``backbone / srde`` over the band that are tested, in (0, 1).
+    max_behind_ratio : float
+        Largest accepted ``low_quantile`` of the ratio (> 1).
+    min_front_ratio : float
+        Smallest accepted ``high_quantile`` of the ratio, in (0, 1).
+    min_px : int
+        Fewest band pixels for the check to run; with fewer, SRDE is accepted
+        unchecked and the report says so.
+    photo_ring_px : int
+        Width of the inner ring of the mask (pixels within this distance of its outline)
+        on which the photometric check compares SRDE with the backbone; 0 disables the
+        check.
+    max_photo_ratio, photo_margin : float
+        SRDE is rejected when its mean photometric cost on the ring exceeds
+        ``max_photo_ratio * backbone_cost + photo_margin`` (cost: median over the other
+        cameras of the absolute grey difference, values in [0, 1]).
+    suspect_front_ratio, suspect_behind_ratio : float
+        The stricter ``min_front_ratio`` (in (0, 1)) and ``max_behind_ratio`` (> 1)
+        applied when SRDE's own evidence is weak: its photometric refinement kept the
+        initial plane, or its photometric cost on the ring is above the backbone's
+        (within the margin that the photometric check allows).
+    trim_disagreement : float
+        A textured mask pixel whose backbone disparity differs from SRDE's by more than
+        this fraction of SRDE's, and which the backbone explains photometrically better,
+        is not part of the object when it is connected to the mask's edge: it keeps the
+        backbone's disparity. 0 disables the trim.
+    """
+
+    width_px: int = 4
+    min_gradient: float = 0.08
+    low_quantile: float = 0.75
+    high_quantile: float = 0.95
+    max_behind_ratio: float = 1.25
+    min_front_ratio: float = 0.25
+    min_px: int = 30
+    photo_ring_px: int = 3
+    max_photo_ratio: float = 1.25
+    photo_margin: float = 0.02
+    suspect_front_ratio: float = 0.5
+    suspect_behind_ratio: float = 1.15
+    trim_disagreement: float = 0.2
+
+    def __post_init__(self) -> None:
+        if int(self.width_px) != self.width_px or self.width_px < 1:
+            raise SRDEError(f"width_px: expected a positive integer, got {self.width_px!r}")
+        if not (isinstance(self.min_gradient, (int, float)) and math.isfinite(self.min_gradient)
+                and self.min_gradient >= 0):
+            raise SRDEError(f"min_gradient: expected a finite number >= 0, got "
+                             f"{self.min_gradient!r}")
+        if not 0.0 < self.low_quantile <= self.high_quantile < 1.0:
+            raise SRDEError(f"low_quantile, high_quantile: expected 0 < low <= high < 1, got "
+                             f"{self.low_quantile!r}, {self.high_quantile!r}")
+        if not (isinstance(self.max_behind_ratio, (int, float))
+                and 1.0 < self.max_behind_ratio < math.inf):
+            raise SRDEError(f"max_behind_ratio: expected a finite number > 1, got "
+                             f"{self.max_behind_ratio!r}")
+        if not (isinstance(self.min_front_ratio, (int, float))
+                and 0.0 < self.min_front_ratio < 1.0):
+            raise SRDEError(f"min_front_ratio: expected a number in (0, 1), got "
+                             f"{self.min_front_ratio!r}")
+        if int(self.min_px) != self.min_px or self.min_px < 1:
+            raise SRDEError(f"min_px: expected a positive integer, got {self.min_px!r}")
+        if int(self.photo_ring_px) != self.photo_ring_px or self.photo_ring_px < 0:
+            raise SRDEError(f"photo_ring_px: expected an integer >= 0, got "
+                            f"{self.photo_ring_px!r}")
+        if not (isinstance(self.suspect_front_ratio, (int, float))
+                and 0.0 < self.suspect_front_ratio < 1.0):
+            raise SRDEError(f"suspect_front_ratio: expected a number in (0, 1), got "
+                            f"{self.suspect_front_ratio!r}")
+        if not (isinstance(self.suspect_behind_ratio, (int, float))
+                and 1.0 < self.suspect_behind_ratio < math.inf):
+            raise SRDEError(f"suspect_behind_ratio: expected a finite number > 1, got "
+                            f"{self.suspect_behind_ratio!r}")
+        for name in ("max_photo_ratio", "photo_margin", "trim_disagreement"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise SRDEError(f"{name}: expected a finite number >= 0, got {value!r}")
+
+
+#: The outline check :func:`fuse` runs unless told otherwise.
+DEFAULT_BORDER_CHECK = BorderCheck()
+
+
+def _gradient_magnitude(gray: np.ndarray) -> np.ndarray:
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.magnitude(gx, gy)
+
+
+def _clipped(reference: np.ndarray) -> np.ndarray:
+    """Return the clipped highlights and their rim in the reference view, (H, W) bool."""
+    return cv2.dilate(saturation_mask(reference).astype(np.uint8),
+                      np.ones((5, 5), np.uint8)).astype(bool)
+
+
+def textured_mask(reference: np.ndarray, min_gradient: float) -> np.ndarray:
+    """Pixels of the reference view that carry texture a matcher can lock onto."""
+    # Texture is judged on the encoded values (luma), as a network trained on 8-bit
+    # images sees them; linear luminance would squash texture in dark regions.
+    textured = _gradient_magnitude(_gray(reference)) > min_gradient
+    # Clipped highlights have strong, view-dependent edges that the backbone mismatches.
+    return textured & ~_clipped(reference)
+
+
+def border_band(mask: np.ndarray, width_px: int) -> np.ndarray:
+    """Pixels within ``width_px`` of the mask's outline, on either side, (H, W) bool."""
+    size = 2 * width_px + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    m = mask.astype(np.uint8)
+    inner = cv2.erode(m, kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
+    outer = cv2.dilate(m, kernel).astype(bool)
+    return outer & ~inner
+
+
+@dataclass(frozen=True)
+class _BorderStats:
+    n_px: int = 0
+    ratio_low: float = math.nan
+    ratio_high: float = math.nan
+    median_diff_px: float = math.nan
+
+
+def _border_stats(plane: Plane | None, rig: CameraRig, backbone: np.ndarray, mask: np.ndarray,
+                  textured: np.ndarray, check: BorderCheck) -> _BorderStats:
+    if plane is None:
+        return _BorderStats()
+    band = border_band(mask, check.width_px) & textured & np.isfinite(backbone)
+    vs, us = np.nonzero(band)
+    # SRDE's plane, extended beyond the mask onto the outer half of the band.
+    srde_px = plane_disparity(plane, rig, np.stack([us, vs], axis=-1).astype(np.float64))
+    keep = np.isfinite(srde_px) & (srde_px > 0)
+    if not keep.any():
+        return _BorderStats()
+    srde_px, backbone_px = srde_px[keep], backbone[vs[keep], us[keep]].astype(np.float64)
+    low, high = np.quantile(backbone_px / srde_px, [check.low_quantile, check.high_quantile])
+    return _BorderStats(int(keep.sum()), float(low), float(high),
+                        float(np.median(srde_px - backbone_px)))
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    """Return the encoded grey values in [0, 1], (H, W) float32."""
+    gray = to_float(image)
+    return (gray @ REC709_LUMA).astype(np.float32) if gray.ndim == 3 else gray.astype(np.float32)
+
+
+#: Width of the pixel blocks handed to cv2.remap (it refuses maps 32767 px or wider).
+_REMAP_ROW_PX = 4096
+
+
+def _photo_cost(grays: list[np.ndarray], rig: CameraRig, us: np.ndarray, vs: np.ndarray,
+                disparity_px: np.ndarray) -> np.ndarray:
+    """Return the per-pixel photometric cost of a disparity, (N,) float32, grey in [0, 1].
+
+    Each reference pixel is looked up in every other camera where the hypothesis puts it
+    (a rectified array moves it by ``d * (dX, dY * fy / fx) / B``); the cost is the
+    median absolute grey difference over the cameras it lands in, NaN if none.
+    """
+    if us.size == 0:
+        return np.zeros(0, dtype=np.float32)
+    offsets = rig.centers_m - rig.centers_m[rig.reference]
+    fx, fy = rig.intrinsics.fx, rig.intrinsics.fy
+    steps = disparity_px / rig.baseline_m
+    reference = grays[rig.reference][vs, us]
+    # remap wants maps narrower than 32767 columns: fold the pixel list into rows.
+    n = us.size
+    rows = -(-n // _REMAP_ROW_PX)
+    costs = []
+    for j, gray in enumerate(grays):
+        if j == rig.reference:
+            continue
+        map_u = np.full(rows * _REMAP_ROW_PX, -1.0, np.float32)
+        map_v = np.full(rows * _REMAP_ROW_PX, -1.0, np.float32)
+        map_u[:n] = us - steps * offsets[j, 0]
+        map_v[:n] = vs - steps * (fy / fx) * offsets[j, 1]
+        sample = cv2.remap(gray, map_u.reshape(rows, -1), map_v.reshape(rows, -1),
+                           cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                           borderValue=math.nan).ravel()[:n]
+        costs.append(np.abs(sample - reference))
+    costs = np.sort(np.asarray(costs), axis=0)  # NaN sorts last
+    n_valid = np.count_nonzero(np.isfinite(costs), axis=0)
+    cols = np.arange(costs.shape[1])
+    low = costs[np.maximum((n_valid - 1) // 2, 0), cols]
+    high = costs[np.maximum(n_valid // 2, 0), cols]
+    return np.where(n_valid > 0, 0.5 * (low + high), np.nan).astype(np.float32)
+
+
+def _inner_ring(mask: np.ndarray, width_px: int) -> np.ndarray:
+    """Return the mask pixels within ``width_px`` of its outline, (H, W) bool."""
+    size = 2 * width_px + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    inner = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_REPLICATE)
+    return mask & (inner == 0)
+
+
+def _cost_map(grays: list[np.ndarray], rig: CameraRig, mask: np.ndarray,
+              disparity_px: np.ndarray, radius_px: int) -> np.ndarray:
+    """Return the photometric cost averaged over a window within the mask, (H, W) float32.
+
+    NaN outside the mask and where no pixel of the window could be compared.
+    """
+    vs, us = np.nonzero(mask & np.isfinite(disparity_px))
+    cost = np.zeros(mask.shape, np.float32)
+    valid = np.zeros(mask.shape, np.float32)
+    per_pixel = _photo_cost(grays, rig, us, vs, disparity_px[vs, us])
+    ok = np.isfinite(per_pixel)
+    cost[vs[ok], us[ok]] = per_pixel[ok]
+    valid[vs[ok], us[ok]] = 1.0
+    size = (2 * radius_px + 1, 2 * radius_px + 1)
+    total = cv2.boxFilter(cost, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    count = cv2.boxFilter(valid, -1, size, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = total / count
+    return np.where(mask & (count > 0), mean, np.nan).astype(np.float32)
+
+
+def _trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
+          textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
+          check: BorderCheck) -> np.ndarray:
+    """Return the mask pixels that are not the object, (H, W) bool.
+
+    A glossy textureless object offers no texture except along its outline, so textured
+    mask pixels where the backbone contradicts SRDE's plane and matches the other views
+    better (window means of the photometric cost) are background the mask spilled over;
+    only regions touching the mask's edge and reaching deeper than the outline band are
+    trimmed, so a textured patch inside the object cannot punch holes into it.
+
+    Known limit: image noise makes the object's interior look textured, and inside an
+    unclipped highlight the backbone matches the reflection better than SRDE's plane
+    matches the surface, so with noisy views part of a highlight can be trimmed
+    (``benchmarks/degradation.py``: about 1 px object EPE at 5-20 grey levels of noise).
+    Judging texture after a blur removed that but trimmed the highlight rim of clean
+    views instead.
+    """
+    candidates = (mask & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
+                  & (np.abs(backbone - srde_disp) > check.trim_disagreement * srde_disp))
+    if not candidates.any():
+        return candidates
+    # One pixel's cost is at the mercy of image noise (which also makes a textureless
+    # object look textured): compare window means over the mask instead.
+    cost_srde = _cost_map(grays, rig, mask, srde_disp, check.width_px)
+    cost_backbone = _cost_map(grays, rig, mask, backbone, check.width_px)
+    candidates &= cost_srde > check.max_photo_ratio * cost_backbone + check.photo_margin
+    _, labels = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
+    touching = np.unique(labels[_inner_ring(mask, 1) & candidates])
+    # The object's own silhouette edge is textured and mixes both depths; only regions
+    # reaching deeper into the mask than the outline band are spilled-over background.
+    deep = np.unique(labels[mask & ~_inner_ring(mask, check.width_px) & candidates])
+    keep = np.intersect1d(touching, deep)
+    return np.isin(labels, keep[keep > 0])
+
+
+@dataclass(frozen=True)
+class _PhotoStats:
+    n_px: int = 0
+    cost_srde: float = math.nan
+    cost_backbone: float = math.nan
+
+
+def _photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
+                 textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
+                 check: BorderCheck) -> _PhotoStats:
+    """Return the photometric cost of SRDE and the backbone on the mask's inner ring."""
+    # Only ring pixels next to texture (the silhouette edge): inside a glossy object the
+    # shading follows the reflection, whose depth is the virtual light's, not the
+    # surface's, so a uniform interior would favour whichever hypothesis is nearer it.
+    near_texture = cv2.dilate(textured.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    ring = (_inner_ring(mask, check.photo_ring_px) & near_texture & np.isfinite(srde_disp)
+            & np.isfinite(backbone))
+    if trimmed.any():
+        # Next to trimmed background the mask is background too, texture or not.
+        size = 4 * check.width_px + 1
+        ring &= cv2.dilate(trimmed.astype(np.uint8), np.ones((size, size), np.uint8)) == 0
+    vs, us = np.nonzero(ring)
+    cost_srde = _photo_cost(grays, rig, us, vs, srde_disp[vs, us])
+    cost_backbone = _photo_cost(grays, rig, us, vs, backbone[vs, us])
+    both = np.isfinite(cost_srde) & np.isfinite(cost_backbone)
+    if not both.any():
+        return _PhotoStats()
+    return _PhotoStats(int(both.sum()), float(cost_srde[both].mean()),
+                       float(cost_backbone[both].mean()))
+
+
+def _suspicion(estimate: ObjectEstimate, photo: _PhotoStats) -> str:
+    """Say why SRDE's own evidence for its plane is weak ("" if it is not)."""
+    if estimate.kept_initial_plane:
+        return "its photometric refinement kept the initial plane"
+    if photo.n_px and photo.cost_srde > photo.cost_backbone:
+        return (f"its plane explains the outline worse than the backbone "
+                f"({photo.cost_srde:.3f} > {photo.cost_backbone:.3f})")
+    return ""

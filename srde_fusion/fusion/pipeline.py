@@ -1,0 +1,155 @@
+"""Fusion around a stereo pipeline: fix a disparity map it made, or wrap its model.
+
+:func:`postprocess` takes a disparity map an existing pipeline already produced;
+:class:`HybridStereo` wraps a backbone callable into a model that returns the fused map.
+Both find the objects with a mask stage (:func:`~srde_fusion.masks.resolve_masker`) and
+run SRDE and :func:`~srde_fusion.fusion.fuse` on them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from .._checks import check_disparity, check_views
+from ..errors import BackboneError, LightError, RigError
+from ..geometry import CameraRig
+from ..masks import resolve_masker
+from ..srde import SRDE
+from .checks import DEFAULT_BORDER_CHECK, BorderCheck
+from .fuse import _as_mask_list, fuse
+from .report import FusionResult
+
+__all__ = [
+    "postprocess",
+    "HybridStereo",
+]
+
+Backbone = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def _rig_with_light(rig: CameraRig, light: Any) -> CameraRig:
+    if not isinstance(rig, CameraRig):
+        raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
+    if light is not None:
+        return rig.with_light(light)
+    if rig.light_position_m is None:
+        raise LightError("light: expected a light position (x, y, z) in metres, given here or in "
+                         "the rig, got None")
+    return rig
+
+
+def postprocess(disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
+                masks: Any = None, *, light: Any = None, srde_method: str = "default",
+                border_check: BorderCheck | None = DEFAULT_BORDER_CHECK) -> FusionResult:
+    """Fix a disparity map an existing pipeline produced, on flat glossy objects.
+
+    Parameters
+    ----------
+    disparity : numpy.ndarray, (H, W), float, pixels
+        The pipeline's disparity for the reference view of ``rig`` (stereo-pair
+        convention, ``d = fx * B / z``).
+    views : sequence of numpy.ndarray, (H, W, 3) uint8
+        One image per rig camera.
+    rig : CameraRig
+    masks : None, path, array, list of masks or masker
+        Where the objects are: None runs the built-in
+        :class:`~srde_fusion.masks.stages.HighlightSegmenter`; a path or array is read as user
+        masks (:class:`~srde_fusion.masks.stages.UserMasks`); a callable
+        ``masker(views, rig) -> list of masks`` is called.
+    light : array_like (3,), optional
+        Light position in the array frame, metres; the rig's by default.
+    srde_method : str
+        SRDE variant, see :class:`~srde_fusion.srde.estimator.SRDE`.
+    border_check : BorderCheck or None
+        See :func:`fuse`.
+
+    Returns
+    -------
+    FusionResult
+    """
+    rig = _rig_with_light(rig, light)
+    views = check_views(views, rig.n_cameras, rig.image_size)
+    w, h = rig.image_size
+    backbone = check_disparity(disparity, (h, w), "disparity")
+    masker = resolve_masker(masks).masker
+    return fuse(backbone, views, rig, masker(views, rig), SRDE(rig, method=srde_method),
+                border_check=border_check)
+
+
+class HybridStereo:
+    """A stereo model made reliable on flat glossy objects: backbone + SRDE + fusion.
+
+    Parameters
+    ----------
+    backbone : callable
+        ``backbone(left, right) -> (H, W) float32`` disparity in pixels (see
+        ``srde_fusion.adapters.load_backbone`` to build one from an ONNX file or a
+        torch module). It receives the views of the rig's stereo pair.
+    rig : CameraRig
+    light : array_like (3,), optional
+        Light position in the array frame, metres; the rig's by default.
+    masker : callable, optional
+        ``masker(views, rig) -> list of (H, W) bool``; the built-in
+        :class:`~srde_fusion.masks.stages.HighlightSegmenter` by default. Paths and arrays are
+        taken as fixed user masks.
+    srde_method : str
+        SRDE variant, see :class:`~srde_fusion.srde.estimator.SRDE`.
+    border_check : BorderCheck or None
+        See :func:`fuse`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from srde_fusion import CameraRig
+    >>> rig = CameraRig.stereo(0.1, fx=100.0, image_size=(32, 24), light_position_m=(0, -0.3, 0))
+    >>> model = HybridStereo(lambda left, right: np.full((24, 32), 5.0, np.float32), rig,
+    ...                      masker=lambda views, rig: [])
+    >>> views = [np.zeros((24, 32, 3), np.uint8)] * 2
+    >>> result = model(views)
+    >>> float(result.disparity[0, 0]), result.objects
+    (5.0, ())
+    """
+
+    def __init__(self, backbone: Backbone, rig: CameraRig, light: Any = None,
+                 masker: Any = None, *, srde_method: str = "default",
+                 border_check: BorderCheck | None = DEFAULT_BORDER_CHECK) -> None:
+        if not callable(backbone):
+            raise BackboneError(f"backbone: expected a callable backbone(left, right), got "
+                            f"{type(backbone).__name__}")
+        self.rig = _rig_with_light(rig, light)
+        self.backbone = backbone
+        self.masker = resolve_masker(masker).masker
+        self.srde_method = srde_method
+        self.border_check = border_check
+        self._srde = None
+
+    @property
+    def srde(self) -> SRDE:
+        """The SRDE estimator for this rig (built on first use)."""
+        if self._srde is None:
+            self._srde = SRDE(self.rig, method=self.srde_method)
+        return self._srde
+
+    def __call__(self, views: Sequence[np.ndarray]) -> FusionResult:
+        """Run backbone, mask stage, SRDE and fusion on one set of views.
+
+        Parameters
+        ----------
+        views : sequence of numpy.ndarray, (H, W, 3) uint8
+            One image per rig camera.
+
+        Returns
+        -------
+        FusionResult
+        """
+        rig = self.rig
+        views = check_views(views, rig.n_cameras, rig.image_size)
+        left, right = (views[i] for i in rig.stereo_pair)
+        disparity = self.backbone(left, right)
+        # Checked here so that a masker returning None or a generator is a MaskError.
+        masks = _as_mask_list(self.masker(views, rig), (rig.height, rig.width))
+        srde = self.srde if masks else None
+        return fuse(disparity, views, rig, masks, srde, border_check=self.border_check)
