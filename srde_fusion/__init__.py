@@ -41,18 +41,10 @@ from .fusion import FusionResult, HybridStereo, fuse, postprocess
 from .geometry import CameraRig, Plane
 from .io import read_disparity, read_image, read_mask, read_scene, write_disparity
 from .masks import HighlightSegmenter, OnnxMasker, UserMasks
-from .srde import SRDE, SRDEResult, detect_highlight
+from .srde import SRDE, BatchedSRDE, SRDEResult, detect_highlight
 
 __version__ = "0.1.0"
 
-
-def __getattr__(name: str):
-    # torch is imported only when the batched estimator is asked for.
-    if name == "BatchedSRDE":
-        from .srde import BatchedSRDE
-
-        return BatchedSRDE
-    raise AttributeError(f"module 'srde_fusion' has no attribute {name!r}")
 
 
 __all__ = [

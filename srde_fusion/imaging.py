@@ -18,6 +18,9 @@ __all__ = [
     "luminance",
     "saturation_mask",
     "REC709_LUMA",
+    "IMAGE_ENCODINGS",
+    "SATURATION_LEVEL_U8",
+    "SRGB_TO_LINEAR_U8",
 ]
 
 #: Rec. 709 / sRGB luminance weights for linear RGB.
@@ -46,8 +49,8 @@ def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
     ).astype(np.float32)
 
 
-# A 256-entry table makes decoding uint8 images a single gather.
-_SRGB_LUT = srgb_to_linear(np.arange(256, dtype=np.float32) / 255.0)
+#: Linear value of every uint8 sRGB code, (256,) float32: decoding is a single gather.
+SRGB_TO_LINEAR_U8 = srgb_to_linear(np.arange(256, dtype=np.float32) / 255.0)
 
 
 def to_float(image: np.ndarray) -> np.ndarray:
@@ -86,7 +89,7 @@ def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
         raise ImageError(f"encoding: expected one of {list(IMAGE_ENCODINGS)}, got {encoding!r}")
     if encoding == "srgb":
         if image.dtype == np.uint8:
-            lin = _SRGB_LUT[image]
+            lin = SRGB_TO_LINEAR_U8[image]
         else:
             lin = srgb_to_linear(image)
     else:

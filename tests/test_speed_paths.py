@@ -21,7 +21,8 @@ from srde_fusion.errors import SRDEError
 from srde_fusion.evaluation import BackboneLoader, evaluate_dataset
 from srde_fusion.geometry import Plane, incidence_angle_deg, plane_depth, plane_disparity
 from srde_fusion.imaging import SATURATION_LEVEL_U8, saturation_mask
-from srde_fusion.srde.estimator import _mask_box, _paste, _shifted_window
+from srde_fusion.srde import shifted_window
+from srde_fusion.srde.estimator import _mask_box, _paste
 from srde_fusion.synthetic import default_rig, render_dataset
 
 # Grid rays and per-pixel rays differ only in the order of float64 operations; arccos
@@ -85,7 +86,7 @@ def test_shifted_window_matches_a_per_pixel_gather(seed, du, dv, u0, v0, bw, bh)
     box = (u0, v0, min(u0 + bw, 32), min(v0 + bh, 24))
     if box[2] <= box[0] or box[3] <= box[1]:
         box = (0, 0, 32, 24)
-    np.testing.assert_array_equal(_shifted_window(mask, (du, dv), box),
+    np.testing.assert_array_equal(shifted_window(mask, (du, dv), box),
                                   _shifted_by_gather(mask, (du, dv), box))
 
 

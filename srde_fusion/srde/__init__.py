@@ -2,11 +2,34 @@
 
 Owns highlight detection, the search for the highlight in every view, the
 virtual-light triangulation and the photometric refinement (:mod:`.refine`). Imports
-``geometry`` and ``imaging``; torch is imported only by the batched backend.
+``geometry`` and ``imaging``; torch is imported only when the torch backend is asked for
+(``SRDE(backend="torch")``, :class:`BatchedSRDE`).
 """
 
 from __future__ import annotations
 
+from .backends import (
+    DetectionRequest,
+    HighlightBackend,
+    NumpyBackend,
+)
+from .batched import (
+    BatchedSRDE,
+)
+from .config import (
+    BLOB_CENTERS,
+    BLOB_LEVEL,
+    BLOB_MARGIN_PX,
+    DEFAULT_BLOB_CENTER,
+    HIGHLIGHT_METHODS,
+    LOBE_FLOOR,
+    MIN_BLOB_AREA_PX,
+    MIN_CORE_PX,
+    PEAK_SMOOTHING_SIGMA_PX,
+    WHITE_FLOOR,
+    WHITE_SIGMA_PX,
+    DetectorConfig,
+)
 from .estimator import (
     SRDE,
     SRDE_METHODS,
@@ -14,35 +37,59 @@ from .estimator import (
     SRDEResult,
 )
 from .highlight import (
-    BLOB_CENTERS,
-    DEFAULT_BLOB_CENTER,
-    HIGHLIGHT_METHODS,
     HighlightDetection,
+    blob_rejection,
+    components,
     detect_highlight,
+    detect_in_view,
+    lobe_center,
+    paper_rejection,
+    search_box,
+    weighted_centroid,
 )
-from .refine import PlaneRefinement, refine_plane
-
-
-def __getattr__(name: str):
-    # torch is imported only when the batched estimator is asked for.
-    if name == "BatchedSRDE":
-        from .batched import BatchedSRDE
-
-        return BatchedSRDE
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
+from .refine import DEFAULT_LOBE, LOBES, LobeFit, PlaneRefinement, refine_plane
+from .search import (
+    BaselineSearch,
+    Candidates,
+    shifted_window,
+)
 
 __all__ = [
-    "BatchedSRDE",
+    "DEFAULT_LOBE",
+    "LOBES",
+    "LobeFit",
     "PlaneRefinement",
     "refine_plane",
+    "DetectionRequest",
+    "HighlightBackend",
+    "NumpyBackend",
+    "BatchedSRDE",
+    "DetectorConfig",
+    "HIGHLIGHT_METHODS",
+    "BLOB_CENTERS",
+    "DEFAULT_BLOB_CENTER",
+    "BLOB_LEVEL",
+    "PEAK_SMOOTHING_SIGMA_PX",
+    "LOBE_FLOOR",
+    "BLOB_MARGIN_PX",
+    "MIN_CORE_PX",
+    "MIN_BLOB_AREA_PX",
+    "WHITE_SIGMA_PX",
+    "WHITE_FLOOR",
     "SRDE",
     "SRDEResult",
     "SRDE_METHODS",
     "SRDE_STATUSES",
     "HighlightDetection",
     "detect_highlight",
-    "HIGHLIGHT_METHODS",
-    "BLOB_CENTERS",
-    "DEFAULT_BLOB_CENTER",
+    "detect_in_view",
+    "search_box",
+    "blob_rejection",
+    "paper_rejection",
+    "components",
+    "weighted_centroid",
+    "lobe_center",
+    "Candidates",
+    "BaselineSearch",
+    "shifted_window",
 ]

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .._checks import check_mask, check_point3, check_views
+from .._checks import Views, check_mask, check_point3, check_views
 from .._json import json_safe
 from ..errors import LightError, RigError, SRDEError
 from ..geometry import (
@@ -52,9 +52,11 @@ from ..geometry import (
     robust_triangulate,
     triangulate_rectified,
 )
-from ..imaging import luminance
-from .highlight import DEFAULT_BLOB_CENTER, HighlightDetection, _check_options, _detect
-from .refine.plane import DEFAULT_LOBE, LOBES, PlaneRefinement, refine_plane
+from .backends import DetectionRequest, HighlightBackend, NumpyBackend
+from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
+from .highlight import HighlightDetection
+from .refine import DEFAULT_LOBE, LOBES, PlaneRefinement, refine_plane
+from .search import BaselineSearch
 
 __all__ = ["SRDE", "SRDEResult", "SRDE_METHODS", "SRDE_STATUSES"]
 
@@ -85,36 +87,6 @@ LIGHT_ON_PLANE_FRACTION = 0.01
 # placeholder or a unit slip: its virtual light is at infinity for any rig, and far enough
 # out its squared distances overflow.
 MAX_LIGHT_DISTANCE_M = 1e12
-# The reference highlight's search capsule in other views: this many times the reference
-# blob's half-diagonal, plus a margin, around the line where the highlight can appear.
-_CAPSULE_SCALE = 2.0
-_CAPSULE_MARGIN_PX = 6.0
-# Spacing of the candidate virtual-light positions along a baseline, pixels.
-_REGION_SAMPLE_PX = 0.5
-# Smallest blob (pixels above the level) taken for a highlight.
-_MIN_BLOB_AREA_PX = 3
-
-
-@dataclass(frozen=True)
-class _Candidates:
-    """Positions along a baseline where a view can show the reference highlight.
-
-    ``centers`` ``(n, 2)`` float: the reference centre moved by ``step * w_v`` (inverse
-    depths ``w_v`` of V); ``pix`` their pixels; ``shift`` ``(n, 2)`` int: the object's
-    image shift for each; ``ok`` those that land on the object. ``lo``/``hi``: the
-    ``(u, v)`` crop, inclusive-exclusive, that smoothing at ``sigma_px`` reads.
-    """
-
-    step: np.ndarray
-    w_v: np.ndarray
-    centers: np.ndarray
-    pix: np.ndarray
-    shift: np.ndarray
-    ok: np.ndarray
-    sigma_px: float
-    half_diagonal_px: float
-    lo: tuple[int, int]
-    hi: tuple[int, int]
 
 
 @dataclass(frozen=True)
@@ -250,11 +222,17 @@ class SRDE:
         the views). Each view's linear intensity is divided by its camera's smoothed
         white image before detection (the paper normalises with reflection standards).
     refine : bool, optional
-        Refine the plane photometrically (:func:`~srde_fusion.srde.refine.plane.refine_plane`) after
+        Refine the plane photometrically (:func:`~srde_fusion.srde.refine_plane`) after
         triangulation; by default on for ``method="default"``, off for ``"paper"``
         (which stays the paper's). Only the default method's joint solve is refined.
     refine_lobe : {"gtr", "ggx", "blinn_phong"}
-        Lobe model of the refinement (see :data:`~srde_fusion.srde.refine.plane.LOBES`).
+        Lobe model of the refinement (see :data:`~srde_fusion.srde.refine.LOBES`).
+    backend : {"numpy", "torch"} or HighlightBackend
+        Where the pixel work of detection runs: numpy and OpenCV on the host (default),
+        or torch, batched over the views, on ``device`` (see
+        :class:`~srde_fusion.srde.BatchedSRDE`). Results agree to about 1e-5 px.
+    device : str or torch.device, optional
+        The torch backend's device (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ...).
 
     Raises
     ------
@@ -286,15 +264,17 @@ class SRDE:
                  min_views: int = 2,
                  object_depth_m: tuple[float, float] = (0.2, 10.0),
                  max_incidence_deg: float = 85.0, white_references=None,
-                 refine: bool | None = None, refine_lobe: str = DEFAULT_LOBE) -> None:
+                 refine: bool | None = None, refine_lobe: str = DEFAULT_LOBE,
+                 backend: str | HighlightBackend = "numpy", device=None) -> None:
         if not isinstance(rig, CameraRig):
             raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
         if method not in SRDE_METHODS:
             raise SRDEError(f"method: expected one of {list(SRDE_METHODS)}, got {method!r}")
         if detector is None:
             detector = "paper" if method == "paper" else "blob"
-        _check_options(detector, rig.image_encoding, window, k, min_extent_px, blob_center,
-                       min_contrast, 1)
+        config = DetectorConfig(method=detector, encoding=rig.image_encoding, window=window, k=k,
+                                min_extent_px=min_extent_px, blob_center=blob_center,
+                                min_contrast=min_contrast, min_area_px=MIN_BLOB_AREA_PX)
         if light is None:
             light = rig.light
             if light is None:
@@ -335,17 +315,21 @@ class SRDE:
         # The paper's method stays the paper's unless asked otherwise.
         self.refine = (method == "default") if refine is None else refine
         self.refine_lobe = refine_lobe
-        self.detector = detector
-        self.window, self.k, self.min_extent_px = int(window), float(k), int(min_extent_px)
-        self.blob_center = blob_center
-        self.min_contrast = float(min_contrast)
+        self.config = config
         self.mask_erosion_px = int(mask_erosion_px)
         self.min_views = int(min_views)
         self.object_depth_m = (z_near, z_far)
-        self.white_references = None
+        whites = None
         if white_references is not None:
             refs = check_views(white_references, rig.n_cameras, rig.image_size)
-            self.white_references = [r.copy() for r in refs]
+            whites = Views(r.copy() for r in refs)
+        self.backend = _make_backend(backend, rig, config, whites, device)
+        self.search = BaselineSearch(rig, light_m, self.object_depth_m, detector == "paper")
+
+    @property
+    def detector(self) -> str:
+        """The highlight detector, ``"blob"`` or ``"paper"``."""
+        return self.config.method
 
     # ------------------------------------------------------------------ public
     def estimate(self, views, mask, *, region=None) -> SRDEResult:
@@ -374,8 +358,7 @@ class SRDE:
         MaskError
             ``mask`` (or ``region``) has the wrong shape or dtype, or is empty.
         """
-        views = check_views(views, self.rig.n_cameras, self.rig.image_size)
-        return self._estimate(views, mask, region)
+        return self._estimate(self.backend.prepare(views), mask, region)
 
     # ------------------------------------------------------------------ steps
     def _estimate(self, views, mask, region) -> SRDEResult:
@@ -392,7 +375,7 @@ class SRDE:
                     "mask_too_small", f"mask: nothing left to search after eroding the "
                     f"{int(mask.sum())}-px mask by {self.mask_erosion_px} px")
         ref = rig.reference
-        ref_det = self._detect_view(views, ref, search)
+        ref_det = self.backend.detect(views, [DetectionRequest(ref, search)])[0]
         if not ref_det:
             return self._failed("no_highlight", f"{self._view(ref)}: {ref_det.reason}",
                                 detections=(ref_det,))
@@ -423,144 +406,26 @@ class SRDE:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         return cv2.erode(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
 
-    def _detect_view(self, views, j: int, region: np.ndarray, level: float | None = None
-                     ) -> HighlightDetection:
-        white = None if self.white_references is None else self.white_references[j]
-        return _detect(views[j], region, method=self.detector, encoding=self.rig.image_encoding,
-                       window=self.window, k=self.k, min_extent_px=self.min_extent_px,
-                       blob_center=self.blob_center, min_contrast=self.min_contrast,
-                       min_area_px=_MIN_BLOB_AREA_PX, level=level, white_reference=white)
-
     def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray
                        ) -> list[HighlightDetection]:
         """Every view's detection: the reference's as given, the others where it can appear."""
-        detections: list[HighlightDetection] = []
-        for j in range(self.rig.n_cameras):
-            if j == self.rig.reference:
-                detections.append(ref_det)
-            else:
-                # One level for all views: an asymmetric lobe's centroid depends on it.
-                level = None if np.isnan(ref_det.level) else ref_det.level
-                region_j = self._search_region(views, j, ref_det, search)
-                if region_j.any():
-                    detections.append(self._detect_view(views, j, region_j, level))
-                else:
-                    detections.append(self._off_object())
-        return detections
-
-    def _off_object(self) -> HighlightDetection:
-        return HighlightDetection.missing(
-            f"no position along the baseline (object depth {self.object_depth_m[0]:g}-"
-            f"{self.object_depth_m[1]:g} m) lies on the object")
-
-    def _search_region(self, views, j: int, ref_det: HighlightDetection, search: np.ndarray
-                       ) -> np.ndarray:
-        """Where view j can show the highlight found in the reference view.
-
-        A virtual light seen at ``c_ref`` in the reference view appears in camera j at
-        ``c_ref + step * w`` with ``step = (-fx dX_j, -fy dY_j)`` and ``w = 1 / z`` its
-        inverse depth; over V's plausible depth range that is a segment.
-        Each candidate V also fixes the depth of the mirror point on the object, hence
-        how far the object moves between the views: a candidate counts only if it lands
-        on the reference search region moved by that shift. The brightest candidate
-        (luminance smoothed at the blob's scale) is taken, and the region is a disc of
-        the reference blob's size around it, within the reference search region moved
-        by V's shift (and, for the paper detector, also by the object's shift, so that
-        object edges, which sit at the object's disparity and not at V's, stay out).
-        """
-        cand = self._candidates(j, ref_det, search)
-        if cand is None:
-            return np.zeros((self.rig.height, self.rig.width), dtype=bool)
-        (u0, v0), (u1, v1) = cand.lo, cand.hi
-        lum = luminance(views[j][v0:v1, u0:u1], self.rig.image_encoding)
-        lum = cv2.GaussianBlur(lum, (0, 0), cand.sigma_px, borderType=cv2.BORDER_REFLECT)
-        brightness = np.full(cand.w_v.size, -np.inf)
-        brightness[cand.ok] = lum[cand.pix[cand.ok, 1] - v0, cand.pix[cand.ok, 0] - u0]
-        return self._region_at(cand, int(np.argmax(brightness)), search)
-
-    def _candidates(self, j: int, ref_det: HighlightDetection, search: np.ndarray
-                    ) -> _Candidates | None:
-        """Where along its baseline view j can show the reference highlight; None if nowhere."""
         rig = self.rig
-        k = rig.intrinsics
-        h, w = rig.height, rig.width
-        offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
-        step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
-        c = ref_det.center_uv
-        w_lo, w_hi = self._inverse_depth_range(c)
-        n = int(math.ceil(float(np.hypot(*step)) * (w_hi - w_lo) / _REGION_SAMPLE_PX)) + 1
-        w_v = np.linspace(w_lo, w_hi, n)
-        centers = c + step * w_v[:, None]                                    # (n, 2) (u, v)
-        shift = np.rint(step * self._mirror_inverse_depth(c, w_v)[:, None]).astype(int)
-        pix = np.rint(centers).astype(int)
-        src = pix - shift
-        ok = ((pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
-              & (src[:, 0] >= 0) & (src[:, 0] < w) & (src[:, 1] >= 0) & (src[:, 1] < h))
-        ok[ok] = search[src[ok, 1], src[ok, 0]]
-        if not ok.any():
-            return None
-        u0, v0, u1, v1 = ref_det.bbox
-        half_diagonal = 0.5 * math.hypot(u1 - u0, v1 - v0)
-        sigma = max(1.0, 0.5 * half_diagonal)
-        pad = int(math.ceil(3 * sigma))
-        lo = np.maximum(pix[ok].min(axis=0) - pad, 0)
-        hi = np.minimum(pix[ok].max(axis=0) + pad + 1, [w, h])
-        return _Candidates(step, w_v, centers, pix, shift, ok, sigma, half_diagonal,
-                           (int(lo[0]), int(lo[1])), (int(hi[0]), int(hi[1])))
-
-    def _region_at(self, cand: _Candidates, best: int, search: np.ndarray) -> np.ndarray:
-        """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool."""
-        h, w = self.rig.height, self.rig.width
-        radius = _CAPSULE_SCALE * cand.half_diagonal_px + _CAPSULE_MARGIN_PX
-        center = cand.centers[best]
-        bu0, bv0 = np.maximum(np.floor(center - radius).astype(int), 0)
-        bu1, bv1 = np.minimum(np.ceil(center + radius).astype(int) + 1, [w, h])
-        vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
-        disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
-        # Moved with the highlight, the reference region clips the blob the same way in
-        # every view, so the clip biases all centroids alike. The paper detector is also
-        # kept inside the object as it appears in view j: its edges would be gradient rings.
-        moves = [np.rint(cand.step * cand.w_v[best]).astype(int)]
-        if self.detector == "paper":
-            moves.append(cand.shift[best])
-        for moved in moves:
-            disc &= _shifted_window(search, moved, (bu0, bv0, bu1, bv1))
-        region = np.zeros((h, w), dtype=bool)
-        region[bv0:bv1, bu0:bu1] = disc
-        return region
-
-    def _inverse_depth_range(self, center_uv: np.ndarray) -> tuple[float, float]:
-        """Range of ``w = 1 / z`` of a virtual light seen at ``center_uv`` in the reference view.
-
-        The mirror point H lies on the ray at distance t, V beyond it with
-        ``|V - H| = |H - L|`` (H is on the bisector plane of L and V), so V's distance
-        along the ray is ``t + |t k - L|``, increasing in t: the object's depth range
-        maps to an interval of V's depth.
-        """
-        rig = self.rig
-        ray = rig.rays(center_uv)
-        unit = ray / np.linalg.norm(ray)
-        light = self.light_m - rig.reference_center_m
-        w_range = []
-        for z_obj in self.object_depth_m:
-            t = z_obj / unit[2]
-            distance = t + float(np.linalg.norm(t * unit - light))
-            w_range.append(1.0 / (distance * unit[2]))
-        return w_range[1], w_range[0]
-
-    def _mirror_inverse_depth(self, center_uv: np.ndarray, w_v: np.ndarray) -> np.ndarray:
-        """``1 / z`` of the mirror point H for virtual lights at inverse depths ``w_v``.
-
-        Inverting ``d = t + |t k - L|`` for the distance t of H along the unit ray k:
-        ``t = (d^2 - |L|^2) / (2 (d - k · L))``.
-        """
-        rig = self.rig
-        ray = rig.rays(center_uv)
-        unit = ray / np.linalg.norm(ray)
-        light = self.light_m - rig.reference_center_m
-        distance = 1.0 / (w_v * unit[2])
-        t = (distance ** 2 - light @ light) / (2.0 * (distance - unit @ light))
-        return 1.0 / (t * unit[2])
+        others = [j for j in range(rig.n_cameras) if j != rig.reference]
+        candidates = {j: self.search.candidates(j, ref_det, search) for j in others}
+        reachable = [(j, c) for j, c in candidates.items() if c is not None]
+        regions = {}
+        if reachable:
+            best = self.backend.brightest(views, reachable)
+            regions = {j: self.search.region_at(c, b, search)
+                       for (j, c), b in zip(reachable, best, strict=True)}
+        # One level for all views: an asymmetric lobe's centroid depends on it.
+        level = None if np.isnan(ref_det.level) else ref_det.level
+        requests = [DetectionRequest(j, r, level) for j, r in regions.items() if r.any()]
+        found = dict(zip([r.view for r in requests], self.backend.detect(views, requests),
+                         strict=True))
+        return [ref_det if j == rig.reference
+                else found[j] if j in found else self.search.off_object()
+                for j in range(rig.n_cameras)]
 
     def _solve_joint(self, views, mask, centers, detections, missing) -> SRDEResult:
         rig = self.rig
@@ -711,24 +576,6 @@ class SRDE:
             tuple(detections))
 
 
-def _shifted_window(mask: np.ndarray, shift_uv, box: tuple[int, int, int, int]) -> np.ndarray:
-    """``mask`` moved by ``shift_uv`` pixels, read over ``box = (u0, v0, u1, v1)``.
-
-    Pixel ``(u, v)`` of the result is ``mask[v - dv, u - du]``, False where that falls
-    outside the image; a slice copy, not a per-pixel gather.
-    """
-    du, dv = (int(s) for s in shift_uv)
-    u0, v0, u1, v1 = box
-    h, w = mask.shape
-    out = np.zeros((v1 - v0, u1 - u0), dtype=bool)
-    src_v0, src_v1 = max(v0 - dv, 0), min(v1 - dv, h)
-    src_u0, src_u1 = max(u0 - du, 0), min(u1 - du, w)
-    if src_v1 > src_v0 and src_u1 > src_u0:
-        out[src_v0 + dv - v0:src_v1 + dv - v0, src_u0 + du - u0:src_u1 + du - u0] = \
-            mask[src_v0:src_v1, src_u0:src_u1]
-    return out
-
-
 def _mask_box(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
     """Return the mask's bounding box ``(u0, v0, u1, v1)`` and the mask cropped to it."""
     rows = np.flatnonzero(mask.any(axis=1))
@@ -755,3 +602,23 @@ def _rms_residual(rig, point, centers, used) -> float:
     pred = np.stack([rig.project(point, j) for j in range(rig.n_cameras)])
     err = np.linalg.norm(pred - centers, axis=1)[used]
     return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
+
+
+def _make_backend(backend, rig: CameraRig, config: DetectorConfig, whites: Views | None,
+                  device) -> HighlightBackend:
+    """Build the detector backend ``SRDE(backend=...)`` names, or check a given one."""
+    if backend == "numpy":
+        if device is not None and str(device) != "cpu":
+            raise SRDEError(f"device: expected None or 'cpu' for the numpy backend, got "
+                            f"{device!r} (use backend='torch' for another device)")
+        return NumpyBackend(rig, config, whites)
+    if backend == "torch":
+        # torch is imported only when the torch backend is asked for.
+        from .torch_backend import TorchBackend
+
+        return TorchBackend(rig, config, whites, device="cpu" if device is None else device)
+    if isinstance(backend, str) or not all(
+            callable(getattr(backend, name, None)) for name in ("prepare", "detect", "brightest")):
+        raise SRDEError(f"backend: expected 'numpy', 'torch' or an object with prepare, detect "
+                        f"and brightest methods, got {backend!r}")
+    return backend

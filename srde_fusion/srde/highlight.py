@@ -34,39 +34,29 @@ import numpy as np
 
 from .._checks import check_image, check_mask
 from ..errors import SRDEError
-from ..imaging import IMAGE_ENCODINGS, luminance, saturation_mask
+from ..imaging import luminance, saturation_mask
+from .config import (
+    BLOB_LEVEL,
+    DEFAULT_BLOB_CENTER,
+    LOBE_FLOOR,
+    MIN_CORE_PX,
+    PEAK_SMOOTHING_SIGMA_PX,
+    WHITE_FLOOR,
+    WHITE_SIGMA_PX,
+    DetectorConfig,
+)
 
 __all__ = [
     "HighlightDetection",
     "detect_highlight",
-    "HIGHLIGHT_METHODS",
-    "BLOB_CENTERS",
-    "DEFAULT_BLOB_CENTER",
+    "detect_in_view",
+    "search_box",
+    "blob_rejection",
+    "paper_rejection",
+    "components",
+    "weighted_centroid",
+    "lobe_center",
 ]
-
-#: Detector names accepted by :func:`detect_highlight`.
-HIGHLIGHT_METHODS = ("blob", "paper")
-#: Sub-pixel centre estimators of the blob detector.
-BLOB_CENTERS = ("weighted", "core", "lobe")
-#: The blob centre used by default (chosen by measurement, see the module docstring).
-DEFAULT_BLOB_CENTER = "weighted"
-
-# Blob detector: the level between background and peak that delimits the blob (half max).
-_BLOB_LEVEL = 0.5
-# The blob's peak is read from a slightly smoothed image so one hot pixel cannot set it.
-_PEAK_SMOOTHING_SIGMA_PX = 1.0
-# The lobe fit uses flank pixels above this fraction of the contrast (log of small values
-# is dominated by noise and quantisation).
-_LOBE_FLOOR = 0.05
-# Margin around the region's bounding box for the blob detector (smoothing support).
-_BLOB_MARGIN_PX = 4
-# A core needs this many clipped pixels before its centroid is preferred.
-_MIN_CORE_PX = 3
-# White-reference images are smoothed with this sigma so their noise does not enter.
-_WHITE_SIGMA_PX = 3.0
-# Floor of the white-reference luminance, so dark corners do not blow up.
-_WHITE_FLOOR = 1e-3
-
 
 @dataclass(frozen=True)
 class HighlightDetection:
@@ -110,27 +100,71 @@ class HighlightDetection:
         """Build a failed detection carrying ``reason``."""
         return cls(False, None, 0, None, 0.0, reason)
 
+    def shifted(self, origin_uv) -> HighlightDetection:
+        """Return the detection with crop coordinates moved by ``origin_uv = (u0, v0)`` px."""
+        if not self.found:
+            return self
+        u0, v0 = (int(o) for o in origin_uv)
+        bu0, bv0, bu1, bv1 = self.bbox
+        return HighlightDetection(True, self.center_uv + np.array([u0, v0], dtype=np.float64),
+                                  self.area_px, (bu0 + u0, bv0 + v0, bu1 + u0, bv1 + v0),
+                                  self.score, "", self.level)
 
-def _check_options(method, encoding, window, k, min_extent_px, blob_center, min_contrast,
-                   min_area_px) -> None:
-    if method not in HIGHLIGHT_METHODS:
-        raise SRDEError(f"method: expected one of {list(HIGHLIGHT_METHODS)}, got {method!r}")
-    if encoding not in IMAGE_ENCODINGS:
-        raise SRDEError(f"encoding: expected one of {list(IMAGE_ENCODINGS)}, got {encoding!r}")
-    if blob_center not in BLOB_CENTERS:
-        raise SRDEError(f"blob_center: expected one of {list(BLOB_CENTERS)}, got {blob_center!r}")
-    if (isinstance(window, bool) or not isinstance(window, (int, np.integer)) or window < 3
-            or window % 2 == 0):
-        raise SRDEError(f"window: expected an odd integer >= 3 (pixels), got {window!r}")
-    if not isinstance(k, (int, float, np.number)) or isinstance(k, bool) or not np.isfinite(k):
-        raise SRDEError(f"k: expected a finite number, got {k!r}")
-    for name, value in (("min_extent_px", min_extent_px), ("min_area_px", min_area_px)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-            raise SRDEError(f"{name}: expected a positive integer (pixels), got {value!r}")
-    if (not isinstance(min_contrast, (int, float, np.number)) or isinstance(min_contrast, bool)
-            or not 0.0 <= min_contrast < 1.0):
-        raise SRDEError(f"min_contrast: expected a number in [0, 1) (linear intensity), got "
-                        f"{min_contrast!r}")
+
+def blob_rejection(config: DetectorConfig, *, background: float, peak: float, level: float,
+                   any_above: bool, area_px: int) -> str:
+    """Why a blob-detector crop shows no highlight, or ``""`` if it shows one.
+
+    Parameters
+    ----------
+    config : DetectorConfig
+    background, peak : float
+        The region's median and its smoothed maximum, linear intensity.
+    level : float
+        The level that delimits the blob, linear intensity.
+    any_above : bool
+        Whether any region pixel lies above the level.
+    area_px : int
+        Pixels of the brightest blob above the level.
+    """
+    contrast = peak - background
+    if contrast < config.min_contrast:
+        return (f"no bright blob: peak {peak:.4f} is only {contrast:.4f} above the region's "
+                f"median {background:.4f} (min_contrast {config.min_contrast:g}, linear "
+                f"intensity)")
+    if not any_above:  # smoothing can lift a lone spike's surroundings above every raw pixel
+        return f"no pixel above the level {level:.4f} in the search region"
+    if area_px < config.min_area_px:
+        return (f"brightest blob has {area_px} px above the level {level:.4f}, fewer than "
+                f"min_area_px {config.min_area_px}")
+    return ""
+
+
+def paper_rejection(config: DetectorConfig, *, n_components: int, any_kept: bool,
+                    region_px: int, largest: tuple[int, int, int]) -> str:
+    """Why a paper-detector crop shows no highlight, or ``""`` if it shows one.
+
+    Parameters
+    ----------
+    config : DetectorConfig
+    n_components : int
+        Components of pixels above the gradient threshold.
+    any_kept : bool
+        Whether any component reaches the minimum extent.
+    region_px : int
+        Pixels of the search region.
+    largest : (int, int, int)
+        Width, height and area of the largest component, pixels.
+    """
+    if n_components == 0:
+        return (f"no pixel with gradient above mu + {config.k:g} sigma ({config.window}x"
+                f"{config.window} window) in the search region of {region_px} px")
+    if not any_kept:
+        w, h, area = largest
+        return (f"no gradient component with extent >= {config.min_extent_px}x"
+                f"{config.min_extent_px} px among {n_components} (largest: {w}x{h} px, "
+                f"{area} px)")
+    return ""
 
 
 def detect_highlight(image, region=None, *, method: str = "blob", encoding: str = "srgb",
@@ -204,8 +238,9 @@ def detect_highlight(image, region=None, *, method: str = "blob", encoding: str 
     (True, [31.3, 17.6])
     """
     image = check_image(image)
-    _check_options(method, encoding, window, k, min_extent_px, blob_center, min_contrast,
-                   min_area_px)
+    config = DetectorConfig(method=method, encoding=encoding, window=window, k=k,
+                            min_extent_px=min_extent_px, blob_center=blob_center,
+                            min_contrast=min_contrast, min_area_px=min_area_px)
     if level is not None and (isinstance(level, bool)
                               or not isinstance(level, (int, float, np.number))
                               or not np.isfinite(level)):
@@ -221,48 +256,68 @@ def detect_highlight(image, region=None, *, method: str = "blob", encoding: str 
             raise SRDEError(
                 f"white_reference: expected the image's size {shape[1]}x{shape[0]}, got "
                 f"{white_reference.shape[1]}x{white_reference.shape[0]}")
-    return _detect(image, region, method=method, encoding=encoding, window=int(window),
-                   k=float(k), min_extent_px=int(min_extent_px), blob_center=blob_center,
-                   min_contrast=float(min_contrast), min_area_px=int(min_area_px),
-                   level=None if level is None else float(level), white_reference=white_reference)
+    return detect_in_view(image, region, config, level=None if level is None else float(level),
+                          white_reference=white_reference)
 
 
-def _detect(image, region, *, method, encoding, window, k, min_extent_px, blob_center,
-            min_contrast, min_area_px, level, white_reference) -> HighlightDetection:
-    """:func:`detect_highlight` on validated input (used by SRDE without re-checking)."""
+def search_box(region: np.ndarray, margin_px: int) -> tuple[int, int, int, int] | None:
+    """Bounding box ``(u0, v0, u1, v1)`` of a search region grown by ``margin_px``, clipped.
+
+    With the detector's margin (:attr:`DetectorConfig.margin_px`) the crop gives the same
+    filter values as the whole image inside the region. None for an empty region.
+    """
     rows = np.flatnonzero(region.any(axis=1))
     if rows.size == 0:
-        return HighlightDetection.missing("search region is empty")
+        return None
     cols = np.flatnonzero(region.any(axis=0))
-    # Paper: G needs 1 px of Sobel support and the window statistics window // 2 more, so
-    # with this margin the crop gives the same values as the full image inside the region.
-    margin = window // 2 + 2 if method == "paper" else _BLOB_MARGIN_PX
     h, w = region.shape
-    v0, v1 = max(int(rows[0]) - margin, 0), min(int(rows[-1]) + 1 + margin, h)
-    u0, u1 = max(int(cols[0]) - margin, 0), min(int(cols[-1]) + 1 + margin, w)
+    return (max(int(cols[0]) - margin_px, 0), max(int(rows[0]) - margin_px, 0),
+            min(int(cols[-1]) + 1 + margin_px, w), min(int(rows[-1]) + 1 + margin_px, h))
+
+
+def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
+                   level: float | None = None, white_reference: np.ndarray | None = None
+                   ) -> HighlightDetection:
+    """Detect the highlight of one validated view inside ``region`` (numpy and OpenCV).
+
+    Only the region's bounding box plus the filters' margin is read.
+
+    Parameters
+    ----------
+    image : numpy.ndarray, (H, W) or (H, W, 3), uint8 or float32
+        A validated view.
+    region : numpy.ndarray, (H, W) bool
+    config : DetectorConfig
+    level : float, optional
+        Blob detector: the level that delimits the blob (see :func:`detect_highlight`).
+    white_reference : numpy.ndarray, optional
+        The camera's white image, validated, same size.
+
+    Returns
+    -------
+    HighlightDetection
+    """
+    box = search_box(region, config.margin_px)
+    if box is None:
+        return HighlightDetection.missing("search region is empty")
+    u0, v0, u1, v1 = box
     crop = (slice(v0, v1), slice(u0, u1))
-    lum = luminance(image[crop], encoding)
+    lum = luminance(image[crop], config.encoding)
     if white_reference is not None:
-        white = luminance(white_reference[crop], encoding)
-        white = cv2.GaussianBlur(white, (0, 0), _WHITE_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
-        lum = lum / np.maximum(white, _WHITE_FLOOR)
+        white = luminance(white_reference[crop], config.encoding)
+        white = cv2.GaussianBlur(white, (0, 0), WHITE_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
+        lum = lum / np.maximum(white, WHITE_FLOOR)
     sub_region = region[crop]
-    if method == "paper":
-        det = _detect_paper(lum, sub_region, window=window, k=k, min_extent_px=min_extent_px)
+    if config.method == "paper":
+        det = _detect_paper(lum, sub_region, config)
     else:
         # Only the core and lobe centres look at clipping.
-        saturated = None if blob_center == "weighted" else saturation_mask(image[crop])
-        det = _detect_blob(lum, saturated, sub_region, center=blob_center,
-                           min_contrast=min_contrast, min_area_px=min_area_px, level=level)
-    if not det.found:
-        return det
-    bu0, bv0, bu1, bv1 = det.bbox
-    return HighlightDetection(True, det.center_uv + np.array([u0, v0], dtype=np.float64),
-                              det.area_px, (bu0 + u0, bv0 + v0, bu1 + u0, bv1 + v0), det.score, "",
-                              det.level)
+        saturated = None if config.blob_center == "weighted" else saturation_mask(image[crop])
+        det = _detect_blob(lum, saturated, sub_region, config, level)
+    return det.shifted((u0, v0))
 
 
-def _components(binary: np.ndarray):
+def components(binary: np.ndarray):
     """8-connected components: ``(n, labels, stats)`` as OpenCV returns them."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary.view(np.uint8), connectivity=8)
     return n, labels, stats
@@ -273,8 +328,9 @@ def _bbox(stats_row) -> tuple[int, int, int, int]:
     return (x, y, x + bw, y + bh)
 
 
-def _detect_paper(lum, region, *, window, k, min_extent_px) -> HighlightDetection:
+def _detect_paper(lum, region, config: DetectorConfig) -> HighlightDetection:
     """Adaptive gradient thresholding (paper eqs. 1-4) on a crop."""
+    window = config.window
     gx = cv2.Sobel(lum, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(lum, cv2.CV_32F, 0, 1, ksize=3)
     grad = np.sqrt(gx * gx + gy * gy)
@@ -282,20 +338,17 @@ def _detect_paper(lum, region, *, window, k, min_extent_px) -> HighlightDetectio
     mean_sq = cv2.boxFilter(grad * grad, cv2.CV_32F, (window, window))
     # E[G^2] - E[G]^2 can dip below 0 by rounding; a local std is never negative.
     std = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
-    threshold = mean + k * std
+    threshold = mean + config.k * std
     candidates = region & (grad > threshold)
-    n, labels, stats = _components(candidates)
-    if n <= 1:
-        return HighlightDetection.missing(
-            f"no pixel with gradient above mu + {k:g} sigma ({window}x{window} window) in the "
-            f"search region of {int(region.sum())} px")
+    n, labels, stats = components(candidates)
     widths, heights, areas = stats[1:, 2], stats[1:, 3], stats[1:, 4]
-    keep = (widths >= min_extent_px) & (heights >= min_extent_px)
-    if not keep.any():
-        big = int(np.argmax(areas))
-        return HighlightDetection.missing(
-            f"no gradient component with extent >= {min_extent_px}x{min_extent_px} px among "
-            f"{n - 1} (largest: {int(widths[big])}x{int(heights[big])} px, {int(areas[big])} px)")
+    keep = (widths >= config.min_extent_px) & (heights >= config.min_extent_px)
+    big = int(np.argmax(areas)) if n > 1 else 0
+    reason = paper_rejection(
+        config, n_components=n - 1, any_kept=bool(keep.any()), region_px=int(region.sum()),
+        largest=(int(widths[big]), int(heights[big]), int(areas[big])) if n > 1 else (0, 0, 0))
+    if reason:
+        return HighlightDetection.missing(reason)
     label = 1 + int(np.argmax(np.where(keep, areas, -1)))
     x, y, bw, bh = (int(s) for s in stats[label, :4])
     ring = labels[y:y + bh, x:x + bw] == label
@@ -307,56 +360,51 @@ def _detect_paper(lum, region, *, window, k, min_extent_px) -> HighlightDetectio
     return HighlightDetection(True, center, int(stats[label, 4]), _bbox(stats[label]), score, "")
 
 
-def _detect_blob(lum, saturated, region, *, center, min_contrast, min_area_px, level
+def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | None
                  ) -> HighlightDetection:
     """Half-maximum blob on linear intensity and its sub-pixel centre, on a crop."""
-    smooth = cv2.GaussianBlur(lum, (0, 0), _PEAK_SMOOTHING_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
+    smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
     inside = lum[region]
     background = float(np.median(inside))
     peak = float(smooth[region].max())
     contrast = peak - background
-    if contrast < min_contrast:
-        return HighlightDetection.missing(
-            f"no bright blob: peak {peak:.4f} is only {contrast:.4f} above the region's median "
-            f"{background:.4f} (min_contrast {min_contrast:g}, linear intensity)")
     if level is None:
-        level = background + _BLOB_LEVEL * contrast
+        level = background + BLOB_LEVEL * contrast
     excess = np.where(region, lum - level, 0.0).astype(np.float32)
-    n, labels, stats = _components(excess > 0)
-    if n <= 1:  # smoothing can lift a lone spike's surroundings above every raw pixel
-        return HighlightDetection.missing(
-            f"no pixel above the level {level:.4f} in the search region")
-    light = np.bincount(labels.ravel(), weights=np.maximum(excess, 0.0).ravel(), minlength=n)
-    label = 1 + int(np.argmax(light[1:]))
-    area = int(stats[label, 4])
-    if area < min_area_px:
-        return HighlightDetection.missing(
-            f"brightest blob has {area} px above the level {level:.4f}, fewer than "
-            f"min_area_px {min_area_px}")
+    n, labels, stats = components(excess > 0)
+    label = area = 0
+    if n > 1:
+        light = np.bincount(labels.ravel(), weights=np.maximum(excess, 0.0).ravel(), minlength=n)
+        label = 1 + int(np.argmax(light[1:]))
+        area = int(stats[label, 4])
+    reason = blob_rejection(config, background=background, peak=peak, level=level,
+                            any_above=n > 1, area_px=area)
+    if reason:
+        return HighlightDetection.missing(reason)
     x, y, bw, bh = (int(s) for s in stats[label, :4])
     box = (slice(y, y + bh), slice(x, x + bw))
     blob = labels[box] == label
     weights = np.where(blob, excess[box], 0.0)
-    center_uv = _weighted_centroid(weights) + np.array([x, y], dtype=np.float64)
-    if center == "core":
+    center_uv = weighted_centroid(weights) + np.array([x, y], dtype=np.float64)
+    if config.blob_center == "core":
         core = blob & saturated[box]
-        if int(core.sum()) >= _MIN_CORE_PX:
-            center_uv = _weighted_centroid(core.astype(np.float64)) + np.array([x, y], np.float64)
-    elif center == "lobe":
-        fitted = _lobe_center(lum, saturated, region, labels == label, background, contrast)
+        if int(core.sum()) >= MIN_CORE_PX:
+            center_uv = weighted_centroid(core.astype(np.float64)) + np.array([x, y], np.float64)
+    elif config.blob_center == "lobe":
+        fitted = lobe_center(lum, saturated, region, labels == label, background, contrast)
         if fitted is not None:
             center_uv = fitted
     return HighlightDetection(True, center_uv, area, _bbox(stats[label]), contrast, "", level)
 
 
-def _weighted_centroid(weights: np.ndarray) -> np.ndarray:
+def weighted_centroid(weights: np.ndarray) -> np.ndarray:
     """``(u, v)`` centroid of a non-negative weight image (pixel centres at integers)."""
     total = float(weights.sum())
     vv, uu = np.indices(weights.shape, dtype=np.float64)
     return np.array([(weights * uu).sum() / total, (weights * vv).sum() / total])
 
 
-def _lobe_center(lum, saturated, region, blob, background, contrast) -> np.ndarray | None:
+def lobe_center(lum, saturated, region, blob, background, contrast) -> np.ndarray | None:
     """Peak of a Gaussian fitted to the blob's unclipped flanks, or None if ill-posed.
 
     ``log(I - b)`` of a Gaussian lobe is a quadratic in (u, v); it is fitted by weighted
@@ -368,7 +416,7 @@ def _lobe_center(lum, saturated, region, blob, background, contrast) -> np.ndarr
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
     support = cv2.dilate(blob.view(np.uint8), kernel).view(bool)
     excess = lum - background
-    use = support & region & ~saturated & (excess > _LOBE_FLOOR * contrast)
+    use = support & region & ~saturated & (excess > LOBE_FLOOR * contrast)
     vv, uu = np.nonzero(use)
     if uu.size < 6:
         return None

@@ -15,9 +15,16 @@ from hypothesis import strategies as st
 
 from srde_fusion.errors import ImageError, SRDEError
 from srde_fusion.geometry import CameraRig
-from srde_fusion.srde import SRDE
-from srde_fusion.srde.batched import (
+from srde_fusion.srde import (
+    BLOB_CENTERS,
+    SRDE,
     BatchedSRDE,
+    DetectionRequest,
+    DetectorConfig,
+    NumpyBackend,
+)
+from srde_fusion.srde.torch_backend import (
+    TorchBackend,
     _extend,
     _reflect_index,
     _smooth_at,
@@ -203,3 +210,45 @@ def test_smoothing_at_points_is_opencvs_blur(direction):
     got = _smooth_at(ext, points, torch.from_numpy(kernel)).numpy()
     blurred = cv2.GaussianBlur(crop, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
     np.testing.assert_allclose(got, blurred[points[:, 1], points[:, 0]], rtol=1e-5)
+
+
+# ------------------------------------------------------------ one detector, two backends
+@pytest.mark.parametrize("options", [{"method": "blob", "blob_center": c} for c in BLOB_CENTERS]
+                         + [{"method": "paper"}], ids=[*BLOB_CENTERS, "paper"])
+def test_numpy_and_torch_backends_detect_the_same_highlights(options):
+    rig = default_rig()
+    scene = random_scene(5, rig, n_objects=2, background="textured")
+    out = render(scene, rig)
+    config = DetectorConfig(encoding=rig.image_encoding, **options)
+    numpy_backend, torch_backend = NumpyBackend(rig, config), TorchBackend(rig, config)
+    flat = np.zeros(out.instance_mask.shape, bool)
+    flat[5:40, 5:60] = True  # a corner of the room: no highlight, a failure with a reason
+    regions = [out.instance_mask == 1, out.instance_mask == 2, flat]
+    requests = [DetectionRequest(j, region) for j in range(rig.n_cameras) for region in regions]
+    expected = numpy_backend.detect(numpy_backend.prepare(out.views), requests)
+    got = torch_backend.detect(torch_backend.prepare(out.views), requests)
+    assert sum(d.found for d in expected) >= len(requests) // 2
+    for e, g in zip(expected, got, strict=True):
+        assert (e.found, e.area_px, e.bbox) == (g.found, g.area_px, g.bbox)
+        if e.found:
+            np.testing.assert_allclose(g.center_uv, e.center_uv, atol=CENTER_TOL_PX)
+        else:
+            assert g.reason.split(":")[0] == e.reason.split(":")[0]
+
+
+@pytest.mark.parametrize("bad", [{"method": "ring"}, {"window": 4}, {"min_contrast": 1.0}])
+def test_detector_config_is_checked_once_with_its_message(bad):
+    with pytest.raises(SRDEError, match=f"{next(iter(bad))}: expected"):
+        DetectorConfig(**bad)
+
+
+def test_srde_takes_a_backend_by_name_or_instance():
+    rig = CameraRig.stereo(0.1, fx=400.0, image_size=(96, 64))
+    light = [0.05, -0.3, 0.2]
+    assert isinstance(SRDE(rig, light, backend="torch").backend, TorchBackend)
+    custom = NumpyBackend(rig, DetectorConfig())
+    assert SRDE(rig, light, backend=custom).backend is custom
+    with pytest.raises(SRDEError, match="backend: expected 'numpy', 'torch' or an object"):
+        SRDE(rig, light, backend="jax")
+    with pytest.raises(SRDEError, match="device: expected None or 'cpu' for the numpy backend"):
+        SRDE(rig, light, device="cuda")

@@ -1,0 +1,185 @@
+"""Where the reference view's highlight can appear in every other view.
+
+A virtual light seen at ``c_ref`` in the reference view appears in camera j at
+``c_ref + step * w`` with ``step = (-fx dX_j, -fy dY_j)`` and ``w = 1 / z`` its inverse
+depth (DESIGN §3); over V's plausible depth range that is a segment along the baseline.
+Each candidate V also fixes the depth of the mirror point on the object, hence how far
+the object moves between the views: a candidate counts only if it lands on the reference
+search region moved by that shift. A detector backend picks the brightest candidate
+(luminance smoothed at the blob's scale); the search region is then a disc of the
+reference blob's size around it, within the reference search region moved by V's shift
+(and, for the paper detector, also by the object's shift, so that object edges, which sit
+at the object's disparity and not at V's, stay out).
+
+Pure geometry: no pixel is read here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import CameraRig
+from .highlight import HighlightDetection
+
+__all__ = ["Candidates", "BaselineSearch", "shifted_window"]
+
+# The reference highlight's search capsule in other views: this many times the reference
+# blob's half-diagonal, plus a margin, around the line where the highlight can appear.
+CAPSULE_SCALE = 2.0
+CAPSULE_MARGIN_PX = 6.0
+# Spacing of the candidate virtual-light positions along a baseline, pixels.
+REGION_SAMPLE_PX = 0.5
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Positions along a baseline where a view can show the reference highlight.
+
+    ``centers`` ``(n, 2)`` float: the reference centre moved by ``step * w_v`` (inverse
+    depths ``w_v`` of V); ``pix`` their pixels; ``shift`` ``(n, 2)`` int: the object's
+    image shift for each; ``ok`` those that land on the object. ``lo``/``hi``: the
+    ``(u, v)`` crop, inclusive-exclusive, that smoothing at ``sigma_px`` reads.
+    """
+
+    step: np.ndarray
+    w_v: np.ndarray
+    centers: np.ndarray
+    pix: np.ndarray
+    shift: np.ndarray
+    ok: np.ndarray
+    sigma_px: float
+    half_diagonal_px: float
+    lo: tuple[int, int]
+    hi: tuple[int, int]
+
+
+@dataclass(frozen=True, eq=False)
+class BaselineSearch:
+    """The search geometry of one rig, light and object depth range.
+
+    Parameters
+    ----------
+    rig : CameraRig
+    light_m : numpy.ndarray, (3,) float64
+        The light in the array frame, metres.
+    object_depth_m : (float, float)
+        Plausible depth range (reference camera z, metres) of the object.
+    paper_detector : bool
+        Keep the paper detector's regions inside the object as it appears in each view.
+    """
+
+    rig: CameraRig
+    light_m: np.ndarray
+    object_depth_m: tuple[float, float]
+    paper_detector: bool = False
+
+    def candidates(self, j: int, ref_det: HighlightDetection, search: np.ndarray
+                   ) -> Candidates | None:
+        """Where along its baseline view j can show the reference highlight; None if nowhere."""
+        rig = self.rig
+        k = rig.intrinsics
+        h, w = rig.height, rig.width
+        offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
+        step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
+        c = ref_det.center_uv
+        w_lo, w_hi = self.inverse_depth_range(c)
+        n = int(math.ceil(float(np.hypot(*step)) * (w_hi - w_lo) / REGION_SAMPLE_PX)) + 1
+        w_v = np.linspace(w_lo, w_hi, n)
+        centers = c + step * w_v[:, None]                                    # (n, 2) (u, v)
+        shift = np.rint(step * self.mirror_inverse_depth(c, w_v)[:, None]).astype(int)
+        pix = np.rint(centers).astype(int)
+        src = pix - shift
+        ok = ((pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
+              & (src[:, 0] >= 0) & (src[:, 0] < w) & (src[:, 1] >= 0) & (src[:, 1] < h))
+        ok[ok] = search[src[ok, 1], src[ok, 0]]
+        if not ok.any():
+            return None
+        u0, v0, u1, v1 = ref_det.bbox
+        half_diagonal = 0.5 * math.hypot(u1 - u0, v1 - v0)
+        sigma = max(1.0, 0.5 * half_diagonal)
+        pad = int(math.ceil(3 * sigma))
+        lo = np.maximum(pix[ok].min(axis=0) - pad, 0)
+        hi = np.minimum(pix[ok].max(axis=0) + pad + 1, [w, h])
+        return Candidates(step, w_v, centers, pix, shift, ok, sigma, half_diagonal,
+                           (int(lo[0]), int(lo[1])), (int(hi[0]), int(hi[1])))
+
+    def region_at(self, cand: Candidates, best: int, search: np.ndarray) -> np.ndarray:
+        """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool."""
+        h, w = self.rig.height, self.rig.width
+        radius = CAPSULE_SCALE * cand.half_diagonal_px + CAPSULE_MARGIN_PX
+        center = cand.centers[best]
+        bu0, bv0 = np.maximum(np.floor(center - radius).astype(int), 0)
+        bu1, bv1 = np.minimum(np.ceil(center + radius).astype(int) + 1, [w, h])
+        vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
+        disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
+        # Moved with the highlight, the reference region clips the blob the same way in
+        # every view, so the clip biases all centroids alike. The paper detector is also
+        # kept inside the object as it appears in view j: its edges would be gradient rings.
+        moves = [np.rint(cand.step * cand.w_v[best]).astype(int)]
+        if self.paper_detector:
+            moves.append(cand.shift[best])
+        for moved in moves:
+            disc &= shifted_window(search, moved, (bu0, bv0, bu1, bv1))
+        region = np.zeros((h, w), dtype=bool)
+        region[bv0:bv1, bu0:bu1] = disc
+        return region
+
+    def inverse_depth_range(self, center_uv: np.ndarray) -> tuple[float, float]:
+        """Range of ``w = 1 / z`` of a virtual light seen at ``center_uv`` in the reference view.
+
+        The mirror point H lies on the ray at distance t, V beyond it with
+        ``|V - H| = |H - L|`` (H is on the bisector plane of L and V), so V's distance
+        along the ray is ``t + |t k - L|``, increasing in t: the object's depth range
+        maps to an interval of V's depth.
+        """
+        rig = self.rig
+        ray = rig.rays(center_uv)
+        unit = ray / np.linalg.norm(ray)
+        light = self.light_m - rig.reference_center_m
+        w_range = []
+        for z_obj in self.object_depth_m:
+            t = z_obj / unit[2]
+            distance = t + float(np.linalg.norm(t * unit - light))
+            w_range.append(1.0 / (distance * unit[2]))
+        return w_range[1], w_range[0]
+
+    def mirror_inverse_depth(self, center_uv: np.ndarray, w_v: np.ndarray) -> np.ndarray:
+        """``1 / z`` of the mirror point H for virtual lights at inverse depths ``w_v``.
+
+        Inverting ``d = t + |t k - L|`` for the distance t of H along the unit ray k:
+        ``t = (d^2 - |L|^2) / (2 (d - k · L))``.
+        """
+        rig = self.rig
+        ray = rig.rays(center_uv)
+        unit = ray / np.linalg.norm(ray)
+        light = self.light_m - rig.reference_center_m
+        distance = 1.0 / (w_v * unit[2])
+        t = (distance ** 2 - light @ light) / (2.0 * (distance - unit @ light))
+        return 1.0 / (t * unit[2])
+
+    def off_object(self) -> HighlightDetection:
+        """Return the failed detection of a view where no candidate lies on the object."""
+        return HighlightDetection.missing(
+            f"no position along the baseline (object depth {self.object_depth_m[0]:g}-"
+            f"{self.object_depth_m[1]:g} m) lies on the object")
+
+
+def shifted_window(mask: np.ndarray, shift_uv, box: tuple[int, int, int, int]) -> np.ndarray:
+    """``mask`` moved by ``shift_uv`` pixels, read over ``box = (u0, v0, u1, v1)``.
+
+    Pixel ``(u, v)`` of the result is ``mask[v - dv, u - du]``, False where that falls
+    outside the image; a slice copy, not a per-pixel gather.
+    """
+    du, dv = (int(s) for s in shift_uv)
+    u0, v0, u1, v1 = box
+    h, w = mask.shape
+    out = np.zeros((v1 - v0, u1 - u0), dtype=bool)
+    src_v0, src_v1 = max(v0 - dv, 0), min(v1 - dv, h)
+    src_u0, src_u1 = max(u0 - du, 0), min(u1 - du, w)
+    if src_v1 > src_v0 and src_u1 > src_u0:
+        out[src_v0 + dv - v0:src_v1 + dv - v0, src_u0 + du - u0:src_u1 + du - u0] = \
+            mask[src_v0:src_v1, src_u0:src_u1]
+    return out
