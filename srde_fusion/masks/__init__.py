@@ -1,27 +1,35 @@
 """Mask stages: which reference-view pixels belong to which reflective object.
 
 Owns user-given masks, the built-in highlight segmenter and ONNX segmentation models.
-Imports ``srde`` (the detector and triangulation), ``io`` and ``geometry``.
+Imports ``srde`` (the blob primitives), ``geometry`` (triangulation) and ``io``.
 """
 
 from __future__ import annotations
 
-from .resolve import MASK_SOURCES, MaskerChoice, resolve_masker
-from .stages import (
-    HighlightSegmenter,
-    Masker,
+from .onnx import (
     OnnxMasker,
+)
+from .resolve import (
+    MASK_SOURCES,
+    MaskerChoice,
+    resolve_masker,
+)
+from .segmenter import (
+    HighlightSegmenter,
     SegmenterDiagnostics,
+)
+from .user import (
+    Masker,
     UserMasks,
 )
 
 __all__ = [
+    "OnnxMasker",
     "MASK_SOURCES",
     "MaskerChoice",
     "resolve_masker",
-    "Masker",
-    "UserMasks",
     "HighlightSegmenter",
     "SegmenterDiagnostics",
-    "OnnxMasker",
+    "Masker",
+    "UserMasks",
 ]

@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import MaskError
-from .stages import HighlightSegmenter, Masker, UserMasks
+from .segmenter import HighlightSegmenter
+from .user import Masker, UserMasks
 
 __all__ = ["MASK_SOURCES", "MaskerChoice", "resolve_masker"]
 

@@ -1,177 +1,30 @@
-"""The mask stage: where the flat glossy objects are in the reference view.
+"""The built-in mask stage: textureless regions around cross-view-consistent highlights.
 
-A *masker* is any callable ``masker(views, rig) -> list of (H, W) bool`` giving one mask
-per reflective object in the reference view (DESIGN §5). Three come with the library:
-
-- :class:`UserMasks` — masks you already have (a label image file or arrays);
-- :class:`HighlightSegmenter` — built in, needs no training data: grows a textureless
-  region around each specular highlight of the reference view and keeps it only if
-  every other view shows the same highlight where a single 3D point would put it;
-- :class:`OnnxMasker` — any segmentation network exported to ONNX.
+Needs no training data: it grows a textureless region around each specular highlight of
+the reference view and keeps it only if every other view shows the same highlight where
+a single 3D point would put it.
 """
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 from scipy import ndimage
+from skimage.segmentation import watershed
 
 from .._checks import check_views
-from ..errors import BackboneError, FileFormatError, MaskError, SRDEError
-from ..geometry import CameraRig
+from ..errors import SRDEError
+from ..geometry import CameraRig, robust_triangulate
 from ..imaging import luminance, saturation_mask, to_float
-from ..io import masks_from_labels, read_mask
+from ..srde import components, weighted_centroid
 
 __all__ = [
-    "Masker",
-    "UserMasks",
     "HighlightSegmenter",
     "SegmenterDiagnostics",
-    "OnnxMasker",
 ]
-
-Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
-
-
-def _describe(value: Any) -> str:
-    if isinstance(value, np.ndarray):
-        return f"array of shape {value.shape} and dtype {value.dtype}"
-    return type(value).__name__
-
-
-def _labels_to_masks(labels: np.ndarray, name: str) -> list[np.ndarray]:
-    """Split labels into masks, also accepting float arrays holding whole numbers."""
-    if np.issubdtype(labels.dtype, np.floating):
-        if not np.all(np.isfinite(labels)) or np.any(labels != np.round(labels)):
-            raise MaskError(f"{name}: expected integer labels (0 = background), got non-integer "
-                            f"float values")
-        largest = float(np.abs(labels).max()) if labels.size else 0.0
-        if largest > np.iinfo(np.int32).max:  # would not survive the cast to integers
-            raise MaskError(f"{name}: expected integer labels (0 = background), got values up "
-                            f"to {largest:g}")
-        labels = labels.astype(np.int64)
-    elif labels.dtype != bool and not np.issubdtype(labels.dtype, np.integer):
-        raise MaskError(f"{name}: expected a bool or integer label image, got dtype {labels.dtype}")
-    if labels.size and labels.min() < 0:
-        raise MaskError(f"{name}: expected labels >= 0 (0 = background), got {labels.min()}")
-    return masks_from_labels(labels)
-
-
-def _split_components(mask: np.ndarray, min_area_px: int) -> list[np.ndarray]:
-    """Split into 8-connected components of at least ``min_area_px``, raster order."""
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    return [comp == i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area_px]
-
-
-def _check_rig_shape(masks: list[np.ndarray], rig: CameraRig, name: str) -> None:
-    expected = (rig.height, rig.width)
-    for i, m in enumerate(masks):
-        if m.shape != expected:
-            raise MaskError(f"{name}[{i}]: expected shape {expected} (the rig's image size "
-                            f"{rig.width}x{rig.height}), got {m.shape}")
-
-
-class UserMasks:
-    """Masks you already have: a label image file, a label array, or a list of masks.
-
-    Parameters
-    ----------
-    source : path, numpy.ndarray or sequence of numpy.ndarray
-        A mask file (PNG label image: 0 = background, 1..K or 255 = object; or ``.npy``),
-        an ``(H, W)`` bool/integer label array, a ``(K, H, W)`` stack, or a list of
-        ``(H, W)`` masks.
-    split_components : bool
-        Split each label into its connected components (for binary masks that hold
-        several objects).
-    min_area_px : int
-        With ``split_components``, components smaller than this are dropped.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from srde_fusion import CameraRig
-    >>> rig = CameraRig.stereo(0.1, fx=100.0, image_size=(4, 3))
-    >>> labels = np.array([[0, 1, 1, 0], [0, 0, 2, 2], [0, 0, 0, 0]])
-    >>> [int(m.sum()) for m in UserMasks(labels)(None, rig)]
-    [2, 2]
-    """
-
-    def __init__(self, source: Any, *, split_components: bool = False, min_area_px: int = 1
-                 ) -> None:
-        self.source = source
-        self.split_components = split_components
-        self.min_area_px = int(min_area_px)
-        self._masks = self._load(source)
-        if split_components:
-            self._masks = [c for m in self._masks for c in _split_components(m, self.min_area_px)]
-        if not self._masks:
-            raise MaskError(f"masks: expected at least one object (a non-zero label), got none "
-                            f"in {self._where(source)}")
-
-    @staticmethod
-    def _where(source: Any) -> str:
-        return repr(str(source)) if isinstance(source, (str, os.PathLike)) else _describe(source)
-
-    @staticmethod
-    def _load(source: Any) -> list[np.ndarray]:
-        if isinstance(source, (str, os.PathLike)):
-            path = Path(source)
-            if not path.is_file():
-                raise FileFormatError(f"mask file: expected an existing file, got {str(path)!r}")
-            if path.suffix.lower() == ".npy":
-                try:
-                    labels = np.load(path, allow_pickle=False)
-                except ValueError as exc:
-                    raise FileFormatError(f"{path}: expected a .npy label array, got {exc}"
-                                          ) from None
-            else:
-                labels = read_mask(path)
-            if labels.ndim != 2:
-                raise MaskError(f"{path}: expected an (H, W) label image, got shape {labels.shape}")
-            return _labels_to_masks(labels, str(path))
-        if isinstance(source, np.ndarray):
-            if source.ndim == 2:
-                return _labels_to_masks(source, "masks")
-            if source.ndim == 3:
-                source = list(source)
-            else:
-                raise MaskError(f"masks: expected (H, W) labels or a (K, H, W) stack, got "
-                                f"shape {source.shape}")
-        if isinstance(source, Sequence) and not isinstance(source, (str, bytes)):
-            out = []
-            for i, m in enumerate(source):
-                if not isinstance(m, np.ndarray) or m.ndim != 2:
-                    raise MaskError(f"masks[{i}]: expected an (H, W) mask, got {_describe(m)}")
-                found = _labels_to_masks(m, f"masks[{i}]")
-                if not found:
-                    raise MaskError(f"masks[{i}]: expected at least one pixel inside the mask, "
-                                    f"got an empty mask")
-                # A list entry is one object, whatever label values it uses.
-                out.append(np.logical_or.reduce(found))
-            return out
-        raise MaskError(f"masks: expected a mask file path, a label array or a list of masks, "
-                        f"got {_describe(source)}")
-
-    def __call__(self, views: Any, rig: CameraRig) -> list[np.ndarray]:
-        """Return the masks, checked against the rig's image size (``views`` is unused).
-
-        Returns
-        -------
-        list of numpy.ndarray, (H, W), bool
-            Fresh copies, one per object.
-        """
-        _check_rig_shape(self._masks, rig, "masks")
-        return [m.copy() for m in self._masks]
-
-    def __repr__(self) -> str:
-        return f"UserMasks({self._where(self.source)}, {len(self._masks)} object(s))"
-
 
 # --------------------------------------------------------------------------- segmenter
 @dataclass(frozen=True)
@@ -205,11 +58,17 @@ class _Blob:
 
 #: Distances from a seed (pixels) between which the object's own noise level is sampled.
 _NOISE_ANNULUS_PX = (5.0, 30.0)
+
+
 #: Percentile of the fine-scale contrast in that annulus taken as the surface's noise:
 #: low enough to ignore the highlight's fall-off and any edge the annulus crosses.
 _NOISE_PERCENTILE = 25.0
+
+
 #: A ring around the seed counts as quiet when this fraction of it is below the threshold.
 _QUIET_RING_FRACTION = 0.9
+
+
 #: The highlight's fall-off ends at the first run of this many quiet rings.
 _QUIET_RINGS = 3
 
@@ -400,20 +259,20 @@ class HighlightSegmenter:
 
     # ------------------------------------------------------------------ steps
     def _blobs(self, image: np.ndarray, encoding: str) -> list[_Blob]:
+        # The blob detector's primitives: 8-connected components, luminance-weighted centres.
         lum = luminance(image, encoding)
         bright = (lum >= self.seed_luminance) | saturation_mask(image)
-        n, comp, stats, _ = cv2.connectedComponentsWithStats(bright.astype(np.uint8),
-                                                             connectivity=8)
+        n, comp, stats = components(bright)
         blobs = []
         for i in range(1, n):  # a handful of blobs, not pixels
             area = int(stats[i, cv2.CC_STAT_AREA])
             if area < self.min_seed_area_px:
                 continue
+            x, y, w, h = (int(s) for s in stats[i, :4])
             mask = comp == i
-            weight = lum[mask].astype(np.float64)
-            vs, us = np.nonzero(mask)
-            center = np.array([np.average(us, weights=weight), np.average(vs, weights=weight)])
-            blobs.append(_Blob(center, area, mask))
+            box = (slice(y, y + h), slice(x, x + w))
+            center = weighted_centroid(np.where(mask[box], lum[box], 0.0).astype(np.float64))
+            blobs.append(_Blob(center + np.array([x, y], dtype=np.float64), area, mask))
         return blobs
 
     def _contrast(self, image: np.ndarray) -> np.ndarray:
@@ -477,8 +336,6 @@ class HighlightSegmenter:
 
     def _refine(self, region: np.ndarray, image: np.ndarray) -> np.ndarray:
         """Move the boundary onto the outline's gradient ridge (marker watershed)."""
-        from skimage.segmentation import watershed
-
         band = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * self.refine_band_px + 1,) * 2)
         outer = cv2.dilate(region.astype(np.uint8), band).astype(bool)
         vs, us = np.nonzero(outer)
@@ -494,35 +351,43 @@ class HighlightSegmenter:
 
     def _consistent(self, blob: _Blob, blobs_per_view: dict[int, list[_Blob]],
                     rig: CameraRig) -> tuple[float, str]:
-        """Find the highlight's common inverse depth across views, or why there is none."""
+        """Find the highlight's common inverse depth across views, or why there is none.
+
+        Each blob of another view proposes the inverse depth ``w`` the seed's 3D point
+        would have if that blob were its image (the shift ``c_ref - c_j = a_j w`` with
+        ``a_j = (fx dX_j, fy dY_j)``). For each proposal the blob nearest to where ``w``
+        puts the point is taken in every view, and
+        :func:`~srde_fusion.geometry.robust_triangulate` keeps the views that agree on one
+        point; the proposal with the most agreeing views wins.
+        """
         k = rig.intrinsics
-        ref_c = rig.reference_center_m
+        ref = rig.reference
         tol = max(self.consistency_tol_px,
                   self.consistency_tol_rel * float(np.sqrt(blob.area_px / np.pi)))
-        # Per view j, the shift c_ref - c_j equals a_j / z with a_j = (fx dX_j, fy dY_j).
-        candidates = []  # (view, inverse depth, a_j, shift)
-        for j, blobs in blobs_per_view.items():
-            d = rig.centers_m[j] - ref_c
-            a = np.array([k.fx * d[0], k.fy * d[1]])
-            for b in blobs:
-                shift = blob.center_uv - b.center_uv
-                inv = float(shift @ a / (a @ a))
-                if inv > -tol / np.linalg.norm(a):
-                    candidates.append((j, max(inv, 0.0), a, shift))
+        offsets = {j: np.array([k.fx * d[0], k.fy * d[1]])
+                   for j, d in ((j, rig.centers_m[j] - rig.reference_center_m)
+                                for j in blobs_per_view)}
+        proposals = sorted({max(float(s @ a / (a @ a)), 0.0)
+                            for j, a in offsets.items()
+                            for s in (blob.center_uv - b.center_uv for b in blobs_per_view[j])
+                            if float(s @ a / (a @ a)) > -tol / np.linalg.norm(a)})
         n_needed = (len(blobs_per_view) if self.min_consistent_views is None
                     else min(self.min_consistent_views, len(blobs_per_view)))
-        best_inv, best_views = np.nan, set()
-        for _, inv, _, _ in candidates:  # hypotheses: each candidate's depth
-            agree = {j for j, _, a, s in candidates if np.linalg.norm(s - a * inv) <= tol}
+        best_w, best_views = np.nan, set()
+        for w in proposals:
+            centers = np.full((rig.n_cameras, 2), np.nan)
+            centers[ref] = blob.center_uv
+            for j, blobs in blobs_per_view.items():
+                predicted = blob.center_uv - offsets[j] * w
+                gaps = [float(np.linalg.norm(b.center_uv - predicted)) for b in blobs]
+                if gaps and min(gaps) <= tol:
+                    centers[j] = blobs[int(np.argmin(gaps))].center_uv
+            tri = robust_triangulate(rig, centers, max_residual_px=tol)
+            agree = {j for j in blobs_per_view if tri.used[j]} if tri.used[ref] else set()
             if len(agree) > len(best_views):
-                best_inv, best_views = inv, agree
+                best_w, best_views = tri.inverse_depth_per_m, agree
         if len(best_views) >= n_needed:
-            # Refine: least-squares inverse depth over the agreeing blobs.
-            rows = [(a, s) for j, _, a, s in candidates
-                    if j in best_views and np.linalg.norm(s - a * best_inv) <= tol]
-            num = sum(float(s @ a) for a, s in rows)
-            den = sum(float(a @ a) for a, _ in rows)
-            return (num / den if den > 0 else best_inv), ""
+            return best_w, ""
         missing = sorted(set(blobs_per_view) - best_views)
         return np.nan, (f"views {missing} show no highlight where the reference highlight's 3D "
                         f"point would appear ({len(best_views)} of {n_needed} views agree "
@@ -534,149 +399,3 @@ def _component_with(passable: np.ndarray, seed: np.ndarray) -> np.ndarray:
     labels, _ = ndimage.label(passable, structure=np.ones((3, 3), bool))
     ids = np.unique(labels[seed])
     return np.isin(labels, ids[ids > 0])
-
-
-# --------------------------------------------------------------------------- ONNX masker
-class OnnxMasker:
-    """Any segmentation network exported to ONNX, as a masker.
-
-    The network takes ``(B, 3, H, W)`` float32 RGB and returns ``(B, 1, H, W)`` (object
-    vs background) or ``(B, K, H, W)``. Inputs are resized to ``input_size`` (or the
-    model's fixed size) and outputs back to the image size before thresholding.
-
-    Parameters
-    ----------
-    path : path
-        The ``.onnx`` file.
-    threshold : float
-        Probability above which a pixel is inside (binary and instance outputs).
-    output : {"logits", "probabilities"}
-        What the network returns: logits (sigmoid for one channel or
-        ``layout="instances"``, softmax for classes) or probabilities already.
-    layout : {"classes", "instances"}
-        For ``K > 1`` channels: ``"classes"`` — channel 0 is background, each pixel takes
-        its most probable class and each class splits into connected components;
-        ``"instances"`` — each channel is one object's mask. A single channel is always
-        a foreground map split into connected components.
-    input_size : (int, int), optional
-        ``(width, height)`` the network expects; the model's static input size, or the
-        image size, by default.
-    input_scale : float
-        Factor applied to 0..255 pixel values before ``mean`` and ``std``.
-    mean, std : (float, float, float)
-        Per-channel normalisation after scaling: ``(x * input_scale - mean) / std``.
-    min_area_px : int
-        Components smaller than this (at image size) are dropped.
-    providers : list of str, optional
-        onnxruntime execution providers; CPU by default.
-    """
-
-    def __init__(self, path: str | os.PathLike, *, threshold: float = 0.5,
-                 output: str = "logits", layout: str = "classes",
-                 input_size: tuple[int, int] | None = None, input_scale: float = 1.0 / 255.0,
-                 mean: Sequence[float] = (0.0, 0.0, 0.0), std: Sequence[float] = (1.0, 1.0, 1.0),
-                 min_area_px: int = 64, providers: Sequence[str] | None = None) -> None:
-        if output not in ("logits", "probabilities"):
-            raise SRDEError(f"output: expected 'logits' or 'probabilities', got {output!r}")
-        if layout not in ("classes", "instances"):
-            raise SRDEError(f"layout: expected 'classes' or 'instances', got {layout!r}")
-        if not 0.0 < threshold < 1.0:
-            raise SRDEError(f"threshold: expected a probability in (0, 1), got {threshold!r}")
-        path = Path(path)
-        if not path.is_file():
-            raise FileFormatError(f"segmentation model: expected an existing .onnx file, got "
-                                  f"{str(path)!r}")
-        import onnxruntime as ort
-
-        try:
-            self._session = ort.InferenceSession(
-                str(path), providers=list(providers or ["CPUExecutionProvider"]))
-        except Exception as exc:  # onnxruntime raises its own types for malformed files
-            raise FileFormatError(f"{path}: expected a valid ONNX model, got "
-                                  f"{type(exc).__name__}: {str(exc).splitlines()[0]}") from None
-        inputs = self._session.get_inputs()
-        if len(inputs) != 1 or len(inputs[0].shape) != 4:
-            raise BackboneError(f"{path}: expected one (B, 3, H, W) input, got "
-                                f"{[(i.name, i.shape) for i in inputs]}")
-        self._input_name = inputs[0].name
-        static = inputs[0].shape[2:]
-        if input_size is None and all(isinstance(s, int) and s > 0 for s in static):
-            input_size = (static[1], static[0])
-        self.path = path
-        self.threshold = float(threshold)
-        self.output = output
-        self.layout = layout
-        self.input_size = None if input_size is None else (int(input_size[0]), int(input_size[1]))
-        self.input_scale = float(input_scale)
-        self.mean = np.asarray(mean, dtype=np.float32).reshape(3, 1, 1)
-        self.std = np.asarray(std, dtype=np.float32).reshape(3, 1, 1)
-        self.min_area_px = int(min_area_px)
-
-    def __call__(self, views: Sequence[np.ndarray], rig: CameraRig) -> list[np.ndarray]:
-        """Masks of the objects the network finds in the reference view.
-
-        Returns
-        -------
-        list of numpy.ndarray, (H, W), bool
-        """
-        views = check_views(views, rig.n_cameras, rig.image_size)
-        return self.predict(views[rig.reference])
-
-    def predict(self, image: np.ndarray) -> list[np.ndarray]:
-        """Masks for one RGB image.
-
-        Parameters
-        ----------
-        image : numpy.ndarray, (H, W, 3) uint8
-
-        Returns
-        -------
-        list of numpy.ndarray, (H, W), bool
-        """
-        h, w = image.shape[:2]
-        rgb = to_float(image) * 255.0 if image.dtype != np.uint8 else image.astype(np.float32)
-        if rgb.ndim == 2:
-            rgb = np.repeat(rgb[:, :, None], 3, axis=2)
-        if self.input_size is not None and self.input_size != (w, h):
-            shrink = self.input_size[0] < w
-            rgb = cv2.resize(rgb, self.input_size,
-                             interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-        x = (rgb.transpose(2, 0, 1) * self.input_scale - self.mean) / self.std
-        x = x[None].astype(np.float32)  # (3, h, w) -> (1, 3, h, w)
-        try:
-            out = self._session.run(None, {self._input_name: x})[0]
-        except Exception as exc:
-            raise BackboneError(f"{self.path}: inference failed on a {tuple(x.shape)} input: "
-                                f"{str(exc).splitlines()[0]}") from None
-        out = np.asarray(out, dtype=np.float32)
-        if out.ndim == 3:
-            out = out[:, None]  # (B, H, W) -> (B, 1, H, W)
-        if out.ndim != 4 or out.shape[0] != 1:
-            raise BackboneError(f"{self.path}: expected an output of shape (1, K, H, W), got "
-                                f"{out.shape}")
-        maps = out[0]
-        n_channels = maps.shape[0]
-        if n_channels > 1 and self.layout == "classes":
-            probs = _softmax(maps) if self.output == "logits" else maps
-        else:
-            probs = _sigmoid(maps) if self.output == "logits" else maps
-        # (K, h', w') -> (K, H, W); probabilities resize smoothly, labels would not.
-        if probs.shape[1:] != (h, w):
-            probs = np.stack([cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for p in probs])
-        if n_channels == 1:
-            return _split_components(probs[0] > self.threshold, self.min_area_px)
-        if self.layout == "instances":
-            return [m for m in (p > self.threshold for p in probs)
-                    if np.count_nonzero(m) >= self.min_area_px]
-        winner = np.argmax(probs, axis=0)
-        return [c for cls in range(1, n_channels)
-                for c in _split_components(winner == cls, self.min_area_px)]
-
-
-def _sigmoid(x: np.ndarray) -> np.ndarray:
-    return (0.5 * (1.0 + np.tanh(0.5 * x))).astype(np.float32)  # overflow-free logistic
-
-
-def _softmax(x: np.ndarray) -> np.ndarray:
-    e = np.exp(x - x.max(axis=0, keepdims=True))
-    return (e / e.sum(axis=0, keepdims=True)).astype(np.float32)

@@ -1,0 +1,160 @@
+"""Masks you already have: a label image file, a label array, or a list of masks.
+
+A *masker* is any callable ``masker(views, rig) -> list of (H, W) bool`` giving one mask
+per reflective object in the reference view (DESIGN §5).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..errors import FileFormatError, MaskError
+from ..geometry import CameraRig
+from ..io import masks_from_labels, read_mask
+
+__all__ = [
+    "Masker",
+    "UserMasks",
+]
+
+Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, np.ndarray):
+        return f"array of shape {value.shape} and dtype {value.dtype}"
+    return type(value).__name__
+
+
+def _labels_to_masks(labels: np.ndarray, name: str) -> list[np.ndarray]:
+    """Split labels into masks, also accepting float arrays holding whole numbers."""
+    if np.issubdtype(labels.dtype, np.floating):
+        if not np.all(np.isfinite(labels)) or np.any(labels != np.round(labels)):
+            raise MaskError(f"{name}: expected integer labels (0 = background), got non-integer "
+                            f"float values")
+        largest = float(np.abs(labels).max()) if labels.size else 0.0
+        if largest > np.iinfo(np.int32).max:  # would not survive the cast to integers
+            raise MaskError(f"{name}: expected integer labels (0 = background), got values up "
+                            f"to {largest:g}")
+        labels = labels.astype(np.int64)
+    elif labels.dtype != bool and not np.issubdtype(labels.dtype, np.integer):
+        raise MaskError(f"{name}: expected a bool or integer label image, got dtype {labels.dtype}")
+    if labels.size and labels.min() < 0:
+        raise MaskError(f"{name}: expected labels >= 0 (0 = background), got {labels.min()}")
+    return masks_from_labels(labels)
+
+
+def _split_components(mask: np.ndarray, min_area_px: int) -> list[np.ndarray]:
+    """Split into 8-connected components of at least ``min_area_px``, raster order."""
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    return [comp == i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area_px]
+
+
+def _check_rig_shape(masks: list[np.ndarray], rig: CameraRig, name: str) -> None:
+    expected = (rig.height, rig.width)
+    for i, m in enumerate(masks):
+        if m.shape != expected:
+            raise MaskError(f"{name}[{i}]: expected shape {expected} (the rig's image size "
+                            f"{rig.width}x{rig.height}), got {m.shape}")
+
+
+class UserMasks:
+    """Masks you already have: a label image file, a label array, or a list of masks.
+
+    Parameters
+    ----------
+    source : path, numpy.ndarray or sequence of numpy.ndarray
+        A mask file (PNG label image: 0 = background, 1..K or 255 = object; or ``.npy``),
+        an ``(H, W)`` bool/integer label array, a ``(K, H, W)`` stack, or a list of
+        ``(H, W)`` masks.
+    split_components : bool
+        Split each label into its connected components (for binary masks that hold
+        several objects).
+    min_area_px : int
+        With ``split_components``, components smaller than this are dropped.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from srde_fusion import CameraRig
+    >>> rig = CameraRig.stereo(0.1, fx=100.0, image_size=(4, 3))
+    >>> labels = np.array([[0, 1, 1, 0], [0, 0, 2, 2], [0, 0, 0, 0]])
+    >>> [int(m.sum()) for m in UserMasks(labels)(None, rig)]
+    [2, 2]
+    """
+
+    def __init__(self, source: Any, *, split_components: bool = False, min_area_px: int = 1
+                 ) -> None:
+        self.source = source
+        self.split_components = split_components
+        self.min_area_px = int(min_area_px)
+        self._masks = self._load(source)
+        if split_components:
+            self._masks = [c for m in self._masks for c in _split_components(m, self.min_area_px)]
+        if not self._masks:
+            raise MaskError(f"masks: expected at least one object (a non-zero label), got none "
+                            f"in {self._where(source)}")
+
+    @staticmethod
+    def _where(source: Any) -> str:
+        return repr(str(source)) if isinstance(source, (str, os.PathLike)) else _describe(source)
+
+    @staticmethod
+    def _load(source: Any) -> list[np.ndarray]:
+        if isinstance(source, (str, os.PathLike)):
+            path = Path(source)
+            if not path.is_file():
+                raise FileFormatError(f"mask file: expected an existing file, got {str(path)!r}")
+            if path.suffix.lower() == ".npy":
+                try:
+                    labels = np.load(path, allow_pickle=False)
+                except ValueError as exc:
+                    raise FileFormatError(f"{path}: expected a .npy label array, got {exc}"
+                                          ) from None
+            else:
+                labels = read_mask(path)
+            if labels.ndim != 2:
+                raise MaskError(f"{path}: expected an (H, W) label image, got shape {labels.shape}")
+            return _labels_to_masks(labels, str(path))
+        if isinstance(source, np.ndarray):
+            if source.ndim == 2:
+                return _labels_to_masks(source, "masks")
+            if source.ndim == 3:
+                source = list(source)
+            else:
+                raise MaskError(f"masks: expected (H, W) labels or a (K, H, W) stack, got "
+                                f"shape {source.shape}")
+        if isinstance(source, Sequence) and not isinstance(source, (str, bytes)):
+            out = []
+            for i, m in enumerate(source):
+                if not isinstance(m, np.ndarray) or m.ndim != 2:
+                    raise MaskError(f"masks[{i}]: expected an (H, W) mask, got {_describe(m)}")
+                found = _labels_to_masks(m, f"masks[{i}]")
+                if not found:
+                    raise MaskError(f"masks[{i}]: expected at least one pixel inside the mask, "
+                                    f"got an empty mask")
+                # A list entry is one object, whatever label values it uses.
+                out.append(np.logical_or.reduce(found))
+            return out
+        raise MaskError(f"masks: expected a mask file path, a label array or a list of masks, "
+                        f"got {_describe(source)}")
+
+    def __call__(self, views: Any, rig: CameraRig) -> list[np.ndarray]:
+        """Return the masks, checked against the rig's image size (``views`` is unused).
+
+        Returns
+        -------
+        list of numpy.ndarray, (H, W), bool
+            Fresh copies, one per object.
+        """
+        _check_rig_shape(self._masks, rig, "masks")
+        return [m.copy() for m in self._masks]
+
+    def __repr__(self) -> str:
+        return f"UserMasks({self._where(self.source)}, {len(self._masks)} object(s))"
