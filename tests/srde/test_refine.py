@@ -19,20 +19,11 @@ from hypothesis import strategies as st
 from srde_fusion.errors import ImageError, LightError, MaskError, SRDEError
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity, plane_from_lights
 from srde_fusion.srde import SRDE
-from srde_fusion.srde.refine.plane import (
-    _I_FORE,
-    _I_SPEC,
-    _I_TAIL,
-    _N_PLANE,
-    DEFAULT_F0,
-    LOBES,
-    PlaneRefinement,
-    _LobeModel,
-    _references_from_views,
-    _sample_windows,
-    _warp_change_px,
-    refine_plane,
-)
+from srde_fusion.srde.refine import LOBES, PlaneRefinement, refine_plane
+from srde_fusion.srde.refine.layout import _I_FORE, _I_SPEC, _I_TAIL, _N_PLANE
+from srde_fusion.srde.refine.model import DEFAULT_F0, _LobeModel
+from srde_fusion.srde.refine.plane import _warp_change_px
+from srde_fusion.srde.refine.samples import _references_from_views, _sample_windows
 from srde_fusion.synthetic import random_scene, render
 
 # Tolerances, in one place. Disparity errors are masked mean absolute errors (EPE), px.
@@ -208,8 +199,8 @@ def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail):
         up, down = theta.copy(), theta.copy()
         up[index] += SLOPE_STEPS[index]
         down[index] -= SLOPE_STEPS[index]
-        expected = (model._model(model._geometry(up[:_N_PLANE]), up)
-                    - model._model(model._geometry(down[:_N_PLANE]), down)) / (
+        expected = (model._model(model.reflection.geometry(up[:_N_PLANE]), up)
+                    - model._model(model.reflection.geometry(down[:_N_PLANE]), down)) / (
                         2 * SLOPE_STEPS[index])
         scale = np.max(np.abs(expected))
         assert scale > 0

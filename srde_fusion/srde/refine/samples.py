@@ -1,0 +1,299 @@
+"""What the refinement compares: block-averaged luminance samples around each highlight.
+
+For every view a window around the highlight centre is cut, pixels outside the object
+(as the current plane maps the reference mask into that view) are dropped, and the rest
+is averaged over small blocks (larger blocks on larger windows) into samples with their
+pixel ray, camera centre, luminance and clipping flag.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ...geometry import CameraRig, Plane
+from ...imaging import REC709_LUMA, luminance, saturation_mask, srgb_to_linear
+
+# --- fitting window -------------------------------------------------------------------
+#: The window's half-size is at most this fraction of the smaller image side.
+MAX_WINDOW_FRACTION = 0.2
+
+
+#: Smallest half-size of the window, pixels.
+MIN_WINDOW_HALF_PX = 8
+
+
+#: The window reaches this many half-maximum radii of the highlight blob from its centre.
+WINDOW_PER_BLOB_RADIUS = 3.0
+
+
+#: Block samples per window side at most; larger windows average larger blocks.
+SAMPLES_PER_SIDE = 30
+
+
+#: Pixels closer than this to the object's outline are not fitted (mask warping slack).
+MASK_MARGIN_PX = 2
+
+
+#: Fewer samples than this, all views together, are too few to fit the model.
+MIN_SAMPLES = 60
+
+
+#: Fewer unsaturated samples than this above the background cannot show the lobe's flanks.
+MIN_FLANK_SAMPLES = 12
+
+
+#: Peak-over-background contrast (linear luminance) below which there is no highlight.
+MIN_HIGHLIGHT_CONTRAST = 0.02
+
+
+# Coarse grid step (pixels) and number of views used to size the window.
+_SIZING_STRIDE_PX = 4
+_SIZING_VIEWS = 3
+
+
+# Quantile of the luminance taken as the object's background level near the highlight.
+_BACKGROUND_QUANTILE = 0.2
+
+
+# uint8 code -> linear intensity, per image encoding
+_DECODE_LUT = {
+    "srgb": srgb_to_linear(np.arange(256, dtype=np.float32) / 255.0),
+    "linear": np.arange(256, dtype=np.float32) / 255.0,
+}
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """Samples fitted, all views stacked, unsaturated first; arrays ``(P,)`` or ``(P, 3)``.
+
+    A sample is the mean linear luminance of a ``block x block`` pixel square, placed at
+    the square's centre: averaging costs far less than fitting every pixel and keeps
+    nearly all their information (the window spans about six half-maximum radii of the
+    lobe, so a block is a small fraction of the lobe's width).
+    """
+
+    camera_m: np.ndarray  # (P, 3) centre of the sample's camera
+    ray: np.ndarray  # (P, 3) unnormalised ray ((u - cx) / fx, (v - cy) / fy, 1)
+    luminance: np.ndarray  # (P,) linear luminance
+    saturated: np.ndarray  # (P,) bool: some pixel clipped, the mean is a lower bound
+    view_indices: tuple[int, ...]
+    half_window_px: int
+    block_px: int
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.luminance.shape[0])
+
+
+def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray,
+                    *, box=None) -> _Samples | str:
+    """Block samples around each view's highlight on the object, or why there are none.
+
+    ``box``: the mask's bounding box, if known.
+    """
+    box = _box(mask) if box is None else box
+    eroded = _erode(mask, MASK_MARGIN_PX, box)
+    w, h = rig.image_size
+    max_half = max(MIN_WINDOW_HALF_PX, int(MAX_WINDOW_FRACTION * min(w, h)))
+    usable = [i for i in range(rig.n_cameras)
+              if np.all(np.isfinite(centers[i]))
+              and -max_half <= centers[i, 0] <= w + max_half
+              and -max_half <= centers[i, 1] <= h + max_half]
+    if not usable:
+        return "samples: no view has a highlight centre inside or near the image"
+    maps = _references_from_views(rig, plane)
+    to_ref = {i: None if i == rig.reference else maps[i] for i in usable}
+
+    # Size the window from the blob's half-maximum radius, seen on a coarse grid in a few
+    # views (the reference first).
+    stride = _SIZING_STRIDE_PX
+    offsets = np.arange(-max_half, max_half + 1, stride)
+    radii = []
+    for i in sorted(usable, key=lambda j: j != rig.reference):
+        if len(radii) == _SIZING_VIEWS:
+            break
+        uu = np.tile(offsets + int(np.rint(centers[i, 0])), len(offsets))
+        vv = np.repeat(offsets + int(np.rint(centers[i, 1])), len(offsets))
+        keep = (uu >= 0) & (uu < w) & (vv >= 0) & (vv < h)
+        uu, vv = uu[keep], vv[keep]
+        inside = _object_lookup(eroded, to_ref[i], uu, vv)
+        if inside.sum() < MIN_SAMPLES:
+            continue
+        y = luminance(views[i][vv[inside], uu[inside]][None], rig.image_encoding)[0]
+        background, peak = _low_quantile(y), float(y.max())
+        if peak - background < MIN_HIGHLIGHT_CONTRAST:
+            continue
+        area_px = np.count_nonzero(y > 0.5 * (background + peak)) * stride**2
+        radii.append(math.sqrt(area_px / math.pi))
+    if not radii:
+        return (f"samples: no view shows a highlight brighter than the object by "
+                f"{MIN_HIGHLIGHT_CONTRAST:g} (linear) inside the mask")
+    half = math.ceil(WINDOW_PER_BLOB_RADIUS * float(np.median(radii))) + 2
+    half = min(max(half, MIN_WINDOW_HALF_PX), max_half)
+    block = max(1, math.ceil((2 * half + 1) / SAMPLES_PER_SIDE))
+
+    block_mask = _erode(mask, MASK_MARGIN_PX + block // 2, box)
+    uvs, lum, sat, used, counts = [], [], [], [], []
+    for i in usable:
+        window = _block_window(views[i], rig, block_mask, to_ref[i], centers[i], half, block)
+        if window is None or not window[3].any():
+            continue
+        uv, y, clipped, inside = window
+        uvs.append(uv[inside])
+        lum.append(y[inside])
+        sat.append(clipped[inside])
+        used.append(i)
+        counts.append(len(lum[-1]))
+    if not used:
+        return "samples: no object pixels in any highlight window"
+    luminance_all = np.concatenate(lum)
+    saturated_all = np.concatenate(sat)
+    if len(luminance_all) < MIN_SAMPLES:
+        return (f"samples: only {len(luminance_all)} object samples near the highlights "
+                f"(< {MIN_SAMPLES})")
+    unsaturated = luminance_all[~saturated_all]
+    background = _low_quantile(unsaturated) if unsaturated.size else 1.0
+    flank = int(np.count_nonzero(unsaturated > background + MIN_HIGHLIGHT_CONTRAST))
+    if flank < MIN_FLANK_SAMPLES:
+        return (f"samples: only {flank} unsaturated samples on the highlight's flanks "
+                f"(< {MIN_FLANK_SAMPLES}; {int(saturated_all.sum())} of "
+                f"{len(saturated_all)} saturated); the lobe cannot be fitted")
+    # Unsaturated samples first: the intensity solve then slices instead of copying.
+    order = np.argsort(saturated_all, kind="stable")
+    cameras_m = np.repeat(rig.centers_m[used], counts, axis=0)
+    return _Samples(cameras_m[order], rig.rays(np.concatenate(uvs)[order]),
+                    luminance_all[order], saturated_all[order], tuple(used), half, block)
+
+
+def _low_quantile(values: np.ndarray) -> float:
+    """Return the background level near the highlight: a low quantile, by partition."""
+    k = int(_BACKGROUND_QUANTILE * (len(values) - 1))
+    return float(np.partition(values, k)[k])
+
+
+@dataclass(frozen=True)
+class _Eroded:
+    """A shrunk reference mask, kept only over the object's box (the rest is outside)."""
+
+    inside: np.ndarray  # (h, w) bool, the box's pixels
+    origin: tuple[int, int]  # reference pixel (x, y) of inside[0, 0]
+
+
+def _box(mask: np.ndarray) -> tuple[int, int, int, int]:
+    """Bounding box ``(x, y, width, height)`` of a bool mask's pixels, in pixels."""
+    # (a bool array viewed as bytes: no copy of a full-size mask)
+    return tuple(int(v) for v in cv2.boundingRect(mask.view(np.uint8)))
+
+
+def _erode(mask: np.ndarray, radius_px: int, box) -> _Eroded:
+    """Shrink the mask by ``radius_px`` in the chessboard metric.
+
+    Only the object's bounding box ``box`` (see :func:`_box`), padded by the radius, is
+    eroded: nothing outside it survives, and the padding keeps the box's edge eroded as
+    in the full image.
+    """
+    x, y, w, h = box
+    height, width = mask.shape
+    x0, y0 = max(x - radius_px, 0), max(y - radius_px, 0)
+    x1, y1 = min(x + w + radius_px, width), min(y + h + radius_px, height)
+    side = 2 * radius_px + 1
+    pixels = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
+    return _Eroded(cv2.erode(pixels, np.ones((side, side), np.uint8)).view(bool), (x0, y0))
+
+
+def _views_from_reference(rig: CameraRig, plane: Plane) -> np.ndarray:
+    """Affine maps ``(N, 2, 3)`` from reference pixels to each camera's pixels on the plane.
+
+    In a rectified rig a point at depth z moves by ``-f (C_j - C_ref) / z`` between the
+    reference view and camera j, and on a plane ``1 / z`` is affine in the pixel: the
+    homography the plane induces is affine.
+    """
+    k = rig.intrinsics
+    n = plane.n
+    base = plane.offset_m - float(n @ rig.reference_center_m)
+    # 1 / z = g . (u, v, 1) at reference pixels (u, v)
+    g = np.array([n[0] / k.fx, n[1] / k.fy, n[2] - n[0] * k.cx / k.fx - n[1] * k.cy / k.fy]) / base
+    d = rig.centers_m - rig.reference_center_m
+    # camera pixel = A (u, v) + t with A = I - s g[:2]^T, t = -s g[2], s = f * dXY
+    s = d[:, :2] * np.array([k.fx, k.fy])  # (N, 2)
+    maps = np.empty((len(d), 2, 3))
+    maps[:, :, :2] = np.eye(2) - s[:, :, None] * g[:2]
+    maps[:, :, 2] = -g[2] * s
+    return maps
+
+
+def _references_from_views(rig: CameraRig, plane: Plane) -> np.ndarray:
+    """Affine maps ``(N, 2, 3)`` from each camera's pixels to the reference pixels."""
+    forward = _views_from_reference(rig, plane)
+    a, t = forward[:, :, :2], forward[:, :, 2]
+    det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+    inverse = np.empty_like(forward)
+    inverse[:, 0, 0], inverse[:, 1, 1] = a[:, 1, 1] / det, a[:, 0, 0] / det
+    inverse[:, 0, 1], inverse[:, 1, 0] = -a[:, 0, 1] / det, -a[:, 1, 0] / det
+    inverse[:, :, 2] = -np.einsum("nij,nj->ni", inverse[:, :, :2], t)
+    return inverse
+
+
+def _object_lookup(eroded_ref: _Eroded, to_ref: np.ndarray | None, uu: np.ndarray,
+                   vv: np.ndarray) -> np.ndarray:
+    """Whether camera pixels ``uu, vv`` (any shape) land on the eroded reference mask."""
+    if to_ref is not None:
+        uu, vv = (to_ref[0, 0] * uu + to_ref[0, 1] * vv + to_ref[0, 2],
+                  to_ref[1, 0] * uu + to_ref[1, 1] * vv + to_ref[1, 2])
+    x0, y0 = eroded_ref.origin
+    ru, rv = np.rint(uu).astype(np.intp) - x0, np.rint(vv).astype(np.intp) - y0
+    h, w = eroded_ref.inside.shape
+    ok = (ru >= 0) & (ru < w) & (rv >= 0) & (rv < h)
+    inside = np.zeros(ok.shape, dtype=bool)
+    inside[ok] = eroded_ref.inside[rv[ok], ru[ok]]
+    return inside
+
+
+def _block_window(view: np.ndarray, rig: CameraRig, block_mask: np.ndarray, to_ref, center_uv,
+                  half: int, block: int):
+    """Block samples of the window around ``center_uv``, or None if it misses the image.
+
+    Returns block centres ``(M, 2)`` (pixels), mean linear luminance, saturation (a pixel
+    of the block clipped) and object membership ``(M,)``; ``block_mask`` is the
+    reference mask eroded so that a block centred on it lies wholly on the object.
+    """
+    w, h = rig.image_size
+    n_side = (2 * half + 1) // block
+    start = np.rint(np.asarray(center_uv)).astype(int) - (n_side * block) // 2
+    # Keep whole blocks inside the image.
+    lo = np.maximum(0, np.ceil(-start / block)).astype(int)
+    hi = np.minimum(n_side, np.floor((np.array([w, h]) - start) / block)).astype(int)
+    if np.any(hi <= lo):
+        return None
+    u0, v0 = start + lo * block
+    nu, nv = (int(x) for x in hi - lo)
+    crop = view[v0:v0 + nv * block, u0:u0 + nu * block]
+    lum = _decode(crop, rig.image_encoding)
+    if lum.ndim == 3:
+        lum = cv2.transform(lum, REC709_LUMA.reshape(1, 3))
+    clipped = saturation_mask(crop)
+    if block > 1:
+        # INTER_AREA with an integer factor is the exact block mean.
+        lum = cv2.resize(lum, (nu, nv), interpolation=cv2.INTER_AREA)
+        # any() over block rows, then over block columns (single-axis reductions are fast)
+        clipped = clipped.reshape(nv, block, nu * block).any(axis=1)
+        clipped = clipped.reshape(nv, nu, block).any(axis=2)
+    cu = u0 + block * np.arange(nu) + (block - 1) / 2.0
+    cv = v0 + block * np.arange(nv) + (block - 1) / 2.0
+    uu, vv = np.tile(cu, nv), np.repeat(cv, nu)  # row-major, like the blocks
+    inside = _object_lookup(block_mask, to_ref, uu, vv)
+    return (np.stack([uu, vv], axis=1), lum.ravel().astype(np.float64), clipped.ravel(),
+            inside)
+
+
+def _decode(image: np.ndarray, encoding: str) -> np.ndarray:
+    """Linear intensity ``(H, W[, 3])`` float32 of a crop (a table for uint8 images)."""
+    if image.dtype == np.uint8:
+        return cv2.LUT(image, _DECODE_LUT[encoding])
+    if encoding == "srgb":
+        return srgb_to_linear(image)
+    return image.astype(np.float32)

@@ -1,0 +1,114 @@
+"""Levenberg-Marquardt with bounds on the free parameters, for the lobe model.
+
+The model supplies residuals, a Jacobian of the free parameters and bounds; the solver
+adds damping to the normal equations, keeps steps inside the bounds and stops when the
+cost or the disparity stops moving.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .layout import _N_PLANE
+
+if TYPE_CHECKING:  # the model imports this module's normal-equation solve
+    from .model import _LobeModel
+
+# Levenberg-Marquardt: start and largest damping, and stopping rules. A joint step ends
+# the fit when it moves the disparity at the object's corners by less than
+# _DISPARITY_STEP_TOL_PX and lowers the cost by less than _PLANE_COST_RTOL (relative), or
+# lowers it by less than _COST_RTOL. Photometric-only fits only seed or compare, and stop
+# at _PHOTOMETRIC_COST_RTOL.
+_LAMBDA0 = 1e-3
+_LAMBDA_MAX = 1e8
+_DISPARITY_STEP_TOL_PX = 1e-4
+_PLANE_COST_RTOL = 1e-4
+
+
+# Below this determinant the Jacobi-scaled 3x3 normal equations count as singular.
+_MIN_SCALED_DETERMINANT = 1e-12
+
+
+def _solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve 3x3 normal equations ``normal x = rhs`` (``rhs`` ``(3,)`` or ``(3, K)``).
+
+    Jacobi scaling keeps the nearly collinear diffuse and level columns solvable. The
+    inverse is written out (cofactors): this runs hundreds of times per fit, where
+    ``numpy.linalg.solve``'s call overhead would dominate. A singular system (a lobe
+    invisible everywhere) falls back to the pseudo-inverse.
+    """
+    rows = normal.tolist()
+    scale = [1.0 / math.sqrt(max(rows[j][j], 1e-300)) for j in range(3)]
+    (a, b, c), (d, e, f), (g, h, i) = [[rows[j][k] * scale[j] * scale[k] for k in range(3)]
+                                       for j in range(3)]
+    cofactors = [[e * i - f * h, c * h - b * i, b * f - c * e],
+                 [f * g - d * i, a * i - c * g, c * d - a * f],
+                 [d * h - e * g, b * g - a * h, a * e - b * d]]
+    det = a * cofactors[0][0] + b * cofactors[1][0] + c * cofactors[2][0]
+    if rhs.ndim == 1 and abs(det) > _MIN_SCALED_DETERMINANT:
+        # (plain floats: three numbers do not repay numpy's call overhead)
+        y = [r * sj for r, sj in zip(rhs.tolist(), scale, strict=True)]
+        return np.array([scale[j] * (cofactors[j][0] * y[0] + cofactors[j][1] * y[1]
+                                     + cofactors[j][2] * y[2]) / det for j in range(3)])
+    scale_v = np.array(scale)
+    if abs(det) > _MIN_SCALED_DETERMINANT:
+        inverse = np.array(cofactors) / det
+    else:
+        inverse = np.linalg.pinv(normal * scale_v[:, None] * scale_v[None, :])
+    x = inverse @ (scale_v[:, None] * rhs.reshape(3, -1))
+    return (scale_v[:, None] * x).reshape(rhs.shape)
+
+
+def _levenberg_marquardt(model: _LobeModel, theta0: np.ndarray, free: np.ndarray,
+                         max_iterations: int, *, cost_rtol: float):
+    """Minimise the mean squared residual over ``theta[free]`` (intensities follow).
+
+    Stops when an accepted step lowers the cost by less than ``cost_rtol`` (relative),
+    or moves the plane's disparity by less than ``_DISPARITY_STEP_TOL_PX`` while
+    lowering the cost by less than ``_PLANE_COST_RTOL``, or when no step lowers it.
+    Returns the parameters, their cost, the number of steps tried (accepted or not) and
+    whether a stopping rule was met.
+    """
+    residual, theta = model.evaluate(theta0)
+    cost = float(np.mean(residual**2))
+    lam = _LAMBDA0
+    converged = False
+    steps = 0
+    moves_plane = bool(np.any(free < _N_PLANE))
+    while steps < max_iterations and not converged:
+        jac = model.jacobian(theta, free)  # (K, P)
+        normal = model.gram(jac)
+        gradient = jac @ residual
+        # Marquardt's scaling: damping proportional to each parameter's curvature.
+        damping = np.diag(np.maximum(normal.diagonal(), 1e-12 * max(1.0, float(normal.max()))))
+        improved = False
+        while steps < max_iterations:
+            steps += 1
+            try:
+                delta = np.linalg.solve(normal + lam * damping, -gradient)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            trial = theta.copy()
+            trial[free] += delta
+            trial_residual, trial = model.evaluate(model.clamp(trial))
+            trial_cost = float(np.mean(trial_residual**2))
+            if math.isfinite(trial_cost) and trial_cost < cost:
+                decrease = (cost - trial_cost) / max(cost, 1e-300)
+                plane_step_px = model.disparity_change_px(theta, trial) if moves_plane else 0.0
+                theta, cost, residual = trial, trial_cost, trial_residual
+                lam = max(lam / 3.0, 1e-9)
+                improved = True
+                converged = decrease < cost_rtol or (
+                    plane_step_px < _DISPARITY_STEP_TOL_PX and decrease < _PLANE_COST_RTOL)
+                break
+            lam *= 4.0
+            if lam > _LAMBDA_MAX:
+                converged = True  # no step lowers the cost: a local minimum
+                break
+        if not improved:
+            break
+    return theta, cost, steps, converged
