@@ -26,8 +26,8 @@ from .light import (
     DEFAULT_MAX_RESIDUAL_M,
     DEFAULT_MIN_VIEWS,
     LightEstimate,
-    _check_positive,
-    _incidence_check,
+    check_positive,
+    incidence_check,
     light_from_reflections,
 )
 from .plate_highlights import find_plate_highlights
@@ -141,8 +141,8 @@ def estimate_light(
         )
     if isinstance(min_views, bool) or not isinstance(min_views, int) or min_views < 1:
         raise LightError(f"min_views: expected a positive integer, got {min_views!r}")
-    max_incidence_deg = _check_positive(max_incidence_deg, "max_incidence_deg")
-    max_residual_m = _check_positive(max_residual_m, "max_residual_m")
+    max_incidence_deg = check_positive(max_incidence_deg, "max_incidence_deg")
+    max_residual_m = check_positive(max_residual_m, "max_residual_m")
     poses, centers, reasons = [], [], []
     for c, capture in enumerate(captures):
         label = f"capture {c}" + (
@@ -160,7 +160,7 @@ def estimate_light(
             )
         except LightError as exc:
             raise LightError(f"{label}: {exc}") from None
-        _incidence_check(pose, rig, pose.views_used, max_incidence_deg, label)
+        incidence_check(pose, rig, pose.views_used, max_incidence_deg, label)
         found, why = find_plate_highlights(
             views, rig, board, pose, method=method, **detector_options
         )

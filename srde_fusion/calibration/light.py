@@ -72,7 +72,7 @@ _MIN_SIGMA_PX = 0.01
 
 
 # ---------------------------------------------------------------------- the solve
-def _check_positive(value: Any, name: str) -> float:
+def check_positive(value: Any, name: str) -> float:
     if (
         isinstance(value, bool)
         or not isinstance(value, (int, float, np.integer, np.floating))
@@ -283,7 +283,7 @@ class LightEstimate:
         return "\n".join(lines)
 
 
-def _incidence_check(
+def incidence_check(
     pose: PlatePose, rig: CameraRig, views: Sequence[int], max_incidence_deg: float, where: str
 ) -> None:
     sight = pose.center_m - rig.centers_m[list(views)]
@@ -444,8 +444,8 @@ def light_from_reflections(
             f"highlight_centers_px: expected one (N, 2) array per plate pose "
             f"({len(poses)}), got {len(highlight_centers_px)}"
         )
-    max_incidence_deg = _check_positive(max_incidence_deg, "max_incidence_deg")
-    max_residual_m = _check_positive(max_residual_m, "max_residual_m")
+    max_incidence_deg = check_positive(max_incidence_deg, "max_incidence_deg")
+    max_residual_m = check_positive(max_residual_m, "max_residual_m")
     n_views = rig.n_cameras
     centers_all = []
     for c, (pose, centers) in enumerate(zip(poses, highlight_centers_px, strict=True)):
@@ -459,7 +459,7 @@ def light_from_reflections(
             )
         used = np.flatnonzero(np.all(np.isfinite(centers), axis=1))
         if used.size:
-            _incidence_check(pose, rig, used.tolist(), max_incidence_deg, f"capture {c}")
+            incidence_check(pose, rig, used.tolist(), max_incidence_deg, f"capture {c}")
         centers_all.append(centers)
     o, d, cap, view = _rays(poses, centers_all, rig)
     closed_form, _ = closest_point_to_rays(o, d)

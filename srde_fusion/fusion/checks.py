@@ -148,7 +148,7 @@ def textured_mask(reference: np.ndarray, min_gradient: float) -> np.ndarray:
     """Pixels of the reference view that carry texture a matcher can lock onto."""
     # Texture is judged on the encoded values (luma), as a network trained on 8-bit
     # images sees them; linear luminance would squash texture in dark regions.
-    textured = _gradient_magnitude(_gray(reference)) > min_gradient
+    textured = _gradient_magnitude(gray_levels(reference)) > min_gradient
     # Clipped highlights have strong, view-dependent edges that the backbone mismatches.
     return textured & ~_clipped(reference)
 
@@ -164,31 +164,31 @@ def border_band(mask: np.ndarray, width_px: int) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class _BorderStats:
+class BorderStats:
     n_px: int = 0
     ratio_low: float = math.nan
     ratio_high: float = math.nan
     median_diff_px: float = math.nan
 
 
-def _border_stats(plane: Plane | None, rig: CameraRig, backbone: np.ndarray, mask: np.ndarray,
-                  textured: np.ndarray, check: BorderCheck) -> _BorderStats:
+def border_stats(plane: Plane | None, rig: CameraRig, backbone: np.ndarray, mask: np.ndarray,
+                  textured: np.ndarray, check: BorderCheck) -> BorderStats:
     if plane is None:
-        return _BorderStats()
+        return BorderStats()
     band = border_band(mask, check.width_px) & textured & np.isfinite(backbone)
     vs, us = np.nonzero(band)
     # SRDE's plane, extended beyond the mask onto the outer half of the band.
     srde_px = plane_disparity(plane, rig, np.stack([us, vs], axis=-1).astype(np.float64))
     keep = np.isfinite(srde_px) & (srde_px > 0)
     if not keep.any():
-        return _BorderStats()
+        return BorderStats()
     srde_px, backbone_px = srde_px[keep], backbone[vs[keep], us[keep]].astype(np.float64)
     low, high = np.quantile(backbone_px / srde_px, [check.low_quantile, check.high_quantile])
-    return _BorderStats(int(keep.sum()), float(low), float(high),
+    return BorderStats(int(keep.sum()), float(low), float(high),
                         float(np.median(srde_px - backbone_px)))
 
 
-def _gray(image: np.ndarray) -> np.ndarray:
+def gray_levels(image: np.ndarray) -> np.ndarray:
     """Return the encoded grey values in [0, 1], (H, W) float32."""
     gray = to_float(image)
     return (gray @ REC709_LUMA).astype(np.float32) if gray.ndim == 3 else gray.astype(np.float32)
@@ -264,7 +264,7 @@ def _cost_map(grays: list[np.ndarray], rig: CameraRig, mask: np.ndarray,
     return np.where(mask & (count > 0), mean, np.nan).astype(np.float32)
 
 
-def _trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
+def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
           textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
           check: BorderCheck) -> np.ndarray:
     """Return the mask pixels that are not the object, (H, W) bool.
@@ -301,15 +301,15 @@ def _trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
 
 
 @dataclass(frozen=True)
-class _PhotoStats:
+class PhotoStats:
     n_px: int = 0
     cost_srde: float = math.nan
     cost_backbone: float = math.nan
 
 
-def _photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
+def photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
                  textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
-                 check: BorderCheck) -> _PhotoStats:
+                 check: BorderCheck) -> PhotoStats:
     """Return the photometric cost of SRDE and the backbone on the mask's inner ring."""
     # Only ring pixels next to texture (the silhouette edge): inside a glossy object the
     # shading follows the reflection, whose depth is the virtual light's, not the
@@ -326,12 +326,12 @@ def _photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, b
     cost_backbone = _photo_cost(grays, rig, us, vs, backbone[vs, us])
     both = np.isfinite(cost_srde) & np.isfinite(cost_backbone)
     if not both.any():
-        return _PhotoStats()
-    return _PhotoStats(int(both.sum()), float(cost_srde[both].mean()),
+        return PhotoStats()
+    return PhotoStats(int(both.sum()), float(cost_srde[both].mean()),
                        float(cost_backbone[both].mean()))
 
 
-def _suspicion(estimate: ObjectEstimate, photo: _PhotoStats) -> str:
+def weak_evidence(estimate: ObjectEstimate, photo: PhotoStats) -> str:
     """Say why SRDE's own evidence for its plane is weak ("" if it is not)."""
     if estimate.kept_initial_plane:
         return "its photometric refinement kept the initial plane"

@@ -38,14 +38,14 @@ from ..srde import SRDE
 from .checks import (
     DEFAULT_BORDER_CHECK,
     BorderCheck,
-    _border_stats,
-    _BorderStats,
-    _gray,
-    _photo_stats,
-    _PhotoStats,
-    _suspicion,
-    _trim,
+    BorderStats,
+    PhotoStats,
+    border_stats,
+    gray_levels,
+    photo_stats,
+    spill_trim,
     textured_mask,
+    weak_evidence,
 )
 from .estimate import ObjectEstimate, PlaneEstimator, read_estimate
 from .report import SOURCE_BACKBONE, FusionResult, ObjectReport
@@ -57,7 +57,7 @@ __all__ = [
 Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
 
 
-def _as_mask_list(masks: Any, shape: tuple[int, int]) -> list[np.ndarray]:
+def as_mask_list(masks: Any, shape: tuple[int, int]) -> list[np.ndarray]:
     """Validate ``masks`` (list of bool masks, (K, H, W) stack or (H, W) labels)."""
     if isinstance(masks, np.ndarray):
         if masks.ndim == 2:
@@ -131,7 +131,7 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
     w, h = rig.image_size
     backbone = check_disparity(backbone_disparity, (h, w), "backbone_disparity")
     views = check_views(views, rig.n_cameras, rig.image_size)
-    mask_list = _as_mask_list(masks, (h, w))
+    mask_list = as_mask_list(masks, (h, w))
     if border_check is not None and not isinstance(border_check, BorderCheck):
         raise SRDEError(f"border_check: expected a BorderCheck or None, got "
                         f"{type(border_check).__name__}")
@@ -144,7 +144,7 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
     if border_check is not None and mask_list:
         context = _Context(backbone, rig, border_check,
                            textured_mask(views[rig.reference], border_check.min_gradient),
-                           [_gray(v) for v in views])
+                           [gray_levels(v) for v in views])
 
     reports = []
     for k, mask in enumerate(mask_list, start=1):
@@ -199,22 +199,22 @@ def _decide(k: int, estimate: ObjectEstimate, mask: np.ndarray, free: np.ndarray
     textured, grays = context.textured, context.grays
     trimmed = np.zeros_like(mask)
     if check is not None and check.trim_disagreement > 0:
-        trimmed = _trim(mask, srde_disp, backbone, textured, grays, rig, check)
+        trimmed = spill_trim(mask, srde_disp, backbone, textured, grays, rig, check)
     n_trimmed = int(np.count_nonzero(trimmed))
     object_mask = mask & ~trimmed
-    stats = _BorderStats()
+    stats = BorderStats()
     if check is not None:
-        stats = _border_stats(estimate.plane, rig, backbone, object_mask, textured, check)
-    photo = _PhotoStats()
+        stats = border_stats(estimate.plane, rig, backbone, object_mask, textured, check)
+    photo = PhotoStats()
     if check is not None and check.photo_ring_px > 0:
-        photo = _photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check)
+        photo = photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check)
     common = dict(border_px=stats.n_px, border_ratio_low=stats.ratio_low,
                   border_ratio_high=stats.ratio_high,
                   border_median_diff_px=stats.median_diff_px, trimmed_px=n_trimmed,
                   photo_px=photo.n_px, photo_cost_srde=photo.cost_srde,
                   photo_cost_backbone=photo.cost_backbone)
     checked = check is not None and stats.n_px >= check.min_px
-    suspicion = _suspicion(estimate, photo)
+    suspicion = weak_evidence(estimate, photo)
     contradiction = ""
     if checked and stats.ratio_low > check.max_behind_ratio:
         contradiction = (f"it puts the object behind what the backbone sees around it "

@@ -19,7 +19,7 @@ from ..geometry import CameraRig
 from ..masks import resolve_masker
 from ..srde import SRDE
 from .checks import DEFAULT_BORDER_CHECK, BorderCheck
-from .fuse import _as_mask_list, fuse
+from .fuse import as_mask_list, fuse
 from .report import FusionResult
 
 __all__ = [
@@ -150,6 +150,6 @@ class HybridStereo:
         left, right = (views[i] for i in rig.stereo_pair)
         disparity = self.backbone(left, right)
         # Checked here so that a masker returning None or a generator is a MaskError.
-        masks = _as_mask_list(self.masker(views, rig), (rig.height, rig.width))
+        masks = as_mask_list(self.masker(views, rig), (rig.height, rig.width))
         srde = self.srde if masks else None
         return fuse(disparity, views, rig, masks, srde, border_check=self.border_check)

@@ -16,7 +16,7 @@ from ..errors import FileFormatError
 
 
 # ---------------------------------------------------------------------- helpers
-def _exists(path: Path, kind: str) -> bool:
+def path_exists(path: Path, kind: str) -> bool:
     # A path the OS refuses to look up (name too long, no permission on a parent folder)
     # is reported like a missing one, as a FileFormatError, not as an OSError.
     try:
@@ -25,21 +25,21 @@ def _exists(path: Path, kind: str) -> bool:
         return False
 
 
-def _existing_file(path: str | os.PathLike, what: str) -> Path:
+def existing_file(path: str | os.PathLike, what: str) -> Path:
     p = Path(path)
-    if not _exists(p, "file"):
+    if not path_exists(p, "file"):
         raise FileFormatError(f"{p}: expected an existing {what} file, got no such file")
     return p
 
 
-def _read_bytes(path: Path, what: str) -> bytes:
+def read_bytes(path: Path, what: str) -> bytes:
     try:
         return path.read_bytes()
     except OSError as exc:
         raise FileFormatError(f"{path}: expected a readable {what} file, got {exc}") from None
 
 
-def _write_bytes(path: Path, data: bytes) -> None:
+def write_bytes(path: Path, data: bytes) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_bytes(data)
@@ -47,9 +47,9 @@ def _write_bytes(path: Path, data: bytes) -> None:
         raise FileFormatError(f"{path}: could not write the file: {exc}") from None
 
 
-def _decode_image(path: Path, what: str) -> np.ndarray:
+def decode_image(path: Path, what: str) -> np.ndarray:
     """Decode an image file with OpenCV, untouched (bit depth and channels as stored)."""
-    data = _read_bytes(_existing_file(path, what), what)
+    data = read_bytes(existing_file(path, what), what)
     # imdecode on the bytes (rather than imread on the path) handles non-ASCII paths
     # and gives us one place to turn a failed decode into a FileFormatError.
     image = None
@@ -69,7 +69,7 @@ def _decode_image(path: Path, what: str) -> np.ndarray:
     return image
 
 
-def _encode_image(path: Path, image: np.ndarray) -> None:
+def encode_image(path: Path, image: np.ndarray) -> None:
     ext = path.suffix.lower()
     try:
         ok, buf = cv2.imencode(ext, image)
@@ -80,4 +80,4 @@ def _encode_image(path: Path, image: np.ndarray) -> None:
         ) from None
     if not ok:
         raise FileFormatError(f"{path}: could not encode the image as {ext!r}")
-    _write_bytes(path, buf.tobytes())
+    write_bytes(path, buf.tobytes())

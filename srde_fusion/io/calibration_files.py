@@ -21,7 +21,7 @@ import numpy as np
 from .._checks import check_disparity
 from ..errors import FileFormatError, RigError
 from ..geometry import Camera, CameraRig, Intrinsics
-from ._files import _existing_file, _read_bytes
+from ._files import existing_file, read_bytes
 
 __all__ = [
     "MiddleburyCalib",
@@ -122,8 +122,8 @@ def read_middlebury_calib(
         rectified (different focal length or ``cy``), or ``doffs`` inconsistent with the
         principal points.
     """
-    p = _existing_file(path, "Middlebury calib.txt")
-    text = _read_bytes(p, "Middlebury calib.txt").decode("utf-8", errors="replace")
+    p = existing_file(path, "Middlebury calib.txt")
+    text = read_bytes(p, "Middlebury calib.txt").decode("utf-8", errors="replace")
     entries: dict[str, str] = {}
     for number, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
@@ -291,7 +291,7 @@ def read_opencv_stereo_yaml(
         Missing or unparsable file, missing matrices, no image size, or a second camera
         that lies to the left of the first (swap the cameras).
     """
-    p = _existing_file(path, "OpenCV stereo calibration")
+    p = existing_file(path, "OpenCV stereo calibration")
     if (
         isinstance(units_per_m, bool)
         or not isinstance(units_per_m, (int, float))

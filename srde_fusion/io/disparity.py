@@ -18,7 +18,7 @@ import numpy as np
 
 from .._checks import check_disparity
 from ..errors import FileFormatError
-from ._files import _decode_image, _encode_image, _existing_file, _read_bytes, _write_bytes
+from ._files import decode_image, encode_image, existing_file, read_bytes, write_bytes
 
 __all__ = [
     "KITTI_DISPARITY_SCALE",
@@ -67,8 +67,8 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
     FileFormatError
         Missing file, wrong magic, malformed header or too little data.
     """
-    p = _existing_file(path, "PFM")
-    data = _read_bytes(p, "PFM")
+    p = existing_file(path, "PFM")
+    data = read_bytes(p, "PFM")
     # The header is three whitespace-separated tokens after the magic; one line break
     # (or whitespace byte) separates it from the raster. CRLF files exist in the wild.
     match = re.match(rb"(P[Ff])\s+(\d+)\s+(\d+)\s+([-+0-9.eE]+)(?:\r\n|\s)", data)
@@ -139,7 +139,7 @@ def write_pfm(path: str | os.PathLike, array: np.ndarray) -> Path:
     height, width = arr.shape[:2]
     header = magic + f"\n{width} {height}\n-1.0\n".encode("ascii")
     raster = np.ascontiguousarray(arr[::-1], dtype="<f4").tobytes()
-    _write_bytes(p, header + raster)
+    write_bytes(p, header + raster)
     return p
 
 
@@ -160,7 +160,7 @@ def read_kitti_disparity(path: str | os.PathLike) -> np.ndarray:
         has lost the fixed-point scale and is refused).
     """
     p = Path(path)
-    raw = _decode_image(p, "KITTI disparity PNG")
+    raw = decode_image(p, "KITTI disparity PNG")
     if raw.dtype != np.uint16:
         raise FileFormatError(
             f"{p}: expected a 16-bit KITTI disparity PNG (value / {KITTI_DISPARITY_SCALE:g}), "
@@ -206,7 +206,7 @@ def write_kitti_disparity(path: str | os.PathLike, disparity_px: np.ndarray) -> 
         )
     scaled = np.zeros(d.shape, dtype=np.uint16)
     scaled[valid] = np.maximum(np.rint(d[valid].astype(np.float64) * KITTI_DISPARITY_SCALE), 1)
-    _encode_image(p, scaled)
+    encode_image(p, scaled)
     return p
 
 
@@ -246,7 +246,7 @@ def read_disparity(path: str | os.PathLike) -> np.ndarray:
     if ext == ".pfm":
         raw = read_pfm(p)
     else:
-        _existing_file(p, "disparity .npy")
+        existing_file(p, "disparity .npy")
         try:
             raw = np.load(p, allow_pickle=False)
         # numpy parses the header with Python's own parser: a damaged header can raise

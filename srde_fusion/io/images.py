@@ -17,7 +17,7 @@ import numpy as np
 
 from .._checks import check_image
 from ..errors import FileFormatError, MaskError
-from ._files import _decode_image, _encode_image
+from ._files import decode_image, encode_image
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -58,7 +58,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
         that is not fully opaque (transparency has no meaning for a camera image).
     """
     p = Path(path)
-    image = _decode_image(p, "8-bit image")
+    image = decode_image(p, "8-bit image")
     if image.dtype != np.uint8:
         raise FileFormatError(
             f"{p}: expected an 8-bit image, got dtype {image.dtype}; convert it to 8 bits "
@@ -109,7 +109,7 @@ def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
     image = _to_uint8(check_image(image, "image"))
     if image.ndim == 3:
         image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-    _encode_image(p, image)
+    encode_image(p, image)
     return p
 
 
@@ -135,7 +135,7 @@ def read_mask(path: str | os.PathLike) -> np.ndarray:
         Missing or undecodable file, or colour channels that differ.
     """
     p = Path(path)
-    raw = _decode_image(p, "mask image")
+    raw = decode_image(p, "mask image")
     if raw.ndim == 3:
         if not all(np.array_equal(raw[:, :, 0], raw[:, :, c]) for c in range(1, raw.shape[2])):
             raise FileFormatError(
@@ -174,7 +174,7 @@ def masks_from_labels(labels: np.ndarray) -> list[np.ndarray]:
     >>> [int(m.sum()) for m in masks_from_labels(np.array([[0, 2], [2, 5]]))]
     [2, 1]
     """
-    labels = _check_labels(labels, "labels")
+    labels = check_labels(labels, "labels")
     return [labels == value for value in np.unique(labels) if value != 0]
 
 
@@ -216,7 +216,7 @@ def labels_from_masks(masks: Sequence[np.ndarray]) -> np.ndarray:
     return labels
 
 
-def _check_labels(labels: Any, name: str) -> np.ndarray:
+def check_labels(labels: Any, name: str) -> np.ndarray:
     if not isinstance(labels, np.ndarray) or labels.ndim != 2:
         shape = labels.shape if isinstance(labels, np.ndarray) else type(labels).__name__
         raise MaskError(f"{name}: expected an (H, W) integer label array, got {shape}")
@@ -245,12 +245,12 @@ def write_mask(path: str | os.PathLike, labels: np.ndarray) -> Path:
     MaskError
         Not an ``(H, W)`` integer/bool array, or labels outside 0..255.
     """
-    labels = _check_labels(labels, "labels")
+    labels = check_labels(labels, "labels")
     if labels.size and labels.max() > _MAX_LABEL_U8:
         raise MaskError(
             f"labels: expected at most {_MAX_LABEL_U8} objects for an 8-bit mask, "
             f"got label {int(labels.max())}"
         )
     p = Path(path)
-    _encode_image(p, labels.astype(np.uint8))
+    encode_image(p, labels.astype(np.uint8))
     return p

@@ -21,11 +21,11 @@ import numpy as np
 from .._checks import check_disparity, check_views
 from ..errors import FileFormatError, MaskError, RigError
 from ..geometry import CameraRig
-from ._files import _exists, _read_bytes, _write_bytes
+from ._files import path_exists, read_bytes, write_bytes
 from .disparity import read_disparity, write_disparity
 from .images import (
     IMAGE_EXTENSIONS,
-    _check_labels,
+    check_labels,
     labels_from_masks,
     masks_from_labels,
     read_image,
@@ -141,7 +141,7 @@ def write_scene(
     labels = None
     if mask is not None:
         labels = (
-            _check_labels(mask, "mask") if isinstance(mask, np.ndarray) else labels_from_masks(mask)
+            check_labels(mask, "mask") if isinstance(mask, np.ndarray) else labels_from_masks(mask)
         )
         if labels.shape != hw:
             raise MaskError(f"mask: expected shape {hw} (the rig's image size), got {labels.shape}")
@@ -165,7 +165,7 @@ def write_scene(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise FileFormatError(f"{out}: could not create the scene folder: {exc}") from None
-    _write_bytes(out / RIG_FILE, rig.to_json().encode("utf-8"))
+    write_bytes(out / RIG_FILE, rig.to_json().encode("utf-8"))
     for stem, image in zip(stems, checked, strict=True):
         write_image(out / f"{stem}.png", image)
     if labels is not None:
@@ -173,7 +173,7 @@ def write_scene(
     if gt is not None:
         write_disparity(out / f"{GT_DISPARITY_STEM}.pfm", gt)
     if meta_text is not None:
-        _write_bytes(out / METADATA_FILE, meta_text.encode("utf-8"))
+        write_bytes(out / METADATA_FILE, meta_text.encode("utf-8"))
     return out
 
 
@@ -210,7 +210,7 @@ def read_scene(folder: str | os.PathLike) -> SceneData:
         An invalid ``rig.json`` (the message names the file).
     """
     path = Path(folder)
-    if not _exists(path, "dir"):
+    if not path_exists(path, "dir"):
         raise FileFormatError(f"{path}: expected a scene folder, got no such directory")
     rig_path = path / RIG_FILE
     if not rig_path.is_file():
@@ -283,7 +283,7 @@ def read_scene(folder: str | os.PathLike) -> SceneData:
     meta_path = path / METADATA_FILE
     if meta_path.is_file():
         try:
-            metadata = json.loads(_read_bytes(meta_path, "scene metadata").decode("utf-8"))
+            metadata = json.loads(read_bytes(meta_path, "scene metadata").decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise FileFormatError(
                 f"{meta_path}: expected valid JSON, got a parse error: {exc}"
@@ -312,7 +312,7 @@ def list_scenes(dataset_dir: str | os.PathLike) -> list[Path]:
         The folder does not exist or holds no scene folder.
     """
     root = Path(dataset_dir)
-    if not _exists(root, "dir"):
+    if not path_exists(root, "dir"):
         raise FileFormatError(f"{root}: expected a dataset folder, got no such directory")
     scenes = sorted(p for p in root.iterdir() if p.is_dir() and (p / RIG_FILE).is_file())
     if not scenes:

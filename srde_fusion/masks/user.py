@@ -50,7 +50,7 @@ def _labels_to_masks(labels: np.ndarray, name: str) -> list[np.ndarray]:
     return masks_from_labels(labels)
 
 
-def _split_components(mask: np.ndarray, min_area_px: int) -> list[np.ndarray]:
+def connected_components(mask: np.ndarray, min_area_px: int) -> list[np.ndarray]:
     """Split into 8-connected components of at least ``min_area_px``, raster order."""
     n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     return [comp == i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area_px]
@@ -96,7 +96,8 @@ class UserMasks:
         self.min_area_px = int(min_area_px)
         self._masks = self._load(source)
         if split_components:
-            self._masks = [c for m in self._masks for c in _split_components(m, self.min_area_px)]
+            self._masks = [c for m in self._masks
+                           for c in connected_components(m, self.min_area_px)]
         if not self._masks:
             raise MaskError(f"masks: expected at least one object (a non-zero label), got none "
                             f"in {self._where(source)}")

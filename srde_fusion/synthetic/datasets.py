@@ -13,7 +13,7 @@ from ..geometry import CameraRig
 from ..io import write_scene
 from .random_scenes import random_scene
 from .render import render
-from .scene import Light, Material, PlanarObject, Scene, _check_rig
+from .scene import Light, Material, PlanarObject, Scene, check_rig
 
 __all__ = [
     "default_rig",
@@ -161,7 +161,7 @@ def render_dataset(
         raise SceneError(f"n_scenes: expected a positive integer, got {n_scenes!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SceneError(f"seed: expected a non-negative integer, got {seed!r}")
-    rig = default_rig() if rig is None else _check_rig(rig)
+    rig = default_rig() if rig is None else check_rig(rig)
     out = Path(out_dir)
     folders = []
     for i in tqdm(range(n_scenes), desc="render", unit="scene", disable=not progress):

@@ -17,7 +17,7 @@ from scipy import ndimage
 from ..errors import SceneError
 from ..geometry import CameraRig
 from ..imaging import REC709_LUMA
-from .render import _cast, _shade_points
+from .render import cast_rays, shade_points
 from .scene import (
     BACKGROUNDS,
     SHAPES,
@@ -25,12 +25,12 @@ from .scene import (
     Material,
     PlanarObject,
     Scene,
-    _check_rig,
-    _finite,
-    _range,
+    check_finite,
+    check_range,
+    check_rig,
 )
 from .shading import LOBES
-from .surfaces import _background_surfaces, _surface
+from .surfaces import background_surfaces, object_surface
 
 __all__ = [
     "random_scene",
@@ -124,8 +124,9 @@ def _specular_peak(obj: PlanarObject, light: Light, rig: CameraRig) -> float:
     local = _mirror_points_local(obj, np.asarray(light.position_m), rig)
     eye = rig.reference_center_m
     rel = obj.to_world(local[rig.reference]) - eye
-    surf = _surface(replace(obj, material=replace(obj.material, diffuse_rgb=(0.0, 0.0, 0.0))), 1)
-    radiance = _shade_points(
+    black = replace(obj.material, diffuse_rgb=(0.0, 0.0, 0.0))
+    surf = object_surface(replace(obj, material=black), 1)
+    radiance = shade_points(
         surf,
         np.array([rel[0] / rel[2]]),
         np.array([rel[1] / rel[2]]),
@@ -220,7 +221,7 @@ def random_scene(
     >>> len(scene.objects), scene == random_scene(3, rig)
     (1, True)
     """
-    rig = _check_rig(rig)
+    rig = check_rig(rig)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SceneError(f"seed: expected a non-negative integer, got {seed!r}")
     if isinstance(n_objects, bool) or not isinstance(n_objects, (int, np.integer)) or n_objects < 1:
@@ -229,16 +230,16 @@ def random_scene(
         raise SceneError(f"background: expected one of {list(BACKGROUNDS)}, got {background!r}")
     if lobe not in LOBES:
         raise SceneError(f"lobe: expected one of {list(LOBES)}, got {lobe!r}")
-    rough = _range(roughness, "roughness", low=0.0, high=1.0)
-    radius = _range(light_radius_m, "light_radius_m", low=0.0, low_open=False)
-    dist = _range(distance_m, "distance_m", low=0.0)
-    sizes = _range(size_m, "size_m", low=0.0)
-    offsets = _range(light_offset_m, "light_offset_m", low=0.0, low_open=False)
-    clip = _range(clip_ratio, "clip_ratio", low=0.0)
-    level = _range(diffuse_level, "diffuse_level", low=0.0, high=1.0)
-    max_tilt = _finite(max_tilt_deg, "max_tilt_deg", low=0.0, low_open=True, high=89.0)
-    margin = _finite(highlight_margin_m, "highlight_margin_m", low=0.0)
-    noise = _finite(noise_std, "noise_std", low=0.0)
+    rough = check_range(roughness, "roughness", low=0.0, high=1.0)
+    radius = check_range(light_radius_m, "light_radius_m", low=0.0, low_open=False)
+    dist = check_range(distance_m, "distance_m", low=0.0)
+    sizes = check_range(size_m, "size_m", low=0.0)
+    offsets = check_range(light_offset_m, "light_offset_m", low=0.0, low_open=False)
+    clip = check_range(clip_ratio, "clip_ratio", low=0.0)
+    level = check_range(diffuse_level, "diffuse_level", low=0.0, high=1.0)
+    max_tilt = check_finite(max_tilt_deg, "max_tilt_deg", low=0.0, low_open=True, high=89.0)
+    margin = check_finite(highlight_margin_m, "highlight_margin_m", low=0.0)
+    noise = check_finite(noise_std, "noise_std", low=0.0)
     shapes = tuple(shapes) if not isinstance(shapes, str) else (shapes,)
     bad = [s for s in shapes if s not in SHAPES]
     if not shapes or bad:
@@ -324,8 +325,8 @@ def random_scene(
             v = k.fy * rel[:, 1] / rel[:, 2] + k.cy
             if u.min() < 2 or v.min() < 2 or u.max() > w_px - 3 or v.max() > h_px - 3:
                 return None
-        surf = _surface(obj, 1)
-        _, index = _cast([surf], rig, ref, xs, ys)
+        surf = object_surface(obj, 1)
+        _, index = cast_rays([surf], rig, ref, xs, ys)
         mask = index == 0
         if not mask.any():
             return None
@@ -387,7 +388,7 @@ def random_scene(
     if background == "textured":
         # Solve exposure and ambient so that objects sit at `target` and the textured
         # background around 1.5-3x brighter: a stereo network needs to see its texture.
-        wall = _background_surfaces(base, rig, with_textures=False)[0]
+        wall = background_surfaces(base, rig, with_textures=False)[0]
         wall_obj = replace(wall.shape, material=Material(diffuse_rgb=(0.5, 0.5, 0.5), specular=0.0))
         direct_b, amb_b = _diffuse_unit(wall_obj, wall.center_m, light, 1.0)
         target_b = target * rng.uniform(1.5, 3.0)

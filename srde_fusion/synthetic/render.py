@@ -28,9 +28,9 @@ import numpy as np
 from ..errors import SceneError
 from ..geometry import CameraRig, Plane
 from ..imaging import linear_to_srgb
-from .scene import Rendering, Scene, _check_rig, _inside
+from .scene import Rendering, Scene, check_rig, inside_outline
 from .shading import specular_brdf, widened_roughness
-from .surfaces import _SKY_ALBEDO, _background_surfaces, _Surface, _surface
+from .surfaces import SKY_ALBEDO, TexturedSurface, background_surfaces, object_surface
 
 __all__ = [
     "render",
@@ -49,7 +49,8 @@ MAX_SUPERSAMPLE = 8
 
 
 # ---------------------------------------------------------------------------------- casting
-def _pixel_box(surface: _Surface, rig: CameraRig, camera: int) -> tuple[int, int, int, int] | None:
+def _pixel_box(surface: TexturedSurface, rig: CameraRig, camera: int
+               ) -> tuple[int, int, int, int] | None:
     """Rows/cols ``(r0, r1, c0, c1)`` the surface can cover in a camera (None = nowhere)."""
     w, h = rig.image_size
     rel = surface.corners_m - rig.centers_m[camera]
@@ -65,8 +66,8 @@ def _pixel_box(surface: _Surface, rig: CameraRig, camera: int) -> tuple[int, int
     return r0, r1, c0, c1
 
 
-def _cast(
-    surfaces: Sequence[_Surface], rig: CameraRig, camera: int, xs: np.ndarray, ys: np.ndarray
+def cast_rays(
+    surfaces: Sequence[TexturedSurface], rig: CameraRig, camera: int, xs: np.ndarray, ys: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nearest hit per pixel: depth ``(H, W)`` (inf = none) and surface index (-1 = none).
 
@@ -104,7 +105,7 @@ def _cast(
 
 
 def _hits(
-    surf: _Surface, center_m: np.ndarray, num: float, x: np.ndarray, y: np.ndarray
+    surf: TexturedSurface, center_m: np.ndarray, num: float, x: np.ndarray, y: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Front-facing flag, depth and inside-outline flag of rays ``(x, y, 1)`` from a camera.
 
@@ -117,11 +118,11 @@ def _hits(
     rel = center_m - surf.center_m
     lx = rel @ surf.e1 + t * (surf.e1[0] * x + surf.e1[1] * y + surf.e1[2])
     ly = rel @ surf.e2 + t * (surf.e2[0] * x + surf.e2[1] * y + surf.e2[2])
-    return front, t, _inside(surf.shape, lx, ly)
+    return front, t, inside_outline(surf.shape, lx, ly)
 
 
 def _covers(
-    surf: _Surface, center_m: np.ndarray, num: float, x: np.ndarray, y: np.ndarray
+    surf: TexturedSurface, center_m: np.ndarray, num: float, x: np.ndarray, y: np.ndarray
 ) -> np.ndarray:
     """Whether rays ``(x, y, 1)`` hit the surface's front inside its outline."""
     front, _, inside = _hits(surf, center_m, num, x, y)
@@ -158,7 +159,7 @@ def _sample_bilinear(
     return out.reshape(-1, 3)[:m]
 
 
-def _mip(surf: _Surface, level: int) -> np.ndarray:
+def _mip(surf: TexturedSurface, level: int) -> np.ndarray:
     """Return the surface's texture averaged down ``2**level`` times (cached per surface)."""
     tex = surf.shape.texture
     if level == 0:
@@ -172,7 +173,7 @@ def _mip(surf: _Surface, level: int) -> np.ndarray:
     return surf.mips[level]
 
 
-def _albedo(surf: _Surface, local: np.ndarray, footprint_m: float) -> np.ndarray:
+def _albedo(surf: TexturedSurface, local: np.ndarray, footprint_m: float) -> np.ndarray:
     """Diffuse albedo ``(M, 3)`` (or ``(3,)`` if untextured) at local points ``(M, 2)``.
 
     ``footprint_m`` is the size of one image sample on the surface. Where a texel is
@@ -203,8 +204,8 @@ def _albedo(surf: _Surface, local: np.ndarray, footprint_m: float) -> np.ndarray
     return base * _sample_bilinear(mip, tu, tv, tiled=surf.tile_m > 0)
 
 
-def _shade_points(
-    surf: _Surface,
+def shade_points(
+    surf: TexturedSurface,
     ray_x: np.ndarray,
     ray_y: np.ndarray,
     depth_m: np.ndarray,
@@ -274,7 +275,7 @@ def _shade_points(
 
 
 def _render_view(
-    surfaces: Sequence[_Surface],
+    surfaces: Sequence[TexturedSurface],
     scene: Scene,
     rig: CameraRig,
     camera: int,
@@ -291,8 +292,8 @@ def _render_view(
     sample_angle = 1.0 / (math.sqrt(k.fx * k.fy) * supersample)
     xs = (np.arange(w) + offset_px[0] - k.cx) / k.fx
     ys = (np.arange(h) + offset_px[1] - k.cy) / k.fy
-    depth, index = _cast(surfaces, rig, camera, xs, ys)
-    sky = scene.ambient * _SKY_ALBEDO
+    depth, index = cast_rays(surfaces, rig, camera, xs, ys)
+    sky = scene.ambient * SKY_ALBEDO
     radiance = np.full((h * w, 3), sky, dtype=np.float32)
     eye = rig.centers_m[camera]
     flat_index, flat_depth = index.ravel(), depth.ravel()
@@ -302,7 +303,7 @@ def _render_view(
         pixels = np.flatnonzero(flat_index == s)
         if pixels.size == 0:
             continue
-        radiance[pixels] = _shade_points(
+        radiance[pixels] = shade_points(
             surf, grid_x[pixels], grid_y[pixels], flat_depth[pixels], eye, scene, sample_angle
         )
     return radiance.reshape(h, w, 3), depth, index
@@ -360,7 +361,7 @@ def render(
     """
     if not isinstance(scene, Scene):
         raise SceneError(f"scene: expected a Scene, got {type(scene).__name__}")
-    rig = _check_rig(rig)
+    rig = check_rig(rig)
     if (
         isinstance(supersample, bool)
         or not isinstance(supersample, (int, np.integer))
@@ -375,9 +376,9 @@ def render(
         or noise_seed < 0
     ):
         raise SceneError(f"noise_seed: expected a non-negative integer or None, got {noise_seed!r}")
-    surfaces = [_surface(obj, k + 1) for k, obj in enumerate(scene.objects)]
+    surfaces = [object_surface(obj, k + 1) for k, obj in enumerate(scene.objects)]
     if scene.background == "textured":
-        surfaces += _background_surfaces(scene, rig)
+        surfaces += background_surfaces(scene, rig)
     step = 1.0 / supersample
     offsets = [
         ((i + 0.5) * step - 0.5, (j + 0.5) * step - 0.5)
@@ -404,7 +405,7 @@ def render(
         k = rig.intrinsics
         xs = (np.arange(rig.width) - k.cx) / k.fx
         ys = (np.arange(rig.height) - k.cy) / k.fy
-        ref_depth, ref_index = _cast(surfaces, rig, rig.reference, xs, ys)
+        ref_depth, ref_index = cast_rays(surfaces, rig, rig.reference, xs, ys)
     labels = np.array([s.label for s in surfaces] + [0], dtype=np.int32)
     instance = labels[ref_index]  # index -1 (no hit) picks the trailing 0
     finite = np.isfinite(ref_depth)

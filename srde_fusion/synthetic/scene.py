@@ -40,7 +40,7 @@ _ELLIPSE_SIDES = 96
 
 
 # ---------------------------------------------------------------------------------- checks
-def _finite(
+def check_finite(
     value: Any,
     name: str,
     error: type[SRDEError] = SceneError,
@@ -75,22 +75,23 @@ def _vec(
         value = value.tolist()
     if not isinstance(value, (tuple, list)) or len(value) != n:
         raise error(f"{name}: expected {n} numbers, got {value!r}")
-    return tuple(_finite(v, f"{name}[{i}]", error, low=low, high=high) for i, v in enumerate(value))
+    return tuple(check_finite(v, f"{name}[{i}]", error, low=low, high=high)
+                 for i, v in enumerate(value))
 
 
-def _range(
+def check_range(
     value: Any, name: str, *, low: float, low_open: bool = True, high: float | None = None
 ) -> tuple[float, float]:
     """Return a sampling range given as one number or ``(min, max)``."""
     if isinstance(value, (tuple, list, np.ndarray)):
         if len(value) != 2:
             raise SceneError(f"{name}: expected a number or (min, max), got {value!r}")
-        lo = _finite(value[0], f"{name}[0]", low=low, low_open=low_open, high=high)
-        hi = _finite(value[1], f"{name}[1]", low=low, low_open=low_open, high=high)
+        lo = check_finite(value[0], f"{name}[0]", low=low, low_open=low_open, high=high)
+        hi = check_finite(value[1], f"{name}[1]", low=low, low_open=low_open, high=high)
         if hi < lo:
             raise SceneError(f"{name}: expected min <= max, got ({lo:g}, {hi:g})")
         return lo, hi
-    v = _finite(value, name, low=low, low_open=low_open, high=high)
+    v = check_finite(value, name, low=low, low_open=low_open, high=high)
     return v, v
 
 
@@ -124,15 +125,16 @@ class Material:
         object.__setattr__(
             self, "diffuse_rgb", _vec(self.diffuse_rgb, "material.diffuse_rgb", low=0.0, high=1.0)
         )
-        object.__setattr__(self, "specular", _finite(self.specular, "material.specular", low=0.0))
+        object.__setattr__(self, "specular",
+                           check_finite(self.specular, "material.specular", low=0.0))
         object.__setattr__(
             self,
             "roughness",
-            _finite(self.roughness, "material.roughness", low=0.0, low_open=True, high=1.0),
+            check_finite(self.roughness, "material.roughness", low=0.0, low_open=True, high=1.0),
         )
         if self.lobe not in LOBES:
             raise SceneError(f"material.lobe: expected one of {list(LOBES)}, got {self.lobe!r}")
-        object.__setattr__(self, "f0", _finite(self.f0, "material.f0", low=0.0, high=1.0))
+        object.__setattr__(self, "f0", check_finite(self.f0, "material.f0", low=0.0, high=1.0))
 
 
 def _check_texture(texture: Any) -> np.ndarray | None:
@@ -249,7 +251,7 @@ class PlanarObject:
                 f"size_m: expected two positive extents in metres, got {self.size_m!r}"
             )
         object.__setattr__(self, "size_m", size)
-        object.__setattr__(self, "rotation_rad", _finite(self.rotation_rad, "rotation_rad"))
+        object.__setattr__(self, "rotation_rad", check_finite(self.rotation_rad, "rotation_rad"))
         if not isinstance(self.material, Material):
             raise SceneError(f"material: expected a Material, got {type(self.material).__name__}")
         vertices = self.vertices_m
@@ -302,7 +304,7 @@ class PlanarObject:
         """Whether local coordinates ``(..., 2)`` lie inside the outline, ``(...)`` bool."""
         loc = np.asarray(local_m, dtype=np.float64)
         x, y = loc[..., 0], loc[..., 1]
-        return _inside(self, x, y)
+        return inside_outline(self, x, y)
 
     def contains(self, points_m: Any) -> np.ndarray:
         """Whether points ``(..., 3)``, projected onto the plane, lie inside the outline."""
@@ -341,7 +343,7 @@ class PlanarObject:
         return np.min(loc @ lines[:, :2].T + lines[:, 2], axis=-1)
 
 
-def _inside(obj: PlanarObject, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def inside_outline(obj: PlanarObject, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     w, h = obj.size_m
     if obj.shape == "rectangle":
         return (np.abs(x) <= w / 2) & (np.abs(y) <= h / 2)
@@ -379,7 +381,7 @@ class Light:
             self, "position_m", _vec(self.position_m, "light.position_m", error=LightError)
         )
         object.__setattr__(
-            self, "radius_m", _finite(self.radius_m, "light.radius_m", LightError, low=0.0)
+            self, "radius_m", check_finite(self.radius_m, "light.radius_m", LightError, low=0.0)
         )
         object.__setattr__(
             self, "color_rgb", _vec(self.color_rgb, "light.color_rgb", error=LightError, low=0.0)
@@ -387,7 +389,7 @@ class Light:
         object.__setattr__(
             self,
             "intensity",
-            _finite(self.intensity, "light.intensity", LightError, low=0.0, low_open=True),
+            check_finite(self.intensity, "light.intensity", LightError, low=0.0, low_open=True),
         )
 
 
@@ -437,7 +439,7 @@ class Scene:
         object.__setattr__(self, "objects", tuple(objects))
         if not isinstance(self.light, Light):
             raise LightError(f"light: expected a Light, got {type(self.light).__name__}")
-        object.__setattr__(self, "ambient", _finite(self.ambient, "ambient", low=0.0))
+        object.__setattr__(self, "ambient", check_finite(self.ambient, "ambient", low=0.0))
         if self.background not in BACKGROUNDS:
             raise SceneError(
                 f"background: expected one of {list(BACKGROUNDS)}, got {self.background!r}"
@@ -447,9 +449,9 @@ class Scene:
             raise SceneError(f"background_seed: expected a non-negative integer, got {seed!r}")
         object.__setattr__(self, "background_seed", int(seed))
         object.__setattr__(
-            self, "exposure", _finite(self.exposure, "exposure", low=0.0, low_open=True)
+            self, "exposure", check_finite(self.exposure, "exposure", low=0.0, low_open=True)
         )
-        object.__setattr__(self, "noise_std", _finite(self.noise_std, "noise_std", low=0.0))
+        object.__setattr__(self, "noise_std", check_finite(self.noise_std, "noise_std", low=0.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -490,7 +492,7 @@ class Rendering:
         return [self.instance_mask == k for k in range(1, len(self.planes) + 1)]
 
 
-def _check_rig(rig: Any) -> CameraRig:
+def check_rig(rig: Any) -> CameraRig:
     if not isinstance(rig, CameraRig):
         raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
     return rig

@@ -22,12 +22,12 @@ __all__ = [
 ]
 
 #: Linear radiance of the background at infinity, as a fraction of the ambient term.
-_SKY_ALBEDO = 0.02
+SKY_ALBEDO = 0.02
 
 
 # ---------------------------------------------------------------------------------- surfaces
 @dataclass(frozen=True, eq=False)
-class _Surface:
+class TexturedSurface:
     """A plane patch ready for ray casting and shading (objects and background alike)."""
 
     shape: PlanarObject
@@ -42,11 +42,11 @@ class _Surface:
     mips: dict = field(default_factory=dict)  # level -> texture shrunk 2**level times
 
 
-def _surface(obj: PlanarObject, label: int, tile_m: float = 0.0) -> _Surface:
+def object_surface(obj: PlanarObject, label: int, tile_m: float = 0.0) -> TexturedSurface:
     e1, e2 = obj.axes
     n = np.asarray(obj.normal)
     center = np.asarray(obj.center_m)
-    return _Surface(
+    return TexturedSurface(
         obj, n, float(n @ center), center, e1, e2, obj.bounding_corners_m(), label, tile_m
     )
 
@@ -94,9 +94,9 @@ def _random_texture(rng: np.random.Generator) -> np.ndarray:
     return (0.1 + 0.8 * tex).astype(np.float32)
 
 
-def _background_surfaces(
+def background_surfaces(
     scene: Scene, rig: CameraRig, *, with_textures: bool = True
-) -> list[_Surface]:
+) -> list[TexturedSurface]:
     """Textured back wall, floor and panels around the objects, from ``background_seed``.
 
     The wall and the panels lie behind the farthest object corner and the floor below
@@ -125,7 +125,7 @@ def _background_surfaces(
         # Texels 1.5-3 px wide at their depth: detail to match, without aliasing.
         texel_m = texturing.uniform(1.5, 3.0) * z_texel_m / k.fx
         obj = PlanarObject(material=material, texture=texture, **shape_kw)
-        surfaces.append(_surface(obj, 0, texel_m))
+        surfaces.append(object_surface(obj, 0, texel_m))
         return obj
 
     tilt = np.radians(layout.uniform(-12, 12, size=2))

@@ -20,10 +20,10 @@ from srde_fusion.errors import ImageError, LightError, MaskError, SRDEError
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity, plane_from_lights
 from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine import LOBES, PlaneRefinement, refine_plane
-from srde_fusion.srde.refine.layout import _I_FORE, _I_SPEC, _I_TAIL, _N_PLANE
-from srde_fusion.srde.refine.model import DEFAULT_F0, _LobeModel
+from srde_fusion.srde.refine.layout import I_FORE, I_SPEC, I_TAIL, N_PLANE
+from srde_fusion.srde.refine.model import DEFAULT_F0, LobeModel
 from srde_fusion.srde.refine.plane import _warp_change_px
-from srde_fusion.srde.refine.samples import _references_from_views, _sample_windows
+from srde_fusion.srde.refine.samples import _references_from_views, sample_windows
 from srde_fusion.synthetic import random_scene, render
 
 # Tolerances, in one place. Disparity errors are masked mean absolute errors (EPE), px.
@@ -186,21 +186,21 @@ def test_result_is_frozen_and_reports_itself(rough_ggx):
 ])
 def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail):
     case = rough_ggx
-    samples = _sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
+    samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
                               case["centers"])
-    model = _LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
+    model = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
                        lobe, DEFAULT_F0, None)
     theta = model.start_theta()
     # off the initial plane, a tail where both of the "gtr" derivative's branches apply
-    theta[:_N_PLANE] = [0.01, -0.02, 0.003]
-    theta[_I_TAIL], theta[_I_FORE], theta[_I_SPEC:] = tail, 0.7, [0.5, 0.1, 0.2]
+    theta[:N_PLANE] = [0.01, -0.02, 0.003]
+    theta[I_TAIL], theta[I_FORE], theta[I_SPEC:] = tail, 0.7, [0.5, 0.1, 0.2]
     slopes = model.model_slopes(theta, model.free_all)
     for row, index in enumerate(model.free_all):
         up, down = theta.copy(), theta.copy()
         up[index] += SLOPE_STEPS[index]
         down[index] -= SLOPE_STEPS[index]
-        expected = (model._model(model.reflection.geometry(up[:_N_PLANE]), up)
-                    - model._model(model.reflection.geometry(down[:_N_PLANE]), down)) / (
+        expected = (model._model(model.reflection.geometry(up[:N_PLANE]), up)
+                    - model._model(model.reflection.geometry(down[:N_PLANE]), down)) / (
                         2 * SLOPE_STEPS[index])
         scale = np.max(np.abs(expected))
         assert scale > 0

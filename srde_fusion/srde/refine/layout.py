@@ -7,7 +7,7 @@ level)``: three plane parameters, three shape parameters, three intensities.
 from __future__ import annotations
 
 # Layout of the parameter vector theta.
-_N_PLANE = 3
-_I_WIDTH, _I_TAIL, _I_FORE = 3, 4, 5
-_I_SPEC, _I_DIFF, _I_LEVEL = 6, 7, 8
-_N_PARAMS = 9
+N_PLANE = 3
+I_WIDTH, I_TAIL, I_FORE = 3, 4, 5
+I_SPEC, I_DIFF, I_LEVEL = 6, 7, 8
+N_PARAMS = 9

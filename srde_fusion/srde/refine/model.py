@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...geometry import CameraRig, Plane
-from .layout import _I_DIFF, _I_FORE, _I_LEVEL, _I_SPEC, _I_TAIL, _I_WIDTH, _N_PARAMS, _N_PLANE
-from .reflection import PlaneReflection, _Geometry
-from .samples import _Samples
-from .solver import _solve_normal
+from .layout import I_DIFF, I_FORE, I_LEVEL, I_SPEC, I_TAIL, I_WIDTH, N_PARAMS, N_PLANE
+from .reflection import PlaneReflection, ShadingGeometry
+from .samples import HighlightSamples
+from .solver import solve_normal
 
 __all__ = [
     "LOBES",
@@ -47,7 +47,7 @@ DEFAULT_F0 = 0.04
 
 # --- optimisation ---------------------------------------------------------------------
 # Start: lobe widths scanned with a GGX tail, then other tails around the best width.
-_WIDTH_GRID = np.geomspace(0.002, 0.4, 11)
+WIDTH_GRID = np.geomspace(0.002, 0.4, 11)
 _TAIL_GRID = (0.5, 0.25, 0.0)
 _WIDTH_REFINE_FACTORS = (0.85, 1.0, 1.2)
 
@@ -61,7 +61,7 @@ _MIN_LOBE_ON_UNCLIPPED = 1e-3
 # 0.75 let a hugely clipped needle lobe mimic a broad one.
 _WIDTH_BOUNDS = (1e-3, 1.0)
 _TAIL_BOUNDS = (-0.25, 0.75)
-_FORESHORTENING_BOUNDS = (-4.0, 5.0)
+FORESHORTENING_BOUNDS = (-4.0, 5.0)
 
 
 # Fitted foreshortening exponent starts here, halfway between the conventions.
@@ -111,7 +111,7 @@ class LobeFit:
     ambient: float
 
 
-class _LobeModel:
+class LobeModel:
     """The highlight rendering of :func:`refine_plane` as a function of 9 parameters.
 
     ``theta = (tilt_1, tilt_2, offset_m, log_width, tail, foreshortening, specular,
@@ -121,7 +121,7 @@ class _LobeModel:
     moves the others (``free_*`` lists which).
     """
 
-    def __init__(self, samples: _Samples, rig: CameraRig, box, light: np.ndarray,
+    def __init__(self, samples: HighlightSamples, rig: CameraRig, box, light: np.ndarray,
                  plane0: Plane, lobe: str, f0: float, foreshortening: float | None) -> None:
         self.lobe = lobe
         self.reflection = PlaneReflection(samples, rig, box, light, plane0, f0)
@@ -142,10 +142,10 @@ class _LobeModel:
         self._basis_buffer = np.empty((3, len(self.y)))
         self._basis_partner = np.empty((3, len(self.y)))
         self.initial_cost = math.inf  # cost of the start found by initial_guess
-        shape = [_I_WIDTH] + ([_I_TAIL] if lobe == "gtr" else [])
-        shape += [_I_FORE] if foreshortening is None else []
+        shape = [I_WIDTH] + ([I_TAIL] if lobe == "gtr" else [])
+        shape += [I_FORE] if foreshortening is None else []
         self.free_photometric = np.array(shape)
-        self.free_all = np.array(list(range(_N_PLANE)) + shape)
+        self.free_all = np.array(list(range(N_PLANE)) + shape)
         self._jacobian_buffer = np.empty((len(self.free_all), len(self.y)))
         self._jacobian_partner = np.empty_like(self._jacobian_buffer)
 
@@ -158,25 +158,25 @@ class _LobeModel:
         return self.reflection.disparity_change_px(before, after)
 
     def start_theta(self) -> np.ndarray:
-        theta = np.zeros(_N_PARAMS)
-        theta[_I_WIDTH] = math.log(0.1)
-        theta[_I_TAIL] = 0.5 if self.lobe != "blinn_phong" else 0.0
-        theta[_I_FORE] = self.foreshortening0
+        theta = np.zeros(N_PARAMS)
+        theta[I_WIDTH] = math.log(0.1)
+        theta[I_TAIL] = 0.5 if self.lobe != "blinn_phong" else 0.0
+        theta[I_FORE] = self.foreshortening0
         return theta
 
     # ------------------------------------------------------------------ geometry
-    def _lobe(self, g: _Geometry, theta: np.ndarray) -> np.ndarray:
+    def _lobe(self, g: ShadingGeometry, theta: np.ndarray) -> np.ndarray:
         """Specular term ``S(n . h) g_s`` with the peak-normalised lobe ``S``, ``(P,)``."""
-        return self._shape(g, theta) * self._specular_term(g, theta[_I_FORE])
+        return self._shape(g, theta) * self._specular_term(g, theta[I_FORE])
 
-    def _shape(self, g: _Geometry, theta: np.ndarray) -> np.ndarray:
+    def _shape(self, g: ShadingGeometry, theta: np.ndarray) -> np.ndarray:
         """Return the peak-normalised lobe ``S(n . h)``, ``(P,)``."""
-        alpha2 = math.exp(2.0 * theta[_I_WIDTH])
+        alpha2 = math.exp(2.0 * theta[I_WIDTH])
         if self.lobe == "ggx":
             ratio = alpha2 / (alpha2 + g.sin2_h * (1.0 - alpha2))
             return ratio * ratio
         if self.lobe == "gtr":
-            tail = theta[_I_TAIL]
+            tail = theta[I_TAIL]
             z = g.sin2_h * (2.0 * (1.0 - alpha2) / alpha2)
             if abs(tail) < _ZERO_TAIL:
                 return np.exp(-z)
@@ -185,7 +185,7 @@ class _LobeModel:
         with np.errstate(divide="ignore"):
             return np.exp((2.0 / alpha2 - 2.0) * np.log(np.maximum(g.cos_h, 0.0)))
 
-    def _shape_slopes(self, g: _Geometry, theta: np.ndarray, shape: np.ndarray):
+    def _shape_slopes(self, g: ShadingGeometry, theta: np.ndarray, shape: np.ndarray):
         """Return derivatives of :meth:`_shape` ``(P,)`` by the geometry and the shape.
 
         Returns ``(by, along, by_log_width, by_tail)``: the lobe's derivative is
@@ -193,7 +193,7 @@ class _LobeModel:
         None unless the lobe is ``"gtr"``. Where a lobe is exactly 0 (a light tail's end,
         or beyond 90 degrees) all are 0.
         """
-        alpha2 = math.exp(2.0 * theta[_I_WIDTH])
+        alpha2 = math.exp(2.0 * theta[I_WIDTH])
         if self.lobe == "ggx":
             # S = (a2 / D)^2 with D = a2 + s (1 - a2)
             inv_den = 1.0 / (alpha2 + g.sin2_h * (1.0 - alpha2))
@@ -205,7 +205,7 @@ class _LobeModel:
             by_cos = (2.0 / alpha2 - 2.0) * shape / positive
             return by_cos, g.cos_h, (-4.0 / alpha2) * shape * np.log(positive), None
         # gtr: S = (1 + t z)^(-1/t) with z = s f, f = 2 (1 - a2) / a2
-        tail = theta[_I_TAIL]
+        tail = theta[I_TAIL]
         factor = 2.0 * (1.0 - alpha2) / alpha2
         z = g.sin2_h * factor
         if abs(tail) < _ZERO_TAIL:  # S = exp(-z)
@@ -228,7 +228,7 @@ class _LobeModel:
             by_tail[shape == 0.0] = 0.0
         return -factor * by_z, g.sin2_h, by_log_width, by_tail
 
-    def _specular_term(self, g: _Geometry, foreshortening: float) -> np.ndarray:
+    def _specular_term(self, g: ShadingGeometry, foreshortening: float) -> np.ndarray:
         """``g_s (cos_i cos_o)^k`` of a geometry, ``(P,)``; the last one is kept."""
         if self._specular_key != (id(g), foreshortening):
             term = g.specular
@@ -239,8 +239,8 @@ class _LobeModel:
             self._specular_geometry = g  # keeps id(g) from being reused while cached
         return self._specular_value
 
-    def _model(self, g: _Geometry, theta: np.ndarray) -> np.ndarray:
-        return theta[_I_SPEC] * self._lobe(g, theta) + theta[_I_DIFF] * g.diffuse + theta[_I_LEVEL]
+    def _model(self, g: ShadingGeometry, theta: np.ndarray) -> np.ndarray:
+        return theta[I_SPEC] * self._lobe(g, theta) + theta[I_DIFF] * g.diffuse + theta[I_LEVEL]
 
     # ------------------------------------------------------------------ residuals
     def _residual(self, model: np.ndarray) -> np.ndarray:
@@ -253,7 +253,7 @@ class _LobeModel:
         np.minimum(r[self.n_unclipped:], 0.0, out=r[self.n_unclipped:])  # saturated come last
         return r
 
-    def _intensity_terms(self, g: _Geometry):
+    def _intensity_terms(self, g: ShadingGeometry):
         """Return the sums over unsaturated samples that do not depend on the lobe (cached).
 
         ``(d . d, sum d)`` of the diffuse term ``d`` and ``d . y`` with the observations.
@@ -264,7 +264,7 @@ class _LobeModel:
             self._terms_geometry = g
         return self._terms
 
-    def _intensities(self, g: _Geometry, lobe: np.ndarray):
+    def _intensities(self, g: ShadingGeometry, lobe: np.ndarray):
         """Specular, diffuse and level ``(3,)`` for a lobe ``(P,)``, by least squares.
 
         The basis is ``(lobe, g_d - 1, 1)``. Saturated samples count only where the
@@ -278,7 +278,7 @@ class _LobeModel:
         l1 = float(head.sum())
         normal0 = np.array([[float(head @ head), ld, l1], [ld, dd, d1], [l1, d1, float(k)]])
         rhs0 = np.array([float(head @ y_head), dy, self._sum_unclipped_y])
-        coef = _solve_normal(normal0, rhs0)
+        coef = solve_normal(normal0, rhs0)
         if k < len(lobe):
             clipped = np.stack([lobe[k:], g.diffuse[k:], self._ones[k:]])  # (3, P - k)
             clipped_y = self.y[k:]
@@ -289,7 +289,7 @@ class _LobeModel:
                     break
                 active = now_active
                 cols = clipped[:, active]
-                coef = _solve_normal(normal0 + cols @ cols.T, rhs0 + cols @ clipped_y[active])
+                coef = solve_normal(normal0 + cols @ cols.T, rhs0 + cols @ clipped_y[active])
         model = lobe * coef[0]
         model += coef[1] * g.diffuse
         model += coef[2]
@@ -300,14 +300,14 @@ class _LobeModel:
 
         The last one is kept: a step's Jacobian is taken where it was evaluated.
         """
-        key = theta[:_I_SPEC].tobytes()
+        key = theta[:I_SPEC].tobytes()
         if self._lobe_key != key:
             g = self.reflection.at(theta)
             if g is None:
                 self._lobe_value = (None, None, None)
             else:
                 shape = self._shape(g, theta)
-                self._lobe_value = (g, shape * self._specular_term(g, theta[_I_FORE]), shape)
+                self._lobe_value = (g, shape * self._specular_term(g, theta[I_FORE]), shape)
             self._lobe_key = key
         return self._lobe_value
 
@@ -321,7 +321,7 @@ class _LobeModel:
             return np.full(self.y.shape, np.inf), theta.copy()
         coef, model = self._intensities(g, lobe)
         out = theta.copy()
-        out[_I_SPEC:] = coef
+        out[I_SPEC:] = coef
         return self._residual(model), out
 
     def jacobian(self, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
@@ -338,7 +338,7 @@ class _LobeModel:
         basis[0] = lobe
         basis[1] = g.diffuse
         basis[2] = 1.0
-        model = theta[_I_SPEC:] @ basis
+        model = theta[I_SPEC:] @ basis
         # A saturated sample above its lower bound contributes nothing, nor does its slope.
         ignored = self.censored & (model >= self.y)
         if ignored.any():
@@ -346,7 +346,7 @@ class _LobeModel:
             basis[:, ignored] = 0.0
         partner = self._basis_partner  # (see gram)
         np.copyto(partner, basis)
-        coef = _solve_normal(basis @ partner.T, basis @ jac.T)  # (3, K)
+        coef = solve_normal(basis @ partner.T, basis @ jac.T)  # (3, K)
         jac -= coef.T @ basis
         return jac
 
@@ -370,10 +370,10 @@ class _LobeModel:
         """
         g, lobe, shape = self._lobe_at(theta)
         out = np.empty((len(free), len(lobe))) if out is None else out
-        specular, fore = theta[_I_SPEC], theta[_I_FORE]
+        specular, fore = theta[I_SPEC], theta[I_FORE]
         by, along, by_log_width, by_tail = self._shape_slopes(g, theta, shape)
         spec_term = specular * self._specular_term(g, fore)  # S's factor in the model
-        planes = [(row, index) for row, index in enumerate(free) if index < _N_PLANE]
+        planes = [(row, index) for row, index in enumerate(free) if index < N_PLANE]
         if planes:
             on_nk, on_cam, on_lh = self._plane_slope_terms(g, theta, by, along, shape, spec_term)
             directions = self.reflection.directions(theta)
@@ -387,16 +387,16 @@ class _LobeModel:
                 slope -= on_cam * (dn @ self.reflection.camera_t)
                 slope += on_nk * (dn @ self.reflection.ray_t)
         for row, index in enumerate(free):
-            if index == _I_WIDTH:
+            if index == I_WIDTH:
                 np.multiply(by_log_width, spec_term, out=out[row])
-            elif index == _I_TAIL:
+            elif index == I_TAIL:
                 np.multiply(by_tail, spec_term, out=out[row])
-            elif index == _I_FORE:  # the exponent multiplies log(cos_i cos_o)
+            elif index == I_FORE:  # the exponent multiplies log(cos_i cos_o)
                 np.multiply(lobe, g.log_foreshortening, out=out[row])
                 out[row] *= specular
         return out
 
-    def _plane_slope_terms(self, g: _Geometry, theta: np.ndarray, by: np.ndarray,
+    def _plane_slope_terms(self, g: ShadingGeometry, theta: np.ndarray, by: np.ndarray,
                            along: np.ndarray, shape: np.ndarray, spec_term: np.ndarray):
         """Return the model's derivatives ``(P,)`` by ``n . k``, ``c - n . C``, ``n . L - c``.
 
@@ -405,7 +405,7 @@ class _LobeModel:
         first order: collecting the chain rule's coefficients once makes each plane
         parameter's slope three products.
         """
-        fore = theta[_I_FORE]
+        fore = theta[I_FORE]
         inv_r, inv_half = 1.0 / g.r, 1.0 / g.half_norm
         rho = g.tq_b * inv_r  # dr = rho dt (r^2 = a - 2 t b + t^2 q)
         kappa = g.cos_io * rho  # d cos_io = kappa dt (cos_io = (t q - b) / (sqrt(q) r))
@@ -426,7 +426,7 @@ class _LobeModel:
         if along is g.sin2_h:  # d sin^2 = -2 cos_h d cos_h
             on_cos_h *= -2.0 * g.cos_h
         on_spec = shape * spec_term
-        on_diffuse = theta[_I_DIFF] * (g.diffuse + 1.0)
+        on_diffuse = theta[I_DIFF] * (g.diffuse + 1.0)
         # cos_h = (cos_i + cos_o) / half_norm, half_norm = sqrt(2 + 2 cos_io)
         through_h = on_cos_h * inv_half
         # specular factor F (cos_i cos_o)^k / (cos_o r^2), diffuse factor cos_i / r^2
@@ -474,7 +474,7 @@ class _LobeModel:
         def consider(width: float, tail: float) -> None:
             nonlocal best_cost, best
             theta = self.start_theta()
-            theta[_I_WIDTH], theta[_I_TAIL] = math.log(width), tail
+            theta[I_WIDTH], theta[I_TAIL] = math.log(width), tail
             lobe = self._lobe(g, theta)
             if not lobe[:self.n_unclipped].max(initial=0.0) > _MIN_LOBE_ON_UNCLIPPED:
                 return  # so narrow that no unsaturated sample sees it
@@ -485,13 +485,13 @@ class _LobeModel:
             cost = float(residual @ residual) / len(residual)
             if cost < best_cost:
                 best_cost, best = cost, theta
-                best[_I_SPEC:] = coef
+                best[I_SPEC:] = coef
 
         # Widths first with the default tail, then other tails around the best width.
-        for width in _WIDTH_GRID:
-            consider(width, self.start_theta()[_I_TAIL])
-        if best is not None and _I_TAIL in self.free_all:
-            best_width = math.exp(best[_I_WIDTH])
+        for width in WIDTH_GRID:
+            consider(width, self.start_theta()[I_TAIL])
+        if best is not None and I_TAIL in self.free_all:
+            best_width = math.exp(best[I_WIDTH])
             for factor in _WIDTH_REFINE_FACTORS:
                 for tail in _TAIL_GRID[1:]:
                     consider(best_width * factor, tail)
@@ -499,8 +499,8 @@ class _LobeModel:
         return best
 
     def _bounds(self):
-        return {_I_WIDTH: np.log(_WIDTH_BOUNDS), _I_TAIL: _TAIL_BOUNDS,
-                _I_FORE: _FORESHORTENING_BOUNDS}
+        return {I_WIDTH: np.log(_WIDTH_BOUNDS), I_TAIL: _TAIL_BOUNDS,
+                I_FORE: FORESHORTENING_BOUNDS}
 
     def clamp(self, theta: np.ndarray) -> np.ndarray:
         for index, (low, high) in self._bounds().items():
@@ -509,16 +509,16 @@ class _LobeModel:
 
     def parameters_at_bounds(self, theta: np.ndarray) -> str:
         """Name and value of fitted shape parameters stuck at a bound ("" if none)."""
-        names = {_I_WIDTH: "width", _I_TAIL: "tail", _I_FORE: "foreshortening"}
+        names = {I_WIDTH: "width", I_TAIL: "tail", I_FORE: "foreshortening"}
         stuck = []
         for index, (low, high) in self._bounds().items():
             if index in self.free_all and min(theta[index] - low, high - theta[index]) < 1e-9:
-                value = math.exp(theta[index]) if index == _I_WIDTH else theta[index]
+                value = math.exp(theta[index]) if index == I_WIDTH else theta[index]
                 stuck.append(f"{names[index]} {value:.4g}")
         return ", ".join(stuck)
 
     def lobe_fit(self, theta: np.ndarray) -> LobeFit:
-        return LobeFit(width=float(np.exp(theta[_I_WIDTH])), tail=float(theta[_I_TAIL]),
-                       foreshortening=float(theta[_I_FORE]), specular=float(theta[_I_SPEC]),
-                       diffuse=float(theta[_I_DIFF]),
-                       ambient=float(theta[_I_LEVEL] - theta[_I_DIFF]))
+        return LobeFit(width=float(np.exp(theta[I_WIDTH])), tail=float(theta[I_TAIL]),
+                       foreshortening=float(theta[I_FORE]), specular=float(theta[I_SPEC]),
+                       diffuse=float(theta[I_DIFF]),
+                       ambient=float(theta[I_LEVEL] - theta[I_DIFF]))

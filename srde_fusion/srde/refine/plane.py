@@ -51,25 +51,25 @@ import numpy as np
 from ..._checks import check_mask, check_point3, check_views
 from ...errors import ImageError, SRDEError
 from ...geometry import CameraRig, Plane, plane_from_lights
-from .layout import _I_FORE, _I_SPEC, _N_PLANE
+from .layout import I_FORE, I_SPEC, N_PLANE
 from .model import (
-    _FORESHORTENING_BOUNDS,
-    _WIDTH_GRID,
     DEFAULT_F0,
     DEFAULT_LOBE,
+    FORESHORTENING_BOUNDS,
     LOBES,
+    WIDTH_GRID,
     LobeFit,
-    _LobeModel,
+    LobeModel,
 )
 from .samples import (
     MASK_MARGIN_PX,
-    _box,
-    _low_quantile,
-    _sample_windows,
-    _Samples,
-    _views_from_reference,
+    HighlightSamples,
+    low_quantile_of,
+    mask_bbox,
+    sample_windows,
+    views_from_reference,
 )
-from .solver import _levenberg_marquardt
+from .solver import levenberg_marquardt
 
 __all__ = [
     "PlaneRefinement",
@@ -248,9 +248,9 @@ def refine_plane(
     centers = _check_centers(centers_uv, rig.n_cameras)
     if lobe not in LOBES:
         raise SRDEError(f"lobe: expected one of {list(LOBES)}, got {lobe!r}")
-    if foreshortening is not None and not _is_number_in(foreshortening, *_FORESHORTENING_BOUNDS):
+    if foreshortening is not None and not _is_number_in(foreshortening, *FORESHORTENING_BOUNDS):
         raise SRDEError(f"foreshortening: expected None or a number in "
-                        f"{list(_FORESHORTENING_BOUNDS)}, got {foreshortening!r}")
+                        f"{list(FORESHORTENING_BOUNDS)}, got {foreshortening!r}")
     if not _is_number_in(f0, 0.0, 1.0) or f0 == 0.0:
         raise SRDEError(f"f0: expected a number in (0, 1], got {f0!r}")
     if (isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer))
@@ -270,7 +270,7 @@ def refine_plane(
     if centers is None:
         virtual = initial_plane.mirror(light)
         centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
-    setup = _Setup(views, rig, mask, _box(mask), light, initial_plane, centers, lobe, f0,
+    setup = _Setup(views, rig, mask, mask_bbox(mask), light, initial_plane, centers, lobe, f0,
                    foreshortening, max_iterations)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
@@ -316,8 +316,8 @@ class _Setup:
     foreshortening: float | None
     max_iterations: int
 
-    def model(self, samples: _Samples, plane: Plane) -> _LobeModel:
-        return _LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
+    def model(self, samples: HighlightSamples, plane: Plane) -> LobeModel:
+        return LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
                           self.foreshortening)
 
 
@@ -334,8 +334,8 @@ class _Attempt:
     """One fit, on samples placed for ``sample_plane``, and its verdict."""
 
     sample_plane: Plane
-    samples: _Samples
-    model: _LobeModel
+    samples: HighlightSamples
+    model: LobeModel
     fit: _Fit
     cost_initial: float  # the initial plane's best cost on the same samples
     params_initial: LobeFit | None
@@ -349,7 +349,7 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     Returns why no fit could run (a string) when the samples or the start fail.
     ``photometry``: parameters whose lobe shape to start from instead of a grid search.
     """
-    samples = _sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers,
+    samples = sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers,
                               box=setup.box)
     if isinstance(samples, str):
         return samples
@@ -360,11 +360,11 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     if photometry is None:
         theta0 = model.initial_guess()
         if theta0 is None:
-            return (f"fit: no lobe width in [{_WIDTH_GRID[0]:g}, {_WIDTH_GRID[-1]:g}] gives a "
+            return (f"fit: no lobe width in [{WIDTH_GRID[0]:g}, {WIDTH_GRID[-1]:g}] gives a "
                     f"positive specular term over the {samples.n_samples} samples")
     else:
         theta0 = photometry.copy()
-        theta0[:_N_PLANE] = 0.0
+        theta0[:N_PLANE] = 0.0
     fit = _fit(model, theta0, setup.max_iterations)
     # The fair reference: the initial plane with every photometric parameter fitted,
     # starting from the joint solution's, on the same samples.
@@ -402,34 +402,34 @@ def _warp_change_px(rig: CameraRig, before: Plane, after: Plane, box) -> float:
     x, y, w, h = box
     corners = np.array([[x, x + w - 1, x, x + w - 1], [y, y, y + h - 1, y + h - 1],
                         [1.0, 1.0, 1.0, 1.0]])
-    moved = (_views_from_reference(rig, after) - _views_from_reference(rig, before)) @ corners
+    moved = (views_from_reference(rig, after) - views_from_reference(rig, before)) @ corners
     return float(np.max(np.abs(moved)))  # (the reference view's rows are 0)
 
 
-def _fit(model: _LobeModel, theta0: np.ndarray, max_iterations: int) -> _Fit:
+def _fit(model: LobeModel, theta0: np.ndarray, max_iterations: int) -> _Fit:
     """Fit plane and photometry from ``theta0`` (parameters of ``model``)."""
     # Stage 1: plane and lobe shape with the foreshortening exponent held, since it
     # could otherwise absorb part of the initial plane's error.
-    free_start = model.free_all[model.free_all != _I_FORE]
-    theta_start, _, _, _ = _levenberg_marquardt(model, theta0, free_start,
+    free_start = model.free_all[model.free_all != I_FORE]
+    theta_start, _, _, _ = levenberg_marquardt(model, theta0, free_start,
                                                 min(max_iterations, _START_ITERATIONS),
                                                 cost_rtol=_PHOTOMETRIC_COST_RTOL)
     # Stage 2: everything.
-    theta, cost, iterations, converged = _levenberg_marquardt(
+    theta, cost, iterations, converged = levenberg_marquardt(
         model, theta_start, model.free_all, max_iterations, cost_rtol=_COST_RTOL)
     return _Fit(theta, cost, iterations, converged)
 
 
-def _profile_at_start(model: _LobeModel, photometry_from: np.ndarray, max_iterations: int):
+def _profile_at_start(model: LobeModel, photometry_from: np.ndarray, max_iterations: int):
     """Best photometric parameters and cost with ``model``'s own starting plane."""
     theta = photometry_from.copy()
-    theta[:_N_PLANE] = 0.0
-    theta, cost, _, _ = _levenberg_marquardt(model, theta, model.free_photometric,
+    theta[:N_PLANE] = 0.0
+    theta, cost, _, _ = levenberg_marquardt(model, theta, model.free_photometric,
                                              max_iterations, cost_rtol=_PHOTOMETRIC_COST_RTOL)
     return theta, cost
 
 
-def _judge(fit: _Fit, cost_initial: float, model: _LobeModel, samples: _Samples,
+def _judge(fit: _Fit, cost_initial: float, model: LobeModel, samples: HighlightSamples,
            rig: CameraRig, light: np.ndarray, initial_plane: Plane) -> str:
     """Why a fit's plane must not replace the initial plane ("" if it may)."""
     theta, cost = fit.theta, fit.cost
@@ -437,13 +437,13 @@ def _judge(fit: _Fit, cost_initial: float, model: _LobeModel, samples: _Samples,
         return "fit: non-finite parameters or cost"
     if not cost < cost_initial:
         return f"fit: cost {cost:.4g} does not improve on the initial plane's {cost_initial:.4g}"
-    if not theta[_I_SPEC] > 0.0:
-        return f"fit: specular intensity {theta[_I_SPEC]:.3g} is not positive"
+    if not theta[I_SPEC] > 0.0:
+        return f"fit: specular intensity {theta[I_SPEC]:.3g} is not positive"
     at_bound = model.parameters_at_bounds(theta)
     if at_bound:
         return (f"fit: {at_bound} at the bound of its range; the lobe model does not "
                 "describe this highlight")
-    contrast = float(samples.luminance.max() - _low_quantile(samples.luminance))
+    contrast = float(samples.luminance.max() - low_quantile_of(samples.luminance))
     if math.sqrt(cost) > MAX_RELATIVE_RESIDUAL * contrast:
         return (f"fit: RMS residual {math.sqrt(cost):.4g} is more than "
                 f"{MAX_RELATIVE_RESIDUAL:.0%} of the highlight's contrast {contrast:.4g}; "
@@ -456,7 +456,7 @@ def _judge(fit: _Fit, cost_initial: float, model: _LobeModel, samples: _Samples,
     return ""
 
 
-def _restart_plane(setup: _Setup, samples: _Samples) -> Plane | None:
+def _restart_plane(setup: _Setup, samples: HighlightSamples) -> Plane | None:
     """Find the virtual-light depth whose start explains the images best; return its plane.
 
     The virtual light slides along the reference camera's ray through it, so that its

@@ -15,18 +15,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...geometry import CameraRig, Plane
-from .layout import _N_PLANE
-from .samples import _Samples
+from .layout import N_PLANE
+from .samples import HighlightSamples
 
 __all__ = ["PlaneReflection"]
 
 
 @dataclass(frozen=True)
-class _Geometry:
+class ShadingGeometry:
     """Shading geometry of the samples for one plane, arrays ``(P,)``.
 
     Besides the shading terms it keeps the intermediates of their derivatives with
-    respect to the plane (see :meth:`_LobeModel.jacobian`).
+    respect to the plane (see :meth:`LobeModel.jacobian`).
     """
 
     cos_h: np.ndarray  # cosine of the half-vector angle
@@ -52,7 +52,7 @@ class PlaneReflection:
 
     Parameters
     ----------
-    samples : _Samples
+    samples : HighlightSamples
         The samples: rays ``k`` and camera centres ``C`` per sample.
     rig : CameraRig
     box : (int, int, int, int)
@@ -72,7 +72,7 @@ class PlaneReflection:
         front of the cameras, light in front of it).
     """
 
-    def __init__(self, samples: _Samples, rig: CameraRig, box, light: np.ndarray,
+    def __init__(self, samples: HighlightSamples, rig: CameraRig, box, light: np.ndarray,
                  plane0: Plane, f0: float) -> None:
         self.f0 = f0
         self.light = light
@@ -99,11 +99,11 @@ class PlaneReflection:
         self.a = np.einsum("pi,pi->p", to_light, to_light)
         self.b = np.einsum("pi,pi->p", to_light, k)
         self._cache_key: bytes | None = None
-        self._cache: _Geometry | None = None
+        self._cache: ShadingGeometry | None = None
         # Normalise the geometric factors at the initial plane so the intensities read
         # as luminances at the highlight and the parameters are well scaled.
         self.diffuse_scale = self.spec_scale = 1.0
-        geometry = self.geometry(np.zeros(_N_PLANE))
+        geometry = self.geometry(np.zeros(N_PLANE))
         self.valid = geometry is not None
         if not self.valid:
             return
@@ -115,7 +115,7 @@ class PlaneReflection:
         diffuse -= 1.0
         self._cache = dataclasses.replace(geometry, diffuse=diffuse,
                                           specular=geometry.specular * self.spec_scale)
-        self._cache_key = np.zeros(_N_PLANE).tobytes()
+        self._cache_key = np.zeros(N_PLANE).tobytes()
 
     def planes(self, p: np.ndarray):
         """Return normals ``(B, 3)`` and offsets ``(B,)`` of plane parameters ``(B, 3)``."""
@@ -124,10 +124,10 @@ class PlaneReflection:
 
     def plane(self, theta: np.ndarray) -> Plane:
         """Return the plane of ``theta``'s first three parameters."""
-        n, c = self.planes(theta[None, :_N_PLANE])
+        n, c = self.planes(theta[None, :N_PLANE])
         return Plane(tuple(float(v) + 0.0 for v in n[0]), float(c[0]))
 
-    def geometry(self, plane_params: np.ndarray) -> _Geometry | None:
+    def geometry(self, plane_params: np.ndarray) -> ShadingGeometry | None:
         """Shading geometry of the samples for plane parameters ``(3,)``.
 
         Everything reduces to scalars per sample: with ``X = C + t k`` on the plane,
@@ -179,16 +179,16 @@ class PlaneReflection:
         specular = np.multiply(cos_o, r2, out=r2)
         np.divide(fresnel, specular, out=specular)
         specular *= self.spec_scale
-        return _Geometry(cos_h=cos_h, sin2_h=sin2_h, log_foreshortening=log_foreshortening,
+        return ShadingGeometry(cos_h=cos_h, sin2_h=sin2_h, log_foreshortening=log_foreshortening,
                          diffuse=diffuse, specular=specular, normal=n, t=t, nk=nk, tq_b=tq_b,
                          r=r, cos_i=cos_i, cos_o=cos_o, cos_io=cos_io, half_norm=half_norm,
                          grazing=grazing, fresnel=fresnel)
 
-    def at(self, theta: np.ndarray) -> _Geometry | None:
+    def at(self, theta: np.ndarray) -> ShadingGeometry | None:
         """Geometry of ``theta``'s plane, reused while only the photometry changes."""
-        key = theta[:_N_PLANE].tobytes()
+        key = theta[:N_PLANE].tobytes()
         if self._cache_key != key:
-            self._cache = self.geometry(theta[:_N_PLANE])
+            self._cache = self.geometry(theta[:N_PLANE])
             self._cache_key = key
         return self._cache
 
@@ -203,7 +203,7 @@ class PlaneReflection:
 
     def disparity_change_px(self, before: np.ndarray, after: np.ndarray) -> float:
         """Largest change of the stereo disparity at the probe pixels between two planes."""
-        n, c = self.planes(np.stack([before[:_N_PLANE], after[:_N_PLANE]]))
+        n, c = self.planes(np.stack([before[:N_PLANE], after[:N_PLANE]]))
         # d = fx B / z with 1 / z = (n . k) / (c - n . C_ref) along reference rays k
         disparity = self.disparity_scale * (n @ self.probe_rays.T) / (
             c - n @ self.reference_center_m)[:, None]

@@ -67,7 +67,7 @@ _DECODE_LUT = {
 
 
 @dataclass(frozen=True)
-class _Samples:
+class HighlightSamples:
     """Samples fitted, all views stacked, unsaturated first; arrays ``(P,)`` or ``(P, 3)``.
 
     A sample is the mean linear luminance of a ``block x block`` pixel square, placed at
@@ -86,16 +86,17 @@ class _Samples:
 
     @property
     def n_samples(self) -> int:
+        """Number of samples."""
         return int(self.luminance.shape[0])
 
 
-def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray,
-                    *, box=None) -> _Samples | str:
+def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray,
+                    *, box=None) -> HighlightSamples | str:
     """Block samples around each view's highlight on the object, or why there are none.
 
     ``box``: the mask's bounding box, if known.
     """
-    box = _box(mask) if box is None else box
+    box = mask_bbox(mask) if box is None else box
     eroded = _erode(mask, MASK_MARGIN_PX, box)
     w, h = rig.image_size
     max_half = max(MIN_WINDOW_HALF_PX, int(MAX_WINDOW_FRACTION * min(w, h)))
@@ -124,7 +125,7 @@ def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, cente
         if inside.sum() < MIN_SAMPLES:
             continue
         y = luminance(views[i][vv[inside], uu[inside]][None], rig.image_encoding)[0]
-        background, peak = _low_quantile(y), float(y.max())
+        background, peak = low_quantile_of(y), float(y.max())
         if peak - background < MIN_HIGHLIGHT_CONTRAST:
             continue
         area_px = np.count_nonzero(y > 0.5 * (background + peak)) * stride**2
@@ -156,7 +157,7 @@ def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, cente
         return (f"samples: only {len(luminance_all)} object samples near the highlights "
                 f"(< {MIN_SAMPLES})")
     unsaturated = luminance_all[~saturated_all]
-    background = _low_quantile(unsaturated) if unsaturated.size else 1.0
+    background = low_quantile_of(unsaturated) if unsaturated.size else 1.0
     flank = int(np.count_nonzero(unsaturated > background + MIN_HIGHLIGHT_CONTRAST))
     if flank < MIN_FLANK_SAMPLES:
         return (f"samples: only {flank} unsaturated samples on the highlight's flanks "
@@ -165,11 +166,11 @@ def _sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, cente
     # Unsaturated samples first: the intensity solve then slices instead of copying.
     order = np.argsort(saturated_all, kind="stable")
     cameras_m = np.repeat(rig.centers_m[used], counts, axis=0)
-    return _Samples(cameras_m[order], rig.rays(np.concatenate(uvs)[order]),
+    return HighlightSamples(cameras_m[order], rig.rays(np.concatenate(uvs)[order]),
                     luminance_all[order], saturated_all[order], tuple(used), half, block)
 
 
-def _low_quantile(values: np.ndarray) -> float:
+def low_quantile_of(values: np.ndarray) -> float:
     """Return the background level near the highlight: a low quantile, by partition."""
     k = int(_BACKGROUND_QUANTILE * (len(values) - 1))
     return float(np.partition(values, k)[k])
@@ -183,7 +184,7 @@ class _Eroded:
     origin: tuple[int, int]  # reference pixel (x, y) of inside[0, 0]
 
 
-def _box(mask: np.ndarray) -> tuple[int, int, int, int]:
+def mask_bbox(mask: np.ndarray) -> tuple[int, int, int, int]:
     """Bounding box ``(x, y, width, height)`` of a bool mask's pixels, in pixels."""
     # (a bool array viewed as bytes: no copy of a full-size mask)
     return tuple(int(v) for v in cv2.boundingRect(mask.view(np.uint8)))
@@ -192,7 +193,7 @@ def _box(mask: np.ndarray) -> tuple[int, int, int, int]:
 def _erode(mask: np.ndarray, radius_px: int, box) -> _Eroded:
     """Shrink the mask by ``radius_px`` in the chessboard metric.
 
-    Only the object's bounding box ``box`` (see :func:`_box`), padded by the radius, is
+    Only the object's bounding box ``box`` (see :func:`mask_bbox`), padded by the radius, is
     eroded: nothing outside it survives, and the padding keeps the box's edge eroded as
     in the full image.
     """
@@ -205,7 +206,7 @@ def _erode(mask: np.ndarray, radius_px: int, box) -> _Eroded:
     return _Eroded(cv2.erode(pixels, np.ones((side, side), np.uint8)).view(bool), (x0, y0))
 
 
-def _views_from_reference(rig: CameraRig, plane: Plane) -> np.ndarray:
+def views_from_reference(rig: CameraRig, plane: Plane) -> np.ndarray:
     """Affine maps ``(N, 2, 3)`` from reference pixels to each camera's pixels on the plane.
 
     In a rectified rig a point at depth z moves by ``-f (C_j - C_ref) / z`` between the
@@ -228,7 +229,7 @@ def _views_from_reference(rig: CameraRig, plane: Plane) -> np.ndarray:
 
 def _references_from_views(rig: CameraRig, plane: Plane) -> np.ndarray:
     """Affine maps ``(N, 2, 3)`` from each camera's pixels to the reference pixels."""
-    forward = _views_from_reference(rig, plane)
+    forward = views_from_reference(rig, plane)
     a, t = forward[:, :, :2], forward[:, :, 2]
     det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
     inverse = np.empty_like(forward)

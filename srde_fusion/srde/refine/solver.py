@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .layout import _N_PLANE
+from .layout import N_PLANE
 
 if TYPE_CHECKING:  # the model imports this module's normal-equation solve
-    from .model import _LobeModel
+    from .model import LobeModel
 
 # Levenberg-Marquardt: start and largest damping, and stopping rules. A joint step ends
 # the fit when it moves the disparity at the object's corners by less than
@@ -32,7 +32,7 @@ _PLANE_COST_RTOL = 1e-4
 _MIN_SCALED_DETERMINANT = 1e-12
 
 
-def _solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+def solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """Solve 3x3 normal equations ``normal x = rhs`` (``rhs`` ``(3,)`` or ``(3, K)``).
 
     Jacobi scaling keeps the nearly collinear diffuse and level columns solvable. The
@@ -62,7 +62,7 @@ def _solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     return (scale_v[:, None] * x).reshape(rhs.shape)
 
 
-def _levenberg_marquardt(model: _LobeModel, theta0: np.ndarray, free: np.ndarray,
+def levenberg_marquardt(model: LobeModel, theta0: np.ndarray, free: np.ndarray,
                          max_iterations: int, *, cost_rtol: float):
     """Minimise the mean squared residual over ``theta[free]`` (intensities follow).
 
@@ -77,7 +77,7 @@ def _levenberg_marquardt(model: _LobeModel, theta0: np.ndarray, free: np.ndarray
     lam = _LAMBDA0
     converged = False
     steps = 0
-    moves_plane = bool(np.any(free < _N_PLANE))
+    moves_plane = bool(np.any(free < N_PLANE))
     while steps < max_iterations and not converged:
         jac = model.jacobian(theta, free)  # (K, P)
         normal = model.gram(jac)
