@@ -8,6 +8,7 @@ import pytest
 from hypothesis import settings
 
 from srde_fusion.geometry import CameraRig
+from srde_fusion.synthetic import default_rig, render_dataset
 
 # The machines running the suite are shared; timing-based failures would only be noise.
 settings.register_profile("srde", deadline=None, max_examples=50)
@@ -31,3 +32,12 @@ def rig3x3() -> CameraRig:
 def small_stereo_rig() -> CameraRig:
     """A 32x24 px two-camera rig, small enough to write and read many images quickly."""
     return CameraRig.stereo(0.1, fx=40.0, image_size=(32, 24), names=("cam0", "cam1"))
+
+
+@pytest.fixture(scope="session")
+def dataset(tmp_path_factory):
+    """Two rendered scenes (320x240, one glossy object each, textured background)."""
+    root = tmp_path_factory.mktemp("dataset")
+    render_dataset(root, n_scenes=2, seed=5, rig=default_rig().scaled(0.5),
+                   background="textured", progress=False)
+    return root

@@ -81,3 +81,12 @@ def masked_epe(disparity: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> fl
     """Mean |disparity - truth| over the mask (NaN predictions are an error of +inf)."""
     err = np.abs(disparity[mask].astype(np.float64) - truth[mask])
     return float(np.mean(np.where(np.isfinite(err), err, np.inf)))
+
+
+#: What :func:`flat` answers everywhere, pixels.
+FLAT_PX = 15.0
+
+
+def flat(left, right):
+    """A backbone that answers 15 px everywhere."""
+    return np.full(left.shape[:2], FLAT_PX, np.float32)

@@ -16,7 +16,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from srde_fusion.cli import main
-from srde_fusion.cli.commands import _worker_backbone
+from srde_fusion.cli.backbones import backbone_from
 from srde_fusion.errors import SRDEError
 from srde_fusion.evaluation import BackboneLoader, evaluate_dataset
 from srde_fusion.geometry import Plane, incidence_angle_deg, plane_depth, plane_disparity
@@ -135,7 +135,7 @@ def _scores_only(evaluation) -> dict:
 
 
 def test_parallel_evaluation_gives_the_serial_numbers(two_scenes):
-    loader = BackboneLoader(functools.partial(_worker_backbone, "default", None, 1))
+    loader = BackboneLoader(functools.partial(backbone_from, "default", None, threads=1))
     serial = evaluate_dataset(two_scenes, loader, progress=False, jobs=1)
     parallel = evaluate_dataset(two_scenes, loader, progress=False, jobs=2)
     assert (serial.jobs, parallel.jobs) == (1, 2)

@@ -10,13 +10,13 @@ import argparse
 import sys
 
 from ..errors import SRDEError
-from . import calibrate, commands, render, train
+from . import calibrate, evaluate, render, scenes, train
 
 __all__ = ["main", "build_parser"]
 
 # Every module here that adds subcommands, in the order ``--help`` lists them. An import
 # error in any of them is a bug and surfaces, rather than silently dropping commands.
-_COMMAND_MODULES = (render, commands, calibrate, train)
+_COMMAND_MODULES = (render, scenes, evaluate, calibrate, train)
 
 
 def build_parser() -> argparse.ArgumentParser:

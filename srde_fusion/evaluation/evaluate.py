@@ -9,23 +9,29 @@ them it has no prediction, which the metrics count as invalid pixels (see
 
 from __future__ import annotations
 
+import json
 import math
+import multiprocessing
 import os
 import pickle
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
 from .._json import json_safe
-from ..errors import SRDEError
+from ..errors import DisparityError, FileFormatError, LightError, SRDEError
 from ..fusion import DEFAULT_BORDER_CHECK, BorderCheck, FusionResult, fuse
 from ..io import SceneData, list_scenes, read_scene
 from ..masks import resolve_masker
+from ..srde import SRDE
 from .metrics import PAPER_KEYS, evaluate, format_markdown_table, summarize
 
 __all__ = [
@@ -220,6 +226,29 @@ class DatasetEvaluation:
                            "summary": summary, "run": run,
                            "scenes": [s.to_dict() for s in self.scenes]})
 
+    def write(self, out_dir: str | os.PathLike, title: str) -> list[Path]:
+        """Write ``eval.md`` (the tables under ``title``) and ``eval.json`` into ``out_dir``.
+
+        Returns
+        -------
+        list of pathlib.Path
+            The files written.
+
+        Raises
+        ------
+        FileFormatError
+            The folder cannot be created.
+        """
+        out = Path(out_dir)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise FileFormatError(f"{out}: could not create the output folder: {exc}") from None
+        md, js = out / "eval.md", out / "eval.json"
+        md.write_text(f"## {title}\n\n{self.to_markdown()}")
+        js.write_text(json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n")
+        return [md, js]
+
 
 Backbone = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -248,8 +277,6 @@ _WORKER: dict[str, Any] = {}
 def _start_worker(backbone: Any, masks: Any, options: dict[str, Any], threads: int) -> None:
     # Each worker gets its share of the cores; OpenCV (and torch, if loaded) would
     # otherwise start a thread per core in every process.
-    import cv2
-
     cv2.setNumThreads(threads)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(threads)
@@ -304,9 +331,6 @@ def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
     LightError
         The scene's rig has no light.
     """
-    from ..errors import DisparityError, LightError
-    from ..srde import SRDE
-
     if not isinstance(scene, SceneData):
         scene = read_scene(scene)
     if scene.gt_disparity is None:
@@ -386,8 +410,6 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
         if isinstance(backbone, BackboneLoader):
             backbone = backbone.load()
         if progress:
-            from tqdm import tqdm
-
             folders = tqdm(folders, desc="evaluating", unit="scene")
         try:
             scenes = tuple(evaluate_scene(Path(f), backbone, masks=masks, **options)
@@ -402,9 +424,6 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
         raise SRDEError(
             f"backbone: expected a picklable backbone or a BackboneLoader for jobs > 1 (every "
             f"worker process needs its own), got {type(backbone).__name__} ({exc})") from None
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
     threads = max(1, (os.cpu_count() or 1) // jobs)
     # Fresh interpreters: forking a process that runs model sessions or OpenMP pools
     # can deadlock the child.
@@ -413,8 +432,6 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
                              initargs=(backbone, masks, options, threads)) as pool:
         results = pool.map(_evaluate_in_worker, [str(f) for f in folders])
         if progress:
-            from tqdm import tqdm
-
             results = tqdm(results, total=len(folders), desc=f"evaluating ({jobs} processes)",
                            unit="scene")
         scenes = tuple(results)

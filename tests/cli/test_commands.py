@@ -7,23 +7,9 @@ import numpy as np
 import pytest
 
 from srde_fusion.cli import main
-from srde_fusion.cli.commands import fuse_scene, run_demo, srde_scene
 from srde_fusion.io import read_disparity, read_image, read_mask, read_scene, write_scene
-from srde_fusion.synthetic import default_rig, render_dataset
-
-HALF_RIG = default_rig().scaled(0.5)  # 320x240 keeps the rendered tests quick
-
-
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory):
-    """Two rendered scenes (320x240, one glossy object each, textured background)."""
-    root = tmp_path_factory.mktemp("dataset")
-    render_dataset(root, n_scenes=2, seed=5, rig=HALF_RIG, background="textured",
-                   progress=False)
-    return root
-
-
-FLAT_PX = 15.0
+from srde_fusion.workflows import srde_scene
+from tests.support import FLAT_PX
 
 
 @pytest.fixture(scope="module")
@@ -43,11 +29,6 @@ def flat_backbone(tmp_path_factory):
                           dynamic_axes={"left": {2: "h", 3: "w"}, "right": {2: "h", 3: "w"},
                                         "disp": {2: "h", 3: "w"}}, dynamo=False)
     return path
-
-
-def flat(left, right):
-    """A backbone that answers 15 px everywhere."""
-    return np.full(left.shape[:2], FLAT_PX, np.float32)
 
 
 def run_cli(capsys, *argv):
@@ -85,15 +66,6 @@ def test_demo_end_to_end(tmp_path, capsys):
     assert scores["hybrid"]["full"]["epe"] < scores["backbone"]["full"]["epe"]
 
 
-def test_run_demo_with_a_callable_backbone(tmp_path):
-    run = run_demo(tmp_path, backbone=flat, scale=0.5, seed=3, n_objects=1)
-    assert run.scene_dir == tmp_path / "scene"
-    assert read_scene(run.scene_dir).rig.light_position_m is not None
-    outside = run.fusion.source == 0
-    assert np.all(run.fusion.disparity[outside] == np.float32(FLAT_PX))
-    assert set(run.files) >= {"fused_pfm", "figure_png", "report_json"}
-
-
 # ---------------------------------------------------------------- fuse / srde / eval
 def test_fuse_command_with_an_onnx_backbone(dataset, flat_backbone, tmp_path, capsys):
     scene = dataset / "scene_0000"
@@ -107,18 +79,6 @@ def test_fuse_command_with_an_onnx_backbone(dataset, flat_backbone, tmp_path, ca
     report = json.loads((tmp_path / "fused" / "report.json").read_text())
     assert report["masks"] == "user (scene mask.png)"
     assert report["fusion"]["pixels_from_srde"] == int(np.count_nonzero(source))
-
-
-def test_fuse_scene_with_a_mask_file_and_auto_mask(dataset, tmp_path):
-    scene = read_scene(dataset / "scene_0001")
-    labels = scene.mask_labels
-    np.save(tmp_path / "mask.npy", labels)
-    with_file = fuse_scene(scene.path, tmp_path / "a", backbone=flat, mask=tmp_path / "mask.npy")
-    auto = fuse_scene(scene.path, tmp_path / "b", backbone=flat, auto_mask=True)
-    assert with_file.fusion.objects[0].pixel_count == int(np.count_nonzero(labels))
-    report = json.loads((tmp_path / "b" / "report.json").read_text())
-    assert report["masks"].startswith("auto")
-    assert len(auto.fusion.objects) >= 1
 
 
 def test_srde_command(dataset, tmp_path, capsys):

@@ -1,0 +1,32 @@
+"""The scene-folder workflows, called as library functions."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from srde_fusion.io import read_scene
+from srde_fusion.workflows import fuse_scene, run_demo
+from tests.support import FLAT_PX, flat
+
+
+def test_run_demo_with_a_callable_backbone(tmp_path):
+    run = run_demo(tmp_path, backbone=flat, scale=0.5, seed=3, n_objects=1)
+    assert run.scene_dir == tmp_path / "scene"
+    assert read_scene(run.scene_dir).rig.light_position_m is not None
+    outside = run.fusion.source == 0
+    assert np.all(run.fusion.disparity[outside] == np.float32(FLAT_PX))
+    assert set(run.files) >= {"fused_pfm", "figure_png", "report_json"}
+
+
+def test_fuse_scene_with_a_mask_file_and_auto_mask(dataset, tmp_path):
+    scene = read_scene(dataset / "scene_0001")
+    labels = scene.mask_labels
+    np.save(tmp_path / "mask.npy", labels)
+    with_file = fuse_scene(scene.path, tmp_path / "a", backbone=flat, mask=tmp_path / "mask.npy")
+    auto = fuse_scene(scene.path, tmp_path / "b", backbone=flat, auto_mask=True)
+    assert with_file.fusion.objects[0].pixel_count == int(np.count_nonzero(labels))
+    report = json.loads((tmp_path / "b" / "report.json").read_text())
+    assert report["masks"].startswith("auto")
+    assert len(auto.fusion.objects) >= 1
