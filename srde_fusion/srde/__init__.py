@@ -33,8 +33,6 @@ from .config import (
 from .estimator import (
     SRDE,
     SRDE_METHODS,
-    SRDE_STATUSES,
-    SRDEResult,
 )
 from .highlight import (
     HighlightDetection,
@@ -48,6 +46,10 @@ from .highlight import (
     weighted_centroid,
 )
 from .refine import DEFAULT_LOBE, LOBES, LobeFit, PlaneRefinement, refine_plane
+from .result import (
+    SRDE_STATUSES,
+    SRDEResult,
+)
 from .search import (
     BaselineSearch,
     Candidates,
@@ -77,9 +79,7 @@ __all__ = [
     "WHITE_SIGMA_PX",
     "WHITE_FLOOR",
     "SRDE",
-    "SRDEResult",
     "SRDE_METHODS",
-    "SRDE_STATUSES",
     "HighlightDetection",
     "detect_highlight",
     "detect_in_view",
@@ -89,6 +89,8 @@ __all__ = [
     "components",
     "weighted_centroid",
     "lobe_center",
+    "SRDEResult",
+    "SRDE_STATUSES",
     "Candidates",
     "BaselineSearch",
     "shifted_window",

@@ -32,17 +32,14 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from .._checks import Views, check_mask, check_point3, check_views
-from .._json import json_safe
 from ..errors import LightError, RigError, SRDEError
 from ..geometry import (
     CameraRig,
-    Plane,
     adjacent_pairs,
     incidence_angle_deg,
     max_shift_px,
@@ -55,114 +52,33 @@ from ..geometry import (
 from .backends import DetectionRequest, HighlightBackend, NumpyBackend
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
 from .highlight import HighlightDetection
-from .refine import DEFAULT_LOBE, LOBES, PlaneRefinement, refine_plane
+from .refine import DEFAULT_LOBE, LOBES, refine_plane
+from .result import SRDEResult
 from .search import BaselineSearch
 
-__all__ = ["SRDE", "SRDEResult", "SRDE_METHODS", "SRDE_STATUSES"]
+__all__ = [
+    "SRDE",
+    "SRDE_METHODS",
+]
 
 #: Methods accepted by :class:`SRDE`.
 SRDE_METHODS = ("default", "paper")
 
-#: Every ``status`` an :class:`SRDEResult` can carry.
-SRDE_STATUSES = (
-    "ok",
-    "mask_too_small",    # the eroded mask (or the given region) leaves nothing to search
-    "no_highlight",      # the reference view, or too many views, show no highlight
-    "inconsistent",      # the centres do not fit one 3D point; or cameras behind the plane
-    "too_few_views",     # fewer agreeing views than min_views
-    "at_infinity",       # V's image barely moves across the rig (delta ~ 0)
-    "behind_cameras",    # V triangulates behind the cameras
-    "light_on_plane",    # V ~ L: the light lies (nearly) on the plane, the normal is undefined
-    "light_behind_plane",  # L on the far side of the plane from the cameras
-    "grazing",           # some mask pixel rays meet the plane (nearly) edge-on, or behind
-)
 
 # The virtual light's image must move at least this much across the used views (pixels)
 # for its depth to mean anything; below, V is "at infinity".
 MIN_VIRTUAL_LIGHT_SHIFT_PX = 1.0
+
+
 # |V - L| below this fraction of the light's distance from the reference camera means the
 # light lies (nearly) on the plane; the normal direction V - L is then mostly noise.
 LIGHT_ON_PLANE_FRACTION = 0.01
+
+
 # A light farther than this (metres, per coordinate; the sun is 1.5e11 m away) is a
 # placeholder or a unit slip: its virtual light is at infinity for any rig, and far enough
 # out its squared distances overflow.
 MAX_LIGHT_DISTANCE_M = 1e12
-
-
-@dataclass(frozen=True)
-class SRDEResult:
-    """The outcome of one SRDE estimate.
-
-    Parameters
-    ----------
-    status : str
-        ``"ok"`` or a failure code from :data:`SRDE_STATUSES`.
-    reason : str
-        ``""`` if ok; else the failed step, the view(s) and the numbers.
-    disparity : (H, W) float32
-        Reference-camera disparity of the stereo pair, pixels; NaN outside the mask
-        (all NaN if the estimate failed).
-    plane : Plane or None
-        The object's plane in the array frame.
-    virtual_light_m : (3,) float64 or None
-        The triangulated virtual light, array frame, metres.
-    highlight_centers : (N, 2) float64
-        Highlight centre ``(u, v)`` per view, pixels; NaN where none was found.
-    used_views : (N,) bool
-        Views used in the final solve.
-    residual_px : float
-        RMS reprojection residual of the virtual light over the used views, pixels
-        (NaN if not available).
-    method : str
-        ``"default"`` or ``"paper"``.
-    notes : tuple of str
-        What was left out of an ``ok`` result and why (views without a highlight, views
-        dropped as outliers, pairs dropped by the paper method).
-    detections : tuple of HighlightDetection
-        The per-view detections (empty if the reference view already failed).
-    refinement : PlaneRefinement or None
-        The photometric refinement of the plane (default method), refined or not; None
-        if it did not run. ``virtual_light_m`` is the light mirrored across the returned
-        plane; ``residual_px`` stays the triangulation's.
-    """
-
-    status: str
-    reason: str
-    disparity: np.ndarray
-    plane: Plane | None
-    virtual_light_m: np.ndarray | None
-    highlight_centers: np.ndarray
-    used_views: np.ndarray
-    residual_px: float
-    method: str
-    notes: tuple[str, ...] = ()
-    detections: tuple[HighlightDetection, ...] = field(default=(), repr=False)
-    refinement: PlaneRefinement | None = field(default=None, repr=False)
-
-    @property
-    def ok(self) -> bool:
-        """Whether the estimate succeeded."""
-        return self.status == "ok"
-
-    def to_dict(self) -> dict:
-        """JSON-ready summary (no pixel maps): status, reason, plane, virtual light, centres.
-
-        Non-finite numbers become ``None``.
-        """
-        return json_safe({
-            "status": self.status,
-            "reason": self.reason,
-            "method": self.method,
-            "plane": None if self.plane is None else {
-                "normal": self.plane.normal, "offset_m": self.plane.offset_m},
-            "virtual_light_m": self.virtual_light_m,
-            "highlight_centers_px": np.asarray(self.highlight_centers, dtype=np.float64),
-            "used_views": np.asarray(self.used_views, dtype=bool).ravel(),
-            "residual_px": self.residual_px,
-        })
-
-    def __bool__(self) -> bool:
-        return self.ok
 
 
 def _number(value, name: str, *, low: float = 0.0, low_open: bool = True,

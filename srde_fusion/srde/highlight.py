@@ -323,7 +323,7 @@ def components(binary: np.ndarray):
     return n, labels, stats
 
 
-def _bbox(stats_row) -> tuple[int, int, int, int]:
+def bbox_of(stats_row) -> tuple[int, int, int, int]:
     x, y, bw, bh = (int(s) for s in stats_row[:4])
     return (x, y, x + bw, y + bh)
 
@@ -357,7 +357,7 @@ def _detect_paper(lum, region, config: DetectorConfig) -> HighlightDetection:
     box = (slice(y, y + bh), slice(x, x + bw))
     score = float(grad[box][ring].mean()) / max(float(threshold[box][ring].mean()),
                                                 float(np.finfo(np.float32).tiny))
-    return HighlightDetection(True, center, int(stats[label, 4]), _bbox(stats[label]), score, "")
+    return HighlightDetection(True, center, int(stats[label, 4]), bbox_of(stats[label]), score, "")
 
 
 def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | None
@@ -394,7 +394,7 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
         fitted = lobe_center(lum, saturated, region, labels == label, background, contrast)
         if fitted is not None:
             center_uv = fitted
-    return HighlightDetection(True, center_uv, area, _bbox(stats[label]), contrast, "", level)
+    return HighlightDetection(True, center_uv, area, bbox_of(stats[label]), contrast, "", level)
 
 
 def weighted_centroid(weights: np.ndarray) -> np.ndarray:

@@ -27,11 +27,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 import torch
-import torch.nn.functional as F
-from kornia.filters import filter2d_separable, get_spatial_gradient_kernel2d
+from kornia.filters import get_spatial_gradient_kernel2d
 
 from .._checks import check_views
 from ..errors import ImageError, SRDEError
@@ -54,230 +52,22 @@ from .highlight import (
     search_box,
 )
 from .search import Candidates
+from .torch_ops import (
+    bbox_of,
+    crop_to_foreground,
+    extend_borders,
+    filter_valid,
+    gaussian_kernel,
+    label_components,
+    median_of,
+    reflect_index,
+    smooth_at,
+    weighted_centroids,
+)
 
-__all__ = ["TorchBackend", "label_components"]
-
-# Pointer jumps per labelling round (see label_components).
-_POINTER_JUMPS = 2
-
-
-
-def _gaussian_ksize(sigma: float) -> int:
-    """OpenCV's Gaussian kernel size for float images: ``round(8 sigma + 1)``, made odd."""
-    return int(round(sigma * 8 + 1)) | 1
-
-
-def _gaussian_kernel(sigma: float, device: torch.device) -> torch.Tensor:
-    """Return the kernel OpenCV's ``GaussianBlur`` uses on float32 images, ``(1, ksize)``."""
-    kernel = cv2.getGaussianKernel(_gaussian_ksize(sigma), sigma, cv2.CV_32F)
-    return torch.from_numpy(kernel.reshape(1, -1)).to(device)
-
-
-def _max3x3(labels: torch.Tensor) -> torch.Tensor:
-    """Maximum over each pixel's 3 x 3 neighbourhood of non-negative ``(B, H, W)`` labels."""
-    p = F.pad(labels, (1, 1, 1, 1))  # zeros: background, never above a label
-    rows = torch.maximum(torch.maximum(p[:, :-2], p[:, 1:-1]), p[:, 2:])
-    return torch.maximum(torch.maximum(rows[:, :, :-2], rows[:, :, 1:-1]), rows[:, :, 2:])
-
-
-def label_components(binary: torch.Tensor) -> torch.Tensor:
-    """Label the 8-connected components of a batch of binary images.
-
-    Labels spread by 3 x 3 maxima restricted to the foreground, with pointer jumping
-    (a pixel takes the label of the pixel its label names), until nothing changes; each
-    component ends up labelled by its largest flat pixel index plus one.
-
-    Parameters
-    ----------
-    binary : torch.Tensor, (B, H, W) bool
-        Foreground pixels.
-
-    Returns
-    -------
-    torch.Tensor, (B, H, W) int64
-        0 for background; within an image, one positive label per component.
-
-    Examples
-    --------
-    >>> import torch
-    >>> image = torch.tensor([[[1, 1, 0, 0], [0, 0, 0, 1], [1, 0, 1, 0]]], dtype=torch.bool)
-    >>> label_components(image)[0].tolist()
-    [[2, 2, 0, 0], [0, 0, 0, 11], [9, 0, 11, 0]]
-    """
-    b, h, w = binary.shape
-    index = torch.arange(1, h * w + 1, device=binary.device).view(1, h, w)
-    labels = index * binary
-    while True:
-        grown = _max3x3(labels) * binary
-        # A label names a pixel of the same component whose own label is at least as
-        # large; following it twice per round halves the rounds on blob-sized components.
-        for _ in range(_POINTER_JUMPS):
-            flat = grown.view(b, -1)
-            grown = flat.gather(1, (flat - 1).clamp_min(0)).view(b, h, w) * binary
-        if torch.equal(grown, labels):
-            return labels
-        labels = grown
-
-
-def _reflect_index(start: int, stop: int, size: int, mode: str) -> np.ndarray:
-    """Fold the indices ``start..stop-1`` into ``[0, size)`` as OpenCV extends a border.
-
-    ``"symmetric"`` is ``BORDER_REFLECT`` (``cba|abc``), ``"reflect101"`` is
-    ``BORDER_REFLECT_101`` (``cb|abc``); both repeat for offsets beyond the size.
-    """
-    i = np.arange(start, stop)
-    if size == 1:
-        return np.zeros_like(i)
-    if mode == "symmetric":
-        i = np.mod(i, 2 * size)
-        return np.where(i >= size, 2 * size - 1 - i, i)
-    i = np.mod(i, 2 * size - 2)
-    return np.where(i >= size, 2 * size - 2 - i, i)
-
-
-def _extend(x: torch.Tensor, sizes: np.ndarray, pad: int, mode: str) -> torch.Tensor:
-    """Extend each crop of a batch by ``pad`` pixels at its own edges.
-
-    Parameters
-    ----------
-    x : torch.Tensor, (B, h, w)
-        Crops padded to a common size; crop b occupies ``x[b, :sizes[b, 0], :sizes[b, 1]]``.
-    sizes : numpy.ndarray, (B, 2) int
-        ``(height, width)`` of each crop.
-    pad : int
-    mode : {"symmetric", "reflect101"}
-
-    Returns
-    -------
-    torch.Tensor, (B, h + 2 pad, w + 2 pad)
-        What OpenCV's border would put around each crop (beyond a crop's own size, the
-        extension continues; those pixels are never read as results).
-    """
-    b, h, w = x.shape
-    rows = np.stack([_reflect_index(-pad, h + pad, int(s), mode) for s in sizes[:, 0]])
-    cols = np.stack([_reflect_index(-pad, w + pad, int(s), mode) for s in sizes[:, 1]])
-    rows_t = torch.from_numpy(rows).to(x.device)
-    cols_t = torch.from_numpy(cols).to(x.device)
-    x = x.gather(1, rows_t[:, :, None].expand(b, h + 2 * pad, w))
-    return x.gather(2, cols_t[:, None, :].expand(b, h + 2 * pad, w + 2 * pad))
-
-
-def _filter_valid(x: torch.Tensor, kernel_x: torch.Tensor, kernel_y: torch.Tensor
-                  ) -> torch.Tensor:
-    """Correlate ``(B, h, w)`` with a separable kernel, "valid" part only.
-
-    On a GPU this is kornia's separable filter. torch's CPU convolutions are slow for
-    thin kernels, so on the CPU the same sums are taken over shifted slices.
-
-    Returns
-    -------
-    torch.Tensor, (B, h - Ky + 1, w - Kx + 1)
-    """
-    if x.device.type != "cpu":
-        return filter2d_separable(x[:, None], kernel_x[None], kernel_y[None],
-                                  padding="valid")[:, 0]
-    kx, ky = kernel_x.tolist(), kernel_y.tolist()
-    w_out, h_out = x.shape[2] - len(kx) + 1, x.shape[1] - len(ky) + 1
-    rows = kx[0] * x[:, :, :w_out]
-    for i, c in enumerate(kx[1:], start=1):
-        rows = rows + c * x[:, :, i:i + w_out]
-    out = ky[0] * rows[:, :h_out]
-    for i, c in enumerate(ky[1:], start=1):
-        out = out + c * rows[:, i:i + h_out]
-    return out
-
-
-def _tight(foreground: torch.Tensor, *layers: torch.Tensor):
-    """Crop a batch to the bounding box of each image's foreground (one common size).
-
-    Components and their statistics need only the foreground's surroundings; the rest
-    of a search crop would only slow the labelling down.
-
-    Returns
-    -------
-    origins : numpy.ndarray, (B, 2) int
-        ``(u0, v0)`` of each box in its image.
-    foreground : torch.Tensor, (B, h', w') bool
-        False outside each image's own box.
-    *layers : torch.Tensor, (B, h', w')
-        The same boxes of the other layers.
-    """
-    b, h, w = foreground.shape
-    rows = foreground.any(dim=2).cpu().numpy()
-    cols = foreground.any(dim=1).cpu().numpy()
-    boxes = np.zeros((b, 4), dtype=np.int64)  # v0, v1, u0, u1; empty images keep 0:1, 0:1
-    boxes[:, [1, 3]] = 1
-    for i in range(b):
-        if rows[i].any():
-            r, c = np.flatnonzero(rows[i]), np.flatnonzero(cols[i])
-            boxes[i] = (r[0], r[-1] + 1, c[0], c[-1] + 1)
-    hb, wb = int((boxes[:, 1] - boxes[:, 0]).max()), int((boxes[:, 3] - boxes[:, 2]).max())
-    row_index = boxes[:, :1] + np.arange(hb)                             # (B, hb)
-    col_index = boxes[:, 2:3] + np.arange(wb)
-    inside = torch.from_numpy((row_index < boxes[:, 1:2])[:, :, None]
-                              & (col_index < boxes[:, 3:4])[:, None, :]).to(foreground.device)
-    rows_t = torch.from_numpy(np.minimum(row_index, h - 1)).to(foreground.device)
-    cols_t = torch.from_numpy(np.minimum(col_index, w - 1)).to(foreground.device)
-
-    def cut(x):
-        x = x.gather(1, rows_t[:, :, None].expand(b, hb, w))
-        return x.gather(2, cols_t[:, None, :].expand(b, hb, wb))
-
-    return (boxes[:, [2, 0]], cut(foreground) & inside, *(cut(x) for x in layers))
-
-
-def _median(values: torch.Tensor, where: torch.Tensor) -> torch.Tensor:
-    """Return numpy's median (mean of the two middle values) of each image's selected values.
-
-    Returns
-    -------
-    torch.Tensor, (B,) float64
-    """
-    out = []
-    for x, m in zip(values, where, strict=True):
-        selected = x[m]
-        n = selected.numel()
-        lower = selected.kthvalue((n - 1) // 2 + 1).values
-        upper = selected.kthvalue(n // 2 + 1).values if n % 2 == 0 else lower
-        out.append((lower + upper) / 2)
-    return torch.stack(out).double()
-
-
-def _smooth_at(extended: torch.Tensor, points_uv: np.ndarray, kernel: torch.Tensor
-               ) -> torch.Tensor:
-    """Separable smoothing of one crop, computed only at some of its pixels.
-
-    The pass across the fewer distinct lines runs as one matrix product with banded
-    rows of the kernel, the other pass only at the points: for candidates along a
-    baseline that is a small fraction of smoothing the whole crop.
-
-    Parameters
-    ----------
-    extended : torch.Tensor, (h + K - 1, w + K - 1)
-        The crop extended by ``K // 2`` pixels on every side.
-    points_uv : numpy.ndarray, (n, 2) int
-        Pixels ``(u, v)`` of the crop.
-    kernel : torch.Tensor, (K,)
-        A symmetric kernel (the same along both axes).
-
-    Returns
-    -------
-    torch.Tensor, (n,)
-        The smoothed crop at the points ("valid" filtering of ``extended``).
-    """
-    taps = kernel.numel()
-    u, v = points_uv[:, 0], points_uv[:, 1]
-    if np.unique(u).size < np.unique(v).size:
-        extended, u, v = extended.T, v, u
-    lines, which = np.unique(v, return_inverse=True)
-    device = extended.device
-    band = torch.zeros(lines.size, extended.shape[0], dtype=extended.dtype, device=device)
-    offsets = torch.from_numpy(lines[:, None] + np.arange(taps)).to(device)
-    band.scatter_(1, offsets, kernel.expand(lines.size, taps))
-    passed = band @ extended                                            # (lines, w + K - 1)
-    windows = torch.from_numpy(u[:, None] + np.arange(taps)).to(device)
-    return passed[torch.from_numpy(which).to(device)[:, None], windows] @ kernel
-
+__all__ = [
+    "TorchBackend",
+]
 
 @dataclass(frozen=True)
 class _Crops:
@@ -338,8 +128,8 @@ class TorchBackend:
         self.encoding = config.encoding
         self.lut = torch.from_numpy(SRGB_TO_LINEAR_U8).to(device)
         self.luma = torch.from_numpy(REC709_LUMA).to(device)
-        self.blob_kernel = _gaussian_kernel(PEAK_SMOOTHING_SIGMA_PX, device)
-        self.white_kernel = _gaussian_kernel(WHITE_SIGMA_PX, device)
+        self.blob_kernel = gaussian_kernel(PEAK_SMOOTHING_SIGMA_PX, device)
+        self.white_kernel = gaussian_kernel(WHITE_SIGMA_PX, device)
         self.whites = None
         if white_references is not None:
             self.whites = [torch.from_numpy(np.ascontiguousarray(r)).to(device)
@@ -400,8 +190,8 @@ class TorchBackend:
         out = []
         for j, (u0, v0, _, _), (h, w) in zip(views, boxes, sizes, strict=True):
             # Beyond its own size a crop repeats itself; those pixels are never results.
-            rows = torch.from_numpy(v0 + _reflect_index(0, hm, int(h), "symmetric"))
-            cols = torch.from_numpy(u0 + _reflect_index(0, wm, int(w), "symmetric"))
+            rows = torch.from_numpy(v0 + reflect_index(0, hm, int(h), "symmetric"))
+            cols = torch.from_numpy(u0 + reflect_index(0, wm, int(w), "symmetric"))
             image = images[j]
             out.append(image.index_select(0, rows.to(image.device))
                        .index_select(1, cols.to(image.device)))
@@ -434,14 +224,14 @@ class TorchBackend:
         boxes = np.concatenate([crops.origins, crops.origins + crops.sizes[:, ::-1]], axis=1)
         white = self.luminance(self.crops(self.whites, crops.views, boxes).pixels)
         pad = self.white_kernel.shape[1] // 2
-        white = _extend(white, crops.sizes, pad, "symmetric")
-        white = _filter_valid(white, self.white_kernel[0], self.white_kernel[0])
+        white = extend_borders(white, crops.sizes, pad, "symmetric")
+        white = filter_valid(white, self.white_kernel[0], self.white_kernel[0])
         return lum / white.clamp_min(WHITE_FLOOR)
 
     def smooth(self, lum: torch.Tensor, sizes: np.ndarray, kernel: torch.Tensor) -> torch.Tensor:
         """Gaussian smoothing of each crop with OpenCV's symmetric border, ``(B, h, w)``."""
-        x = _extend(lum, sizes, kernel.shape[1] // 2, "symmetric")
-        return _filter_valid(x, kernel[0], kernel[0])
+        x = extend_borders(lum, sizes, kernel.shape[1] // 2, "symmetric")
+        return filter_valid(x, kernel[0], kernel[0])
 
     # ------------------------------------------------------------------ search
     def brightest(self, frame: _DeviceViews, candidates: Sequence[tuple[int, Candidates]]
@@ -457,15 +247,15 @@ class TorchBackend:
         views = [j for j, _ in candidates]
         boxes = [(*c.lo, *c.hi) for _, c in candidates]
         crops = self.crops(frame.tensors, views, boxes)
-        kernel = _gaussian_kernel(candidates[0][1].sigma_px, self.device)
-        extended = _extend(self.luminance(crops.pixels), crops.sizes, kernel.shape[1] // 2,
+        kernel = gaussian_kernel(candidates[0][1].sigma_px, self.device)
+        extended = extend_borders(self.luminance(crops.pixels), crops.sizes, kernel.shape[1] // 2,
                            "symmetric")
         best = []
         for ext, (_, c) in zip(extended, candidates, strict=True):
             brightness = torch.full((c.w_v.size,), -math.inf, dtype=torch.float64,
                                     device=self.device)
             local = c.pix[c.ok] - np.asarray(c.lo)
-            values = _smooth_at(ext, local, kernel[0])
+            values = smooth_at(ext, local, kernel[0])
             brightness[torch.from_numpy(np.flatnonzero(c.ok)).to(self.device)] = values.double()
             best.append(brightness)
         # argmax returns the first of equal maxima, as numpy's does.
@@ -498,7 +288,7 @@ class TorchBackend:
         b, h, w = lum.shape
         dev = self.device
         smooth = self.smooth(lum, crops.sizes, self.blob_kernel)
-        background = _median(lum, region)
+        background = median_of(lum, region)
         peak = torch.where(region, smooth, -torch.inf).flatten(1).amax(dim=1).double()
         contrast = peak - background
         given = torch.tensor([math.nan if lv is None else lv for lv in levels],
@@ -508,7 +298,7 @@ class TorchBackend:
         layers = [excess]
         if config.blob_center == "core":
             layers.append(self.saturated(crops.pixels))
-        origins, foreground, excess, *saturated = _tight(excess > 0, *layers)
+        origins, foreground, excess, *saturated = crop_to_foreground(excess > 0, *layers)
         b, h, w = foreground.shape
         labels = label_components(foreground).flatten(1)                # (B, h w)
         light = torch.zeros(b, h * w + 1, dtype=torch.float64, device=dev)
@@ -518,16 +308,16 @@ class TorchBackend:
         blob = (labels == best[:, None]).view(b, h, w) & foreground
         uu = torch.arange(w, device=dev, dtype=torch.float64).view(1, 1, w)
         vv = torch.arange(h, device=dev, dtype=torch.float64).view(1, h, 1)
-        center = _centroid(torch.where(blob, excess.double(), 0.0), uu, vv)
+        center = weighted_centroids(torch.where(blob, excess.double(), 0.0), uu, vv)
         if saturated:
             core = blob & saturated[0]
             n_core = core.flatten(1).sum(dim=1)
             center = torch.where((n_core >= MIN_CORE_PX)[:, None],
-                                 _centroid(core.double(), uu, vv), center)
+                                 weighted_centroids(core.double(), uu, vv), center)
         stats = {name: t.cpu().numpy() for name, t in dict(
             background=background, peak=peak, contrast=contrast, level=level,
             any=foreground.flatten(1).any(dim=1), area=blob.flatten(1).sum(dim=1),
-            center=center, bbox=_bbox(blob)).items()}
+            center=center, bbox=bbox_of(blob)).items()}
         out = []
         for i in range(b):
             bg, pk, ct, lv = (float(stats[k][i]) for k in ("background", "peak", "contrast",
@@ -564,20 +354,20 @@ class TorchBackend:
         half = config.window // 2
         # Sobel then box statistics, both with reflect-101 borders: |gradient| of the
         # extended crop is the extension of the crop's |gradient|, so one extension does.
-        x = _extend(lum, sizes, half + 1, "reflect101")
+        x = extend_borders(lum, sizes, half + 1, "reflect101")
         sobel = get_spatial_gradient_kernel2d("sobel", 1).to(dev, torch.float32)
         derivative, smoothing = sobel[0, 0], sobel[0, :, 2]             # [-1, 0, 1], [1, 2, 1]
-        gx = _filter_valid(x, derivative, smoothing)
-        gy = _filter_valid(x, smoothing, derivative)
+        gx = filter_valid(x, derivative, smoothing)
+        gy = filter_valid(x, smoothing, derivative)
         grad = torch.sqrt(gx * gx + gy * gy)                            # (B, h + 2 half, ...)
         box = torch.full((config.window,), 1.0 / config.window, device=dev)
-        mean = _filter_valid(grad, box, box)
-        mean_sq = _filter_valid(grad * grad, box, box)
+        mean = filter_valid(grad, box, box)
+        mean_sq = filter_valid(grad * grad, box, box)
         grad = grad[:, half:half + h, half:half + w]
         std = torch.sqrt(torch.clamp(mean_sq - mean * mean, min=0.0))
         threshold = mean + config.k * std
         n_region = region.flatten(1).sum(dim=1)
-        origins, candidates, grad, threshold = _tight(region & (grad > threshold), grad,
+        origins, candidates, grad, threshold = crop_to_foreground(region & (grad > threshold), grad,
                                                       threshold)
         b, h, w = candidates.shape
         labels = label_components(candidates).flatten(1)
@@ -613,8 +403,9 @@ class TorchBackend:
             n=(area > 0).sum(dim=1), kept=keep.any(dim=1), region=n_region,
             area=pick(area, best), u0=pick(u_min, best), v0=pick(v_min, best),
             u1=pick(u_max, best) + 1, v1=pick(v_max, best) + 1,
-            center=_centroid(ring.double(), uu, vv), score=score, big_w=pick(widths, largest),
-            big_h=pick(heights, largest), big_area=pick(area, largest)).items()}
+            center=weighted_centroids(ring.double(), uu, vv), score=score,
+            big_w=pick(widths, largest), big_h=pick(heights, largest),
+            big_area=pick(area, largest)).items()}
         out = []
         for i in range(b):
             reason = paper_rejection(
@@ -632,25 +423,6 @@ class TorchBackend:
             out.append(HighlightDetection(True, center_uv, int(stats["area"][i]), bbox,
                                           float(stats["score"][i]), ""))
         return out
-
-
-def _centroid(weights: torch.Tensor, uu: torch.Tensor, vv: torch.Tensor) -> torch.Tensor:
-    """``(u, v)`` centroid of each non-negative ``(B, h, w)`` weight image, ``(B, 2)``."""
-    total = weights.sum(dim=(1, 2)).clamp_min(float(np.finfo(np.float64).tiny))
-    return torch.stack([(weights * uu).sum(dim=(1, 2)), (weights * vv).sum(dim=(1, 2))],
-                       dim=1) / total[:, None]
-
-
-def _bbox(mask: torch.Tensor) -> torch.Tensor:
-    """``(u0, v0, u1, v1)``, inclusive-exclusive, of each ``(B, h, w)`` mask, ``(B, 4)``."""
-    b, h, w = mask.shape
-    rows, cols = mask.any(dim=2), mask.any(dim=1)
-    ar_v = torch.arange(h, device=mask.device)
-    ar_u = torch.arange(w, device=mask.device)
-    return torch.stack([torch.where(cols, ar_u, w).amin(dim=1),
-                        torch.where(rows, ar_v, h).amin(dim=1),
-                        torch.where(cols, ar_u, -1).amax(dim=1) + 1,
-                        torch.where(rows, ar_v, -1).amax(dim=1) + 1], dim=1)
 
 
 def _device(device) -> torch.device:

@@ -23,13 +23,8 @@ from srde_fusion.srde import (
     DetectorConfig,
     NumpyBackend,
 )
-from srde_fusion.srde.torch_backend import (
-    TorchBackend,
-    _extend,
-    _reflect_index,
-    _smooth_at,
-    label_components,
-)
+from srde_fusion.srde.torch_backend import TorchBackend
+from srde_fusion.srde.torch_ops import extend_borders, label_components, reflect_index, smooth_at
 from srde_fusion.synthetic import default_rig, random_scene, render
 
 # The contract: torch and numpy paths agree within this much disparity on rendered scenes.
@@ -188,10 +183,10 @@ def test_label_components_matches_opencv(seed, density):
 def test_extension_is_opencvs_border(mode, border, size, pad):
     row = np.arange(size, dtype=np.float32)[None, :]
     expected = cv2.copyMakeBorder(row, 0, 0, pad, pad, border)[0]
-    np.testing.assert_array_equal(row[0, _reflect_index(-pad, size + pad, size, mode)], expected)
+    np.testing.assert_array_equal(row[0, reflect_index(-pad, size + pad, size, mode)], expected)
     crops = torch.from_numpy(np.random.default_rng(1).random((2, 6, 8)).astype(np.float32))
     sizes = np.array([[6, 8], [4, 5]])
-    ext = _extend(crops, sizes, pad, mode).numpy()
+    ext = extend_borders(crops, sizes, pad, mode).numpy()
     small = crops[1, :4, :5].numpy()
     want = cv2.copyMakeBorder(small, pad, pad, pad, pad, border)
     np.testing.assert_array_equal(ext[1, :4 + 2 * pad, :5 + 2 * pad], want)
@@ -207,7 +202,7 @@ def test_smoothing_at_points_is_opencvs_blur(direction):
     t = np.arange(20)
     points = np.stack([10 + direction[0] * t, 30 + direction[1] * t], axis=1)
     ext = torch.from_numpy(cv2.copyMakeBorder(crop, pad, pad, pad, pad, cv2.BORDER_REFLECT))
-    got = _smooth_at(ext, points, torch.from_numpy(kernel)).numpy()
+    got = smooth_at(ext, points, torch.from_numpy(kernel)).numpy()
     blurred = cv2.GaussianBlur(crop, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
     np.testing.assert_allclose(got, blurred[points[:, 1], points[:, 0]], rtol=1e-5)
 

@@ -1,0 +1,113 @@
+"""What one SRDE estimate returns: the disparity, the plane, and what happened on the way.
+
+A geometric failure is a result with a ``status`` and a ``reason`` naming the step, the
+view and the numbers, never an exception (DESIGN §2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._json import json_safe
+from ..geometry import (
+    Plane,
+)
+from .highlight import HighlightDetection
+from .refine import PlaneRefinement
+
+__all__ = [
+    "SRDEResult",
+    "SRDE_STATUSES",
+]
+
+#: Every ``status`` an :class:`SRDEResult` can carry.
+SRDE_STATUSES = (
+    "ok",
+    "mask_too_small",    # the eroded mask (or the given region) leaves nothing to search
+    "no_highlight",      # the reference view, or too many views, show no highlight
+    "inconsistent",      # the centres do not fit one 3D point; or cameras behind the plane
+    "too_few_views",     # fewer agreeing views than min_views
+    "at_infinity",       # V's image barely moves across the rig (delta ~ 0)
+    "behind_cameras",    # V triangulates behind the cameras
+    "light_on_plane",    # V ~ L: the light lies (nearly) on the plane, the normal is undefined
+    "light_behind_plane",  # L on the far side of the plane from the cameras
+    "grazing",           # some mask pixel rays meet the plane (nearly) edge-on, or behind
+)
+
+
+@dataclass(frozen=True)
+class SRDEResult:
+    """The outcome of one SRDE estimate.
+
+    Parameters
+    ----------
+    status : str
+        ``"ok"`` or a failure code from :data:`SRDE_STATUSES`.
+    reason : str
+        ``""`` if ok; else the failed step, the view(s) and the numbers.
+    disparity : (H, W) float32
+        Reference-camera disparity of the stereo pair, pixels; NaN outside the mask
+        (all NaN if the estimate failed).
+    plane : Plane or None
+        The object's plane in the array frame.
+    virtual_light_m : (3,) float64 or None
+        The triangulated virtual light, array frame, metres.
+    highlight_centers : (N, 2) float64
+        Highlight centre ``(u, v)`` per view, pixels; NaN where none was found.
+    used_views : (N,) bool
+        Views used in the final solve.
+    residual_px : float
+        RMS reprojection residual of the virtual light over the used views, pixels
+        (NaN if not available).
+    method : str
+        ``"default"`` or ``"paper"``.
+    notes : tuple of str
+        What was left out of an ``ok`` result and why (views without a highlight, views
+        dropped as outliers, pairs dropped by the paper method).
+    detections : tuple of HighlightDetection
+        The per-view detections (empty if the reference view already failed).
+    refinement : PlaneRefinement or None
+        The photometric refinement of the plane (default method), refined or not; None
+        if it did not run. ``virtual_light_m`` is the light mirrored across the returned
+        plane; ``residual_px`` stays the triangulation's.
+    """
+
+    status: str
+    reason: str
+    disparity: np.ndarray
+    plane: Plane | None
+    virtual_light_m: np.ndarray | None
+    highlight_centers: np.ndarray
+    used_views: np.ndarray
+    residual_px: float
+    method: str
+    notes: tuple[str, ...] = ()
+    detections: tuple[HighlightDetection, ...] = field(default=(), repr=False)
+    refinement: PlaneRefinement | None = field(default=None, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the estimate succeeded."""
+        return self.status == "ok"
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (no pixel maps): status, reason, plane, virtual light, centres.
+
+        Non-finite numbers become ``None``.
+        """
+        return json_safe({
+            "status": self.status,
+            "reason": self.reason,
+            "method": self.method,
+            "plane": None if self.plane is None else {
+                "normal": self.plane.normal, "offset_m": self.plane.offset_m},
+            "virtual_light_m": self.virtual_light_m,
+            "highlight_centers_px": np.asarray(self.highlight_centers, dtype=np.float64),
+            "used_views": np.asarray(self.used_views, dtype=bool).ravel(),
+            "residual_px": self.residual_px,
+        })
+
+    def __bool__(self) -> bool:
+        return self.ok
