@@ -7,8 +7,9 @@ conventions (channel order, value range, padding, which output, sign, resolution
 fixed input size); :data:`PRESETS` holds those of IGEV, IGEV++, RAFT-Stereo, CREStereo,
 NMRF and FoundationStereo.
 
-The stand-in network (:mod:`.standin`, :mod:`.training`) and the torch adapter import
-torch only when used, so ``import srde_fusion.adapters`` stays light.
+The stand-in network, its procedural training data, its training and its bundled weights
+live in :mod:`.standin`; they and the torch adapter import torch only when used, so
+``import srde_fusion.adapters`` stays light.
 """
 
 from __future__ import annotations
@@ -42,14 +43,14 @@ __all__ = [
 
 # Names that need torch, resolved on first access (PEP 562).
 _LAZY = {
-    "StandinConfig": ".standin",
-    "StandinStereo": ".standin",
-    "STANDIN_SIZES": ".standin",
-    "build_standin": ".standin",
-    "TrainingConfig": ".training",
-    "train_standin": ".training",
-    "export_standin_onnx": ".training",
-    "random_stereo_pair": ".procedural",
+    "StandinConfig": ".standin.network",
+    "StandinStereo": ".standin.network",
+    "STANDIN_SIZES": ".standin.network",
+    "build_standin": ".standin.network",
+    "TrainingConfig": ".standin.training",
+    "train_standin": ".standin.training",
+    "export_standin_onnx": ".standin.training",
+    "random_stereo_pair": ".standin.procedural",
 }
 
 

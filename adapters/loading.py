@@ -16,7 +16,7 @@ from .spec import StereoSpec, preset
 
 __all__ = ["load_backbone", "default_weights_path", "default_model_info"]
 
-_WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+_WEIGHTS_DIR = Path(__file__).resolve().parent / "standin" / "weights"
 _DEFAULT_MODEL = "standin.onnx"
 _DEFAULT_INFO = "standin.json"
 # The stand-in follows IGEV's conventions (RGB 0..255, pad to 32, positive disparity).

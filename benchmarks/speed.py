@@ -70,7 +70,7 @@ def _backbone():
     The time of a network does not depend on its weights, only on its architecture.
     """
     try:
-        return load_backbone("default"), "bundled stand-in (adapters/weights/standin.onnx)"
+        return load_backbone("default"), "bundled stand-in (adapters/standin/weights/standin.onnx)"
     except BackboneError:
         from srde_fusion.adapters import build_standin, export_standin_onnx
 

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..adapters.training import TrainingConfig, train_standin
+from ..adapters.standin.training import TrainingConfig, train_standin
 
 __all__ = ["register"]
 

@@ -17,13 +17,13 @@ from srde_fusion.adapters import (  # noqa: E402
     default_model_info,
     load_backbone,
 )
-from srde_fusion.adapters.procedural import random_stereo_pair  # noqa: E402
-from srde_fusion.adapters.standin import (  # noqa: E402
+from srde_fusion.adapters.standin.network import (  # noqa: E402
     STANDIN_SIZES,
     StandinConfig,
     build_standin,
 )
-from srde_fusion.adapters.training import TrainingConfig, train_standin  # noqa: E402
+from srde_fusion.adapters.standin.procedural import random_stereo_pair  # noqa: E402
+from srde_fusion.adapters.standin.training import TrainingConfig, train_standin  # noqa: E402
 
 from srde_fusion.cli import main  # noqa: E402
 from srde_fusion.errors import BackboneError  # noqa: E402

@@ -1,10 +1,10 @@
 r"""Training, ONNX export and the ``srde-fusion train-standin`` command for the stand-in.
 
-The stand-in learns from procedural pairs (:mod:`srde_fusion.adapters.procedural`):
+The stand-in learns from procedural pairs (:mod:`srde_fusion.adapters.standin.procedural`):
 textured slanted planes and occluding layers with exact disparity, generated on the fly,
 so training needs no data set. The bundled default was made with::
 
-    srde-fusion train-standin --out adapters/weights/standin.onnx --size default \\
+    srde-fusion train-standin --out adapters/standin/weights/standin.onnx --size default \\
         --steps 800 --seed 0
 
 Why procedural pairs and not the rendered scenes of :mod:`srde_fusion.synthetic`: rendering
@@ -253,7 +253,7 @@ def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, 
     import torch
     from tqdm import tqdm
 
-    from .standin import INPUT_MULTIPLE, STANDIN_SIZES, StandinConfig, build_standin
+    from .network import INPUT_MULTIPLE, STANDIN_SIZES, StandinConfig, build_standin
 
     config = config or TrainingConfig()
     out = Path(out)
