@@ -13,6 +13,7 @@ from srde_fusion.errors import BackboneError
 from ._pipeline import StereoAdapter
 from .onnx_backend import OnnxStereo
 from .spec import StereoSpec, preset
+from .torch_backend import TorchStereo
 
 __all__ = ["load_backbone", "default_weights_path", "default_model_info"]
 
@@ -97,8 +98,6 @@ def load_backbone(source: Any, spec: StereoSpec | str | None = None, **options: 
         return OnnxStereo(path, preset(spec or "generic"), **options)
     torch = sys.modules.get("torch")  # a torch module can only exist if torch is imported
     if torch is not None and isinstance(source, torch.nn.Module):
-        from .torch_backend import TorchStereo
-
         return TorchStereo(source, preset(spec or "generic"), **options)
     raise BackboneError(
         f"source: expected 'default', a .onnx file or a torch.nn.Module, "

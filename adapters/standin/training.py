@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from srde_fusion.errors import BackboneError
 
@@ -250,8 +251,8 @@ def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, 
     BackboneError
         Invalid settings (unknown size, crop not a multiple of 32, ...).
     """
+    # torch (and the network built on it) load only when training runs.
     import torch
-    from tqdm import tqdm
 
     from .network import INPUT_MULTIPLE, STANDIN_SIZES, StandinConfig, build_standin
 
