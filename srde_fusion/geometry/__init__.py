@@ -1,7 +1,7 @@
 """Geometry of a rectified camera array: the rig, planes, triangulation.
 
-Owns the array frame and its conventions (DESIGN section 2). Imports only the
-foundation (``errors``, ``_checks``); everything else builds on it.
+Owns the array frame and its conventions (DESIGN §2). Imports only the foundation
+(``errors``, ``_checks``, ``_json``, ``imaging``); everything else builds on it.
 """
 
 from __future__ import annotations
