@@ -16,6 +16,7 @@ from .plates import (
     plate_scene,
 )
 from .random_scenes import (
+    RandomSceneConfig,
     random_scene,
 )
 from .render import (
@@ -47,6 +48,7 @@ __all__ = [
     "scene_from_dict",
     "highlight_normal",
     "plate_scene",
+    "RandomSceneConfig",
     "random_scene",
     "render",
     "Material",

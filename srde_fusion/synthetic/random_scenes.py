@@ -7,9 +7,11 @@ object in every view. Deterministic from a seed.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
@@ -33,6 +35,7 @@ from .shading import LOBES
 from .surfaces import background_surfaces, object_surface
 
 __all__ = [
+    "RandomSceneConfig",
     "random_scene",
 ]
 
@@ -137,45 +140,14 @@ def _specular_peak(obj: PlanarObject, light: Light, rig: CameraRig) -> float:
     return float(radiance[0] @ REC709_LUMA)
 
 
-def random_scene(
-    seed: int,
-    rig: CameraRig,
-    *,
-    n_objects: int = 1,
-    background: str = "none",
-    lobe: str = "ggx",
-    roughness: tuple[float, float] | float = (0.005, 0.03),
-    light_radius_m: tuple[float, float] | float = (0.002, 0.01),
-    distance_m: tuple[float, float] = (0.6, 1.4),
-    max_tilt_deg: float = 30.0,
-    size_m: tuple[float, float] = (0.15, 0.4),
-    shapes: Sequence[str] = SHAPES,
-    highlight_margin_m: float = 0.02,
-    light_offset_m: tuple[float, float] = (0.1, 0.6),
-    clip_ratio: tuple[float, float] | float = (1.5, 4.0),
-    diffuse_level: tuple[float, float] | float = (0.03, 0.12),
-    noise_std: float = 0.002,
-    max_attempts: int = 2000,
-) -> Scene:
-    """Sample a scene under the paper's conditions, deterministically from ``seed``.
+@dataclass(frozen=True)
+class RandomSceneConfig:
+    """How :func:`random_scene` samples scenes; validated on construction.
 
-    One light is placed beside or behind the array, outside every camera's field of
-    view. Each object is then placed so that the light's mirror reflection reaches the
-    array: a reference-view point on the object is drawn, the object's normal is the
-    bisector of the directions to the reference camera and to the light there, and the
-    object is accepted only if its mirror point (where the line from each camera centre
-    to the virtual light crosses the plane) lies inside its outline, at least
-    ``highlight_margin_m`` from the edge, in every view, unoccluded; if its normal is
-    within ``max_tilt_deg`` of the optical axis; if every view sees the whole object; and,
-    for several objects, if the objects do not overlap in the reference view.
-    The exposure puts the objects' diffuse shading at ``diffuse_level`` (linear) and the
-    specular scale makes the highlight core ``clip_ratio`` times the clipping level.
+    Ranges are stored as ``(low, high)`` tuples (a single number ``x`` becomes ``(x, x)``).
 
     Parameters
     ----------
-    seed : int
-        Seed; the same seed and rig give the same scene.
-    rig : CameraRig
     n_objects : int
         Number of objects, each with its own highlight.
     background : {"none", "textured"}
@@ -204,6 +176,99 @@ def random_scene(
     max_attempts : int
         Light placements to try before giving up.
 
+    Raises
+    ------
+    SceneError
+        An option out of range; the message names it.
+    """
+
+    n_objects: int = 1
+    background: str = "none"
+    lobe: str = "ggx"
+    roughness: tuple[float, float] | float = (0.005, 0.03)
+    light_radius_m: tuple[float, float] | float = (0.002, 0.01)
+    distance_m: tuple[float, float] = (0.6, 1.4)
+    max_tilt_deg: float = 30.0
+    size_m: tuple[float, float] = (0.15, 0.4)
+    shapes: Sequence[str] = SHAPES
+    highlight_margin_m: float = 0.02
+    light_offset_m: tuple[float, float] = (0.1, 0.6)
+    clip_ratio: tuple[float, float] | float = (1.5, 4.0)
+    diffuse_level: tuple[float, float] | float = (0.03, 0.12)
+    noise_std: float = 0.002
+    max_attempts: int = 2000
+
+    def __post_init__(self) -> None:
+        n_objects, max_attempts = self.n_objects, self.max_attempts
+        if (isinstance(n_objects, bool) or not isinstance(n_objects, (int, np.integer))
+                or n_objects < 1):
+            raise SceneError(f"n_objects: expected a positive integer, got {n_objects!r}")
+        if self.background not in BACKGROUNDS:
+            raise SceneError(f"background: expected one of {list(BACKGROUNDS)}, got "
+                             f"{self.background!r}")
+        if self.lobe not in LOBES:
+            raise SceneError(f"lobe: expected one of {list(LOBES)}, got {self.lobe!r}")
+        normalised = {
+            "roughness": check_range(self.roughness, "roughness", low=0.0, high=1.0),
+            "light_radius_m": check_range(self.light_radius_m, "light_radius_m", low=0.0,
+                                          low_open=False),
+            "distance_m": check_range(self.distance_m, "distance_m", low=0.0),
+            "size_m": check_range(self.size_m, "size_m", low=0.0),
+            "light_offset_m": check_range(self.light_offset_m, "light_offset_m", low=0.0,
+                                          low_open=False),
+            "clip_ratio": check_range(self.clip_ratio, "clip_ratio", low=0.0),
+            "diffuse_level": check_range(self.diffuse_level, "diffuse_level", low=0.0,
+                                         high=1.0),
+            "max_tilt_deg": check_finite(self.max_tilt_deg, "max_tilt_deg", low=0.0,
+                                         low_open=True, high=89.0),
+            "highlight_margin_m": check_finite(self.highlight_margin_m, "highlight_margin_m",
+                                               low=0.0),
+            "noise_std": check_finite(self.noise_std, "noise_std", low=0.0),
+        }
+        shapes = tuple(self.shapes) if not isinstance(self.shapes, str) else (self.shapes,)
+        bad = [s for s in shapes if s not in SHAPES]
+        if not shapes or bad:
+            raise SceneError(
+                f"shapes: expected a non-empty subset of {list(SHAPES)}, got {list(shapes)}"
+            )
+        if (
+            isinstance(max_attempts, bool)
+            or not isinstance(max_attempts, (int, np.integer))
+            or max_attempts < 1
+        ):
+            raise SceneError(f"max_attempts: expected a positive integer, got {max_attempts!r}")
+        normalised.update(shapes=shapes, n_objects=int(n_objects), max_attempts=int(max_attempts))
+        for name, value in normalised.items():
+            object.__setattr__(self, name, value)
+
+
+def random_scene(seed: int, rig: CameraRig, *, config: RandomSceneConfig | None = None,
+                 **options: Any) -> Scene:
+    """Sample a scene under the paper's conditions, deterministically from ``seed``.
+
+    One light is placed beside or behind the array, outside every camera's field of
+    view. Each object is then placed so that the light's mirror reflection reaches the
+    array: a reference-view point on the object is drawn, the object's normal is the
+    bisector of the directions to the reference camera and to the light there, and the
+    object is accepted only if its mirror point (where the line from each camera centre
+    to the virtual light crosses the plane) lies inside its outline, at least
+    ``highlight_margin_m`` from the edge, in every view, unoccluded; if its normal is
+    within ``max_tilt_deg`` of the optical axis; if every view sees the whole object; and,
+    for several objects, if the objects do not overlap in the reference view.
+    The exposure puts the objects' diffuse shading at ``diffuse_level`` (linear) and the
+    specular scale makes the highlight core ``clip_ratio`` times the clipping level.
+
+    Parameters
+    ----------
+    seed : int
+        Seed; the same seed and rig give the same scene.
+    rig : CameraRig
+    config : RandomSceneConfig, optional
+        The sampling options; the defaults when None.
+    **options
+        Any :class:`RandomSceneConfig` field, overriding ``config``'s (``n_objects=2``,
+        ``background="textured"``, ``roughness=(0.01, 0.08)``, ...).
+
     Returns
     -------
     Scene
@@ -224,34 +289,23 @@ def random_scene(
     rig = check_rig(rig)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SceneError(f"seed: expected a non-negative integer, got {seed!r}")
-    if isinstance(n_objects, bool) or not isinstance(n_objects, (int, np.integer)) or n_objects < 1:
-        raise SceneError(f"n_objects: expected a positive integer, got {n_objects!r}")
-    if background not in BACKGROUNDS:
-        raise SceneError(f"background: expected one of {list(BACKGROUNDS)}, got {background!r}")
-    if lobe not in LOBES:
-        raise SceneError(f"lobe: expected one of {list(LOBES)}, got {lobe!r}")
-    rough = check_range(roughness, "roughness", low=0.0, high=1.0)
-    radius = check_range(light_radius_m, "light_radius_m", low=0.0, low_open=False)
-    dist = check_range(distance_m, "distance_m", low=0.0)
-    sizes = check_range(size_m, "size_m", low=0.0)
-    offsets = check_range(light_offset_m, "light_offset_m", low=0.0, low_open=False)
-    clip = check_range(clip_ratio, "clip_ratio", low=0.0)
-    level = check_range(diffuse_level, "diffuse_level", low=0.0, high=1.0)
-    max_tilt = check_finite(max_tilt_deg, "max_tilt_deg", low=0.0, low_open=True, high=89.0)
-    margin = check_finite(highlight_margin_m, "highlight_margin_m", low=0.0)
-    noise = check_finite(noise_std, "noise_std", low=0.0)
-    shapes = tuple(shapes) if not isinstance(shapes, str) else (shapes,)
-    bad = [s for s in shapes if s not in SHAPES]
-    if not shapes or bad:
-        raise SceneError(
-            f"shapes: expected a non-empty subset of {list(SHAPES)}, got {list(shapes)}"
-        )
-    if (
-        isinstance(max_attempts, bool)
-        or not isinstance(max_attempts, (int, np.integer))
-        or max_attempts < 1
-    ):
-        raise SceneError(f"max_attempts: expected a positive integer, got {max_attempts!r}")
+    known = [f.name for f in dataclasses.fields(RandomSceneConfig)]
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise SceneError(f"{unknown[0]}: expected one of the RandomSceneConfig options {known}, "
+                         f"got an unknown option")
+    if config is None:
+        config = RandomSceneConfig(**options)
+    elif not isinstance(config, RandomSceneConfig):
+        raise SceneError(f"config: expected a RandomSceneConfig, got {type(config).__name__}")
+    elif options:
+        config = dataclasses.replace(config, **options)
+    n_objects, background, lobe = config.n_objects, config.background, config.lobe
+    rough, radius, dist = config.roughness, config.light_radius_m, config.distance_m
+    sizes, offsets, clip = config.size_m, config.light_offset_m, config.clip_ratio
+    level, max_tilt = config.diffuse_level, config.max_tilt_deg
+    margin, noise, shapes = config.highlight_margin_m, config.noise_std, config.shapes
+    max_attempts = config.max_attempts
 
     rng = np.random.default_rng(seed)
     k = rig.intrinsics

@@ -11,6 +11,7 @@ from srde_fusion.synthetic import (
     Light,
     Material,
     PlanarObject,
+    RandomSceneConfig,
     Scene,
     random_scene,
     render,
@@ -641,3 +642,26 @@ def test_render_command_bad_input(tmp_path, capsys):
     code = main(["render", str(tmp_path / "x"), "--scenes", "0", "--quiet"])
     assert code == 2
     assert "n_scenes: expected a positive integer" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- RandomSceneConfig
+def test_random_scene_takes_a_config_or_its_fields_as_keywords():
+    rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, image_size=(320, 240))
+    config = RandomSceneConfig(n_objects=2, background="textured")
+    assert random_scene(4, rig, config=config) == random_scene(4, rig, n_objects=2,
+                                                               background="textured")
+    # keywords override the config's fields
+    assert random_scene(4, rig, config=config, n_objects=1) == random_scene(
+        4, rig, background="textured")
+    assert RandomSceneConfig(roughness=0.02).roughness == (0.02, 0.02)
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"n_objectz": 2}, r"n_objectz: expected one of the RandomSceneConfig options"),
+    ({"config": "textured"}, r"config: expected a RandomSceneConfig, got str"),
+    ({"max_attempts": 0}, r"max_attempts: expected a positive integer, got 0"),
+])
+def test_random_scene_options_are_checked_with_their_name(options, message):
+    rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, image_size=(320, 240))
+    with pytest.raises(SceneError, match=message):
+        random_scene(0, rig, **options)
