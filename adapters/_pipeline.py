@@ -13,7 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from srde_fusion._checks import check_image
+from srde_fusion._checks import check_disparity_sign, check_image
 from srde_fusion.errors import BackboneError, ImageError
 
 from .spec import StereoSpec
@@ -184,6 +184,8 @@ def finish_disparity(raw: Any, spec: StereoSpec, geometry: Geometry) -> np.ndarr
         image_h, image_w = geometry.image_hw
         disp = cv2.resize(disp, (image_w, image_h), interpolation=cv2.INTER_LINEAR)
         disp *= np.float32(image_w / geometry.model_hw[1])
+    check_disparity_sign(disp, f"model output ({spec.name})", BackboneError,
+                         allow_sentinel=False)
     return np.ascontiguousarray(disp, dtype=np.float32)
 
 

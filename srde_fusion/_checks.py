@@ -23,6 +23,7 @@ __all__ = [
     "check_views",
     "check_mask",
     "check_disparity",
+    "check_disparity_sign",
     "check_point3",
 ]
 
@@ -241,8 +242,45 @@ def check_disparity(
     # A float64 value beyond float32's range becomes inf, i.e. invalid, without a warning.
     with np.errstate(over="ignore", invalid="ignore"):
         out = disparity.astype(np.float32, copy=True)
+        check_disparity_sign(out, name)
         out[~np.isfinite(out) | (out < 0)] = np.nan
     return out
+
+
+#: A disparity map whose finite values are negative for more than this fraction, and vary,
+#: is in another sign convention (negative horizontal flow), not a map with invalid pixels.
+MAX_NEGATIVE_FRACTION = 0.5
+
+
+def check_disparity_sign(disparity: np.ndarray, name: str = "disparity",
+                         error: type[SRDEError] = DisparityError, *,
+                         allow_sentinel: bool = True) -> None:
+    """Refuse a disparity map that is mostly negative: a flow-convention output.
+
+    Negative values mark invalid pixels in some pipelines, and a constant sentinel (all
+    -1, say) stays that. But when most finite values are negative *and differ*, the map
+    is horizontal flow (RAFT-Stereo's convention), and taking its negatives as invalid
+    would silently keep almost nothing. A model's raw output has no sentinels: with
+    ``allow_sentinel=False`` a constant negative map is refused too.
+
+    Raises
+    ------
+    DisparityError (or ``error``)
+        More than half of the finite values are negative and they are not one sentinel
+        value; the message names ``output_sign``.
+    """
+    finite = disparity[np.isfinite(disparity)]
+    negative = finite[finite < 0]
+    if finite.size == 0 or negative.size <= MAX_NEGATIVE_FRACTION * finite.size:
+        return
+    if allow_sentinel and float(negative.min()) == float(negative.max()):
+        return  # one sentinel value: invalid pixels, not a convention
+    raise error(
+        f"{name}: expected positive disparity in pixels (d = fx B / z), got "
+        f"{negative.size / finite.size:.0%} of the {finite.size} finite values negative "
+        f"(median {float(np.median(finite)):.3g} px); a model that returns negative "
+        f"horizontal flow (RAFT-Stereo's convention) needs output_sign=-1 in its StereoSpec"
+    )
 
 
 def check_point3(point: Any, name: str, error: type[SRDEError] = LightError) -> np.ndarray:

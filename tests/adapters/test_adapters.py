@@ -159,8 +159,12 @@ def test_raft_stereo_negative_flow_in_tuple(tmp_path):
                                atol=EXACT_PX)
     torch_disp = TorchStereo(Probe(sign=-1.0, tuple_out=True), "raft-stereo")(left, left)
     np.testing.assert_allclose(torch_disp, left[:, :, 0], atol=EXACT_PX)
-    # without the sign flip the disparity would be negative
-    assert OnnxStereo(path, preset("raft-stereo").replace(output_sign=1.0))(left, left).max() <= 0
+    # without the sign flip the disparity would be negative: refused, naming the fix
+    with pytest.raises(BackboneError, match=r"model output \(raft-stereo\): expected positive "
+                       r"disparity .* negative .* needs output_sign=-1"):
+        OnnxStereo(path, preset("raft-stereo").replace(output_sign=1.0))(left, left)
+    with pytest.raises(BackboneError, match="output_sign=-1"):
+        TorchStereo(Probe(sign=-1.0, tuple_out=True), "generic")(left, left)
 
 
 def test_crestereo_bgr_two_channel_flow(tmp_path):

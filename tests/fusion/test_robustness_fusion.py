@@ -406,3 +406,16 @@ def test_a_backbone_with_no_valid_pixel(rig, views):
     assert "unchecked" in result.objects[0].reason
     assert np.isnan(result.disparity[~MASK]).all()
     assert masked_epe(result.disparity, true_disparity(rig), MASK) < 0.1
+
+
+# ------------------------------------------------------------------ sign conventions
+def test_a_flow_convention_backbone_is_refused_with_the_fix(rig, views):
+    flow = -true_disparity(rig).astype(np.float32)  # RAFT-Stereo's negative flow
+    with pytest.raises(DisparityError, match=r"^disparity: expected positive disparity"
+                       r".* 100% of the .* finite values negative .* output_sign=-1"):
+        postprocess(flow, views, rig, [MASK])
+    with pytest.raises(DisparityError, match=r"^backbone_disparity: .*output_sign=-1"):
+        HybridStereo(lambda left, right: flow, rig, masker=lambda v, r: [MASK])(views)
+    # a constant sentinel is invalid pixels, not a convention
+    result = postprocess(np.full((H, W), -1.0, np.float32), views, rig, [MASK])
+    assert np.isnan(result.disparity[~MASK]).all()
