@@ -26,6 +26,11 @@ def _print_objects(result: FusionResult) -> None:
         print(f"object {obj.index}: {obj.status} ({obj.pixel_count} px) - {obj.reason}")
 
 
+def _print_masks(run: SceneRun) -> None:
+    if run.masks:
+        print(f"masks: {run.masks}")
+
+
 def _print_files(run: SceneRun) -> None:
     for note in run.notes:
         print(f"note: {note}")
@@ -38,6 +43,7 @@ def _cli_demo(args: argparse.Namespace) -> int:
     run = run_demo(args.out, seed=args.seed, n_objects=args.objects, scale=args.scale,
                    backbone=backbone_from(args.backbone))
     _print_objects(run.fusion)
+    _print_masks(run)
     print()
     print(run.table())
     _print_files(run)
@@ -49,6 +55,7 @@ def _cli_fuse(args: argparse.Namespace) -> int:
                      backbone=backbone_from(args.backbone, args.preset), mask=args.mask,
                      auto_mask=args.auto_mask, light=args.light)
     _print_objects(run.fusion)
+    _print_masks(run)
     if run.scores is not None:
         print()
         print(run.table())
@@ -68,6 +75,7 @@ def _cli_srde(args: argparse.Namespace) -> int:
         print(f"object {obj.index}: {srde.status} ({obj.pixel_count} px) - {detail}")
     if not run.fusion.objects:
         print("no glossy object found")
+    _print_masks(run)
     if run.scores is not None:
         print()
         print(format_markdown_table({"srde": run.scores["srde"]["masked"]},

@@ -30,6 +30,8 @@ __all__ = [
 ]
 
 #: Extensions read as camera images in a scene folder (write_scene writes PNG).
+#: Image formats whose compression changes pixel values: never a label mask.
+LOSSY_EXTENSIONS = (".jpg", ".jpeg", ".webp")
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
@@ -132,9 +134,15 @@ def read_mask(path: str | os.PathLike) -> np.ndarray:
     Raises
     ------
     FileFormatError
-        Missing or undecodable file, or colour channels that differ.
+        Missing or undecodable file, a lossy format (JPEG, WebP), or colour channels
+        that differ.
     """
     p = Path(path)
+    if p.suffix.lower() in LOSSY_EXTENSIONS:
+        raise FileFormatError(
+            f"{p}: expected a lossless label image (PNG, TIFF, BMP or .npy), got "
+            f"{p.suffix.lower()[1:].upper()}: lossy compression turns object edges into "
+            f"spurious labels")
     raw = decode_image(p, "mask image")
     if raw.ndim == 3:
         if not all(np.array_equal(raw[:, :, 0], raw[:, :, c]) for c in range(1, raw.shape[2])):

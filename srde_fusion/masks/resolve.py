@@ -6,7 +6,6 @@ The library call (``postprocess``, ``HybridStereo``), the scene commands (``fuse
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -79,14 +78,12 @@ def resolve_masker(masks: Any = None, *, scene_labels: np.ndarray | None = None,
         return MaskerChoice(masks, type(masks).__name__)
     if isinstance(masks, str) and masks == "auto":
         return MaskerChoice(HighlightSegmenter(), _AUTO)
-    if isinstance(masks, str) and masks == "user":
-        if scene_labels is None:
-            raise MaskError(f"{where}: expected a mask.png for --masks user, got none")
-        return MaskerChoice(UserMasks(scene_labels), "user (scene mask.png)")
-    if masks is None:
-        if scene_labels is not None:
-            return MaskerChoice(UserMasks(scene_labels), "user (scene mask.png)")
+    if isinstance(masks, str) and masks == "user" and scene_labels is None:
+        raise MaskError(f"{where}: expected a mask.png for --masks user, got none")
+    if masks is None and scene_labels is None:
         return MaskerChoice(HighlightSegmenter(), _AUTO)
-    if isinstance(masks, (str, os.PathLike)):
-        return MaskerChoice(UserMasks(masks), f"user ({masks})")
-    return MaskerChoice(UserMasks(masks), "user (given masks)")
+    if masks is None or (isinstance(masks, str) and masks == "user"):
+        user = UserMasks(scene_labels)
+        return MaskerChoice(user, "; ".join(("user (scene mask.png)", *user.notes)))
+    user = UserMasks(masks)
+    return MaskerChoice(user, user.describe())

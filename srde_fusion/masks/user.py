@@ -19,11 +19,16 @@ from ..geometry import CameraRig
 from ..io import masks_from_labels, read_mask
 
 __all__ = [
+    "AUTO_SPLIT_MIN_AREA_PX",
     "Masker",
     "UserMasks",
 ]
 
 Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
+
+#: A binary mask split automatically ignores components smaller than this, pixels (edge
+#: specks of a hand-drawn or thresholded mask, not objects).
+AUTO_SPLIT_MIN_AREA_PX = 16
 
 
 def _describe(value: Any) -> str:
@@ -73,11 +78,19 @@ class UserMasks:
         A mask file (PNG label image: 0 = background, 1..K or 255 = object; or ``.npy``),
         an ``(H, W)`` bool/integer label array, a ``(K, H, W)`` stack, or a list of
         ``(H, W)`` masks.
-    split_components : bool
-        Split each label into its connected components (for binary masks that hold
-        several objects).
+    split_components : bool or None
+        Split each label into its 8-connected components. ``None`` (default) does so for
+        a binary mask (a label image with a single label), which usually holds several
+        objects under one value; components under :data:`AUTO_SPLIT_MIN_AREA_PX` are then
+        ignored and :attr:`notes` says what happened. ``False`` keeps every label as one
+        object.
     min_area_px : int
-        With ``split_components``, components smaller than this are dropped.
+        When splitting, components smaller than this are dropped.
+
+    Attributes
+    ----------
+    notes : tuple of str
+        What was done to the masks beyond reading them (a binary mask split into objects).
 
     Examples
     --------
@@ -89,18 +102,43 @@ class UserMasks:
     [2, 2]
     """
 
-    def __init__(self, source: Any, *, split_components: bool = False, min_area_px: int = 1
-                 ) -> None:
+    def __init__(self, source: Any, *, split_components: bool | None = None,
+                 min_area_px: int = 1) -> None:
+        if split_components not in (None, True, False):
+            raise MaskError(f"split_components: expected True, False or None, got "
+                            f"{split_components!r}")
         self.source = source
         self.split_components = split_components
         self.min_area_px = int(min_area_px)
         self._masks = self._load(source)
+        self.notes: tuple[str, ...] = ()
         if split_components:
             self._masks = [c for m in self._masks
                            for c in connected_components(m, self.min_area_px)]
+        elif split_components is None and len(self._masks) == 1 and self._is_label_image(source):
+            self._split_binary()
         if not self._masks:
             raise MaskError(f"masks: expected at least one object (a non-zero label), got none "
                             f"in {self._where(source)}")
+
+    @staticmethod
+    def _is_label_image(source: Any) -> bool:
+        """Say whether the source is a label image, where one label may hold several objects."""
+        return isinstance(source, (str, os.PathLike)) or (
+            isinstance(source, np.ndarray) and source.ndim == 2)
+
+    def _split_binary(self) -> None:
+        """Split a one-label mask into its components, when it has several of some size."""
+        floor = max(self.min_area_px, AUTO_SPLIT_MIN_AREA_PX)
+        n_all = len(connected_components(self._masks[0], 1))
+        parts = connected_components(self._masks[0], floor)
+        if len(parts) < 2:
+            return
+        specks = n_all - len(parts)
+        ignored = f", {specks} under {floor} px ignored" if specks else ""
+        self.notes = (f"binary mask split into {len(parts)} objects (its 8-connected "
+                      f"components{ignored}); split_components=False keeps one object",)
+        self._masks = parts
 
     @staticmethod
     def _where(source: Any) -> str:
@@ -159,3 +197,8 @@ class UserMasks:
 
     def __repr__(self) -> str:
         return f"UserMasks({self._where(self.source)}, {len(self._masks)} object(s))"
+
+    def describe(self) -> str:
+        """Where the masks came from and what was done to them, for reports."""
+        where = str(self.source) if isinstance(self.source, (str, os.PathLike)) else "given masks"
+        return "; ".join((f"user ({where}, {len(self._masks)} object(s))", *self.notes))

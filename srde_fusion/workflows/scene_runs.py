@@ -8,6 +8,7 @@ one is the adapters' job (the command does it).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from collections.abc import Callable
@@ -48,6 +49,9 @@ __all__ = [
 
 Backbone = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
+# What the demo's mask stage is, as reports name it.
+_AUTO_MASKS = resolve_masker("auto").description
+
 #: Seed of the demo scene: a textured room with two glossy objects.
 DEMO_SEED = 7
 #: Objects in the demo scene.
@@ -77,12 +81,16 @@ class SceneRun:
         Every file written, by role.
     notes : tuple of str
         Anything the caller should know (e.g. a file that could not be written).
+    masks : str
+        Which mask stage found the objects, and what was done to user masks (see
+        :func:`~srde_fusion.masks.resolve_masker`).
     """
 
     fusion: FusionResult
     scores: dict | None
     files: dict
     notes: tuple[str, ...] = ()
+    masks: str = ""
 
     def table(self) -> str:
         """Return markdown tables of the scores (backbone, SRDE, fused; full and objects)."""
@@ -230,9 +238,9 @@ def run_demo(out_dir: str | os.PathLike = "demo_out", *, seed: int = DEMO_SEED,
     run = write_fusion_outputs(
         out, result, rendering.views[rig.reference], gt_disparity=rendering.disparity_px,
         region=rendering.instance_mask > 0, title=f"demo scene (seed {seed})",
-        extra={"scene_dir": scene_dir.name,
+        extra={"scene_dir": scene_dir.name, "masks": _AUTO_MASKS,
                "segmenter": None if diagnostics is None else list(diagnostics.reasons)})
-    return DemoResult(run.fusion, run.scores, run.files, run.notes, scene_dir)
+    return DemoResult(run.fusion, run.scores, run.files, run.notes, _AUTO_MASKS, scene_dir)
 
 
 def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
@@ -269,10 +277,11 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     region = None
     if scene.mask_labels is not None:
         region = scene.mask_labels > 0
-    return write_fusion_outputs(out_dir, result, scene.views[scene.rig.reference],
+    run = write_fusion_outputs(out_dir, result, scene.views[scene.rig.reference],
                                 gt_disparity=scene.gt_disparity, region=region,
                                 title=scene.name, extra={"scene": str(scene.path),
                                                          "masks": source})
+    return dataclasses.replace(run, masks=source)
 
 
 def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, *,
@@ -300,9 +309,10 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
     result = fuse(nothing, scene.views, rig, masks, SRDE(rig, method=method) if masks else None,
                   border_check=None)
     if out_dir is None:
-        return SceneRun(result, None, {})
+        return SceneRun(result, None, {}, masks=source)
     region = scene.mask_labels > 0 if scene.mask_labels is not None else None
-    return write_fusion_outputs(out_dir, result, scene.views[rig.reference],
+    run = write_fusion_outputs(out_dir, result, scene.views[rig.reference],
                                 gt_disparity=scene.gt_disparity, region=region,
                                 title=f"{scene.name}: SRDE alone", srde_only=True,
                                 extra={"scene": str(scene.path), "masks": source})
+    return dataclasses.replace(run, masks=source)

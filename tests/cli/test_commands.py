@@ -78,6 +78,7 @@ def test_fuse_command_with_an_onnx_backbone(dataset, flat_backbone, tmp_path, ca
     assert np.all(fused[source == 0] == FLAT_PX)  # the backbone's pixels, untouched
     report = json.loads((tmp_path / "fused" / "report.json").read_text())
     assert report["masks"] == "user (scene mask.png)"
+    assert "\nmasks: user (scene mask.png)\n" in out  # which masks were used, on the console too
     assert report["fusion"]["pixels_from_srde"] == int(np.count_nonzero(source))
 
 

@@ -40,10 +40,49 @@ def test_user_masks_from_png_file_binary_and_labels(rig, tmp_path):
     assert [int(m.sum()) for m in UserMasks(tmp_path / "labels.png")(None, rig)] == [140, 450]
     binary = np.where(labels > 0, 255, 0).astype(np.uint8)
     write_mask(tmp_path / "binary.png", binary)
-    one = UserMasks(str(tmp_path / "binary.png"))(None, rig)
+    # A binary mask holding two objects is two objects, and says so.
+    auto = UserMasks(str(tmp_path / "binary.png"))
+    assert [int(m.sum()) for m in auto(None, rig)] == [140, 450]
+    assert auto.notes == ("binary mask split into 2 objects (its 8-connected components); "
+                          "split_components=False keeps one object",)
+    one = UserMasks(tmp_path / "binary.png", split_components=False)(None, rig)
     assert len(one) == 1 and np.array_equal(one[0], labels > 0)
     split = UserMasks(tmp_path / "binary.png", split_components=True)(None, rig)
     assert [int(m.sum()) for m in split] == [140, 450]
+    # Instance labels are taken as given: no splitting, no note.
+    assert UserMasks(tmp_path / "labels.png").notes == ()
+
+
+def test_binary_mask_specks_are_ignored_and_counted(rig):
+    mask = np.zeros((H, W), bool)
+    mask[2:4, 2:4] = True  # a 4 px speck
+    mask[10:20, 10:20] = True
+    mask[30:40, 30:50] = True
+    masks = UserMasks(mask)
+    assert [int(m.sum()) for m in masks(None, rig)] == [100, 200]
+    assert "2 objects (its 8-connected components, 1 under 16 px ignored)" in masks.notes[0]
+    # one object with specks stays one object, specks included
+    mask[30:40, 30:50] = False
+    assert [int(m.sum()) for m in UserMasks(mask)(None, rig)] == [104]
+
+
+def test_lossy_mask_files_are_refused(rig, tmp_path):
+    import cv2
+
+    cv2.imwrite(str(tmp_path / "mask.jpg"), np.where(two_box_labels() > 0, 255, 0).astype(np.uint8))
+    with pytest.raises(FileFormatError, match=r"mask.jpg: expected a lossless label image "
+                       r"\(PNG, TIFF, BMP or .npy\), got JPG"):
+        UserMasks(tmp_path / "mask.jpg")
+
+
+def test_the_resolver_reports_which_masks_and_what_was_done(rig, tmp_path):
+    from srde_fusion.masks import resolve_masker
+
+    write_mask(tmp_path / "binary.png", np.where(two_box_labels() > 0, 255, 0).astype(np.uint8))
+    choice = resolve_masker(tmp_path / "binary.png")
+    assert choice.description.startswith(f"user ({tmp_path / 'binary.png'}, 2 object(s)); "
+                                         "binary mask split into 2 objects")
+    assert resolve_masker(None).description == "auto (built-in highlight segmenter)"
 
 
 def test_user_masks_from_npy_and_list_and_stack(rig, tmp_path):
