@@ -226,12 +226,7 @@ def _fs_matrix(
         node = fs.getNode(name)
         if node.empty():
             continue
-        mat = node.mat()
-        if mat is None:
-            raise FileFormatError(
-                f"{path}: {name}: expected an OpenCV matrix, got a non-matrix node"
-            )
-        mat = np.asarray(mat, dtype=np.float64)
+        mat = np.asarray(_node_values(node, name, path), dtype=np.float64)
         if shape is not None and mat.size != int(np.prod(shape)):
             raise FileFormatError(f"{path}: {name}: expected {shape} values, got shape {mat.shape}")
         if not np.all(np.isfinite(mat)):
@@ -240,6 +235,41 @@ def _fs_matrix(
     if required:
         raise FileFormatError(f"{path}: expected a matrix named {' or '.join(names)}, got none")
     return None
+
+
+def _node_values(node: Any, name: str, path: Path) -> np.ndarray:
+    """Read a FileStorage matrix node after checking its structure.
+
+    ``FileNode.mat()`` on an ``opencv-matrix`` map that lacks ``rows``, ``cols`` or
+    ``data`` can corrupt OpenCV's heap and abort the process, so the map is checked
+    first; a plain sequence of numbers is read element by element.
+    """
+    if node.isSeq():
+        items = [node.at(i) for i in range(node.size())]
+        if not all(item.isReal() or item.isInt() for item in items):
+            raise FileFormatError(f"{path}: {name}: expected a sequence of numbers, got "
+                                  f"other nodes in it")
+        return np.array([item.real() for item in items])
+    if not node.isMap():
+        raise FileFormatError(f"{path}: {name}: expected an OpenCV matrix, got a non-matrix "
+                              f"node")
+    parts = {key: node.getNode(key) for key in ("rows", "cols", "dt", "data")}
+    missing = [key for key, part in parts.items() if part.empty()]
+    if missing:
+        raise FileFormatError(f"{path}: {name}: expected an opencv-matrix with rows, cols, dt "
+                              f"and data, got none for {', '.join(missing)}")
+    rows, cols, data = parts["rows"], parts["cols"], parts["data"]
+    if not (rows.isInt() and cols.isInt() and data.isSeq()):
+        raise FileFormatError(f"{path}: {name}: expected integer rows and cols and a data "
+                              f"sequence, got other node types")
+    n_rows, n_cols = int(rows.real()), int(cols.real())
+    if n_rows < 1 or n_cols < 1 or data.size() != n_rows * n_cols:
+        raise FileFormatError(f"{path}: {name}: expected {n_rows} x {n_cols} data values, got "
+                              f"{data.size()}")
+    mat = node.mat()
+    if mat is None:
+        raise FileFormatError(f"{path}: {name}: expected an OpenCV matrix, got a non-matrix node")
+    return mat
 
 
 def _fs_image_size(fs: Any, path: Path) -> tuple[int, int] | None:
@@ -264,10 +294,12 @@ def read_opencv_stereo_yaml(
     """Read a two-camera rig from an OpenCV stereo calibration file (YAML/XML/JSON).
 
     The file holds ``K1, D1, K2, D2, R, T`` as ``cv2.stereoCalibrate`` returns them
-    (``M1``/``M2`` are accepted for ``K1``/``K2``). The library works on rectified
-    images, so the images are assumed to be rectified already with ``K1`` as the
-    shared camera matrix: distortion and rotation are *not* applied, and a
-    ``UserWarning`` says so on every load.
+    (``M1``/``M2`` are accepted for ``K1``/``K2``), and may hold ``P1, P2`` from
+    ``cv2.stereoRectify``. The library works on rectified images. With ``P1``/``P2`` the
+    rectified camera matrix and baseline come from them (``P2[0, 3] = -fx B``); without,
+    the images are assumed to be rectified already with ``K1`` as the shared camera
+    matrix (distortion and rotation are *not* applied). A ``UserWarning`` says which on
+    every load.
 
     Parameters
     ----------
@@ -288,8 +320,9 @@ def read_opencv_stereo_yaml(
     Raises
     ------
     FileFormatError
-        Missing or unparsable file, missing matrices, no image size, or a second camera
-        that lies to the left of the first (swap the cameras).
+        Missing or unparsable file, missing or malformed matrices, no image size, P1 and
+        P2 with different camera matrices, or a second camera that lies to the left of
+        the first (swap the cameras).
     """
     p = existing_file(path, "OpenCV stereo calibration")
     if (
@@ -320,6 +353,8 @@ def read_opencv_stereo_yaml(
         d2 = _fs_matrix(fs, ("D2",), p, None, required=False)
         rot = _fs_matrix(fs, ("R",), p, (3, 3))
         trans = _fs_matrix(fs, ("T",), p, (3,))
+        proj1 = _fs_matrix(fs, ("P1",), p, (3, 4), required=False)
+        proj2 = _fs_matrix(fs, ("P2",), p, (3, 4), required=False)
         size = _fs_image_size(fs, p)
     except cv2.error as exc:
         raise FileFormatError(
@@ -334,27 +369,10 @@ def read_opencv_stereo_yaml(
         raise FileFormatError(
             f"{p}: expected an image size in the file or image_size=(W, H), got neither"
         )
-    ignored = []
-    if any(d is not None and np.any(d != 0) for d in (d1, d2)):
-        ignored.append("non-zero distortion D1/D2")
-    if not np.allclose(rot, np.eye(3), atol=1e-6):
-        ignored.append("rotation R")
-    if not np.allclose(k1, k2, atol=_RECTIFIED_TOL_PX):
-        ignored.append("K2 != K1")
-    warnings.warn(
-        f"{p}: rectified images assumed; K1 is used for both cameras and the baseline is |T|"
-        + (f" ({', '.join(ignored)} ignored)" if ignored else ""),
-        UserWarning,
-        stacklevel=2,
-    )
-    # x2 = R x1 + T, so the second camera's centre in the first's frame is -R^T T.
-    center2 = -rot.T @ trans
-    if center2[0] <= 0:
-        raise FileFormatError(
-            f"{p}: expected the second camera to the right of the first (T_x < 0), got "
-            f"T = {trans.tolist()}; swap the cameras"
-        )
-    baseline_m = float(np.linalg.norm(trans)) / float(units_per_m)
+    if proj1 is not None and proj2 is not None:
+        intrinsics, baseline_m = _rectified_projections(proj1, proj2, p, units_per_m)
+    else:
+        intrinsics, baseline_m = _from_calibration(k1, k2, d1, d2, rot, trans, p, units_per_m)
     if baseline_m > _PLAUSIBLE_BASELINE_M:
         warnings.warn(
             f"{p}: baseline of {baseline_m:g} m with units_per_m={units_per_m:g}; if T is in "
@@ -363,7 +381,6 @@ def read_opencv_stereo_yaml(
             stacklevel=2,
         )
     try:
-        intrinsics = Intrinsics(k1[0, 0], k1[1, 1], k1[0, 2], k1[1, 2])
         return CameraRig(
             size,
             intrinsics,
@@ -371,3 +388,56 @@ def read_opencv_stereo_yaml(
         )
     except RigError as exc:
         raise FileFormatError(f"{p}: {exc}") from None
+
+
+def _rectified_projections(proj1: np.ndarray, proj2: np.ndarray, path: Path,
+                           units_per_m: float) -> tuple[Intrinsics, float]:
+    """Intrinsics and baseline from ``cv2.stereoRectify``'s P1 and P2 (rectified images)."""
+    fx, fy, cx, cy = proj1[0, 0], proj1[1, 1], proj1[0, 2], proj1[1, 2]
+    if not np.allclose(proj2[:, :3], proj1[:, :3], atol=_RECTIFIED_TOL_PX):
+        raise FileFormatError(
+            f"{path}: expected P2 to share P1's camera matrix (rectified with "
+            f"CALIB_ZERO_DISPARITY), got P1 {proj1[:, :3].round(2).tolist()} and P2 "
+            f"{proj2[:, :3].round(2).tolist()}")
+    # P2 = K [I | t] with t = (-B, 0, 0) in T's units: P2[0, 3] = -fx B.
+    baseline = -proj2[0, 3] / proj2[0, 0]
+    if baseline <= 0:
+        raise FileFormatError(
+            f"{path}: expected the second camera to the right of the first (P2[0, 3] < 0), "
+            f"got P2[0, 3] = {proj2[0, 3]:g}; swap the cameras")
+    warnings.warn(
+        f"{path}: rectified images assumed; the rectified projections P1/P2 are used (fx "
+        f"{fx:.2f}, fy {fy:.2f}, cx {cx:.2f}, cy {cy:.2f}, baseline from P2), K1/K2, D1/D2 "
+        f"and R describe the raw images and are not used",
+        UserWarning,
+        stacklevel=3,
+    )
+    return Intrinsics(fx, fy, cx, cy), float(baseline) / float(units_per_m)
+
+
+def _from_calibration(k1, k2, d1, d2, rot, trans, path: Path, units_per_m: float
+                      ) -> tuple[Intrinsics, float]:
+    """Intrinsics and baseline from K1 and T, for a file without P1/P2."""
+    ignored = []
+    if any(d is not None and np.any(d != 0) for d in (d1, d2)):
+        ignored.append("non-zero distortion D1/D2")
+    if not np.allclose(rot, np.eye(3), atol=1e-6):
+        ignored.append("rotation R")
+    if not np.allclose(k1, k2, atol=_RECTIFIED_TOL_PX):
+        ignored.append("K2 != K1")
+    warnings.warn(
+        f"{path}: rectified images assumed; K1 is used for both cameras and the baseline is |T|"
+        + (f" ({', '.join(ignored)} ignored)" if ignored else "")
+        + "; no P1/P2 in the file",
+        UserWarning,
+        stacklevel=3,
+    )
+    # x2 = R x1 + T, so the second camera's centre in the first's frame is -R^T T.
+    center2 = -rot.T @ trans
+    if center2[0] <= 0:
+        raise FileFormatError(
+            f"{path}: expected the second camera to the right of the first (T_x < 0), got "
+            f"T = {trans.tolist()}; swap the cameras"
+        )
+    intrinsics = Intrinsics(k1[0, 0], k1[1, 1], k1[0, 2], k1[1, 2])
+    return intrinsics, float(np.linalg.norm(trans)) / float(units_per_m)

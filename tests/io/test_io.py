@@ -502,6 +502,46 @@ def test_opencv_yaml_bad_files(tmp_path):
         read_opencv_stereo_yaml(_write_opencv_yaml(tmp_path / "s.yml"), units_per_m=0)
 
 
+def test_opencv_yaml_prefers_the_rectified_projections(tmp_path):
+    # A real cv2.stereoRectify of two slightly different, slightly rotated cameras.
+    k1 = np.array([[700.0, 0.0, 330.0], [0.0, 702.0, 236.0], [0.0, 0.0, 1.0]])
+    k2 = np.array([[712.0, 0.0, 318.0], [0.0, 709.0, 244.0], [0.0, 0.0, 1.0]])
+    d = np.array([[0.05, -0.02, 0.0, 0.0, 0.0]])
+    rot, _ = cv2.Rodrigues(np.array([0.004, -0.01, 0.002]))
+    t = np.array([[-120.0], [1.5], [0.8]])  # millimetres
+    r1, r2, p1, p2, q, _, _ = cv2.stereoRectify(k1, d, k2, d, (640, 480), rot, t,
+                                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+    path = tmp_path / "rectified.yml"
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for name, value in (("K1", k1), ("D1", d), ("K2", k2), ("D2", d), ("R", rot), ("T", t),
+                        ("R1", r1), ("R2", r2), ("P1", p1), ("P2", p2), ("Q", q)):
+        fs.write(name, value)
+    fs.write("image_width", 640)
+    fs.write("image_height", 480)
+    fs.release()
+    with pytest.warns(UserWarning, match=r"rectified projections P1/P2 are used") as record:
+        rig = read_opencv_stereo_yaml(path, units_per_m=1000.0)
+    assert len(record) == 1
+    k = rig.intrinsics
+    assert (k.fx, k.fy, k.cx, k.cy) == (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2])
+    assert k.fx != k1[0, 0] and k.cx != k1[0, 2]  # not K1's
+    assert rig.baseline_m == pytest.approx(np.linalg.norm(t) / 1000.0, rel=1e-9)
+
+
+def test_opencv_yaml_malformed_matrix_nodes_are_errors_not_crashes(tmp_path):
+    header = "%YAML:1.0\n---\n"
+    k = ("K1: !!opencv-matrix\n   rows: 3\n   dt: d\n"
+         "   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n")
+    (tmp_path / "no_cols.yml").write_text(header + k)
+    with pytest.raises(FileFormatError, match=r"K1: expected an opencv-matrix with rows, cols, "
+                       r"dt and data, got none for cols"):
+        read_opencv_stereo_yaml(tmp_path / "no_cols.yml", image_size=(640, 480))
+    short = k.replace("rows: 3\n", "rows: 3\n   cols: 4\n")
+    (tmp_path / "short.yml").write_text(header + short)
+    with pytest.raises(FileFormatError, match=r"K1: expected 3 x 4 data values, got 9"):
+        read_opencv_stereo_yaml(tmp_path / "short.yml", image_size=(640, 480))
+
+
 # ---------------------------------------------------------------------- scene folders
 def _scene_inputs(rig: CameraRig):
     rng = np.random.default_rng(RNG_SEED)
