@@ -66,7 +66,8 @@ def main(out: Path) -> None:
     print(f"wrote {board_json.name}, board.png, rig.json and {len(captures)} capture folders "
           f"to {out}")
 
-    estimate, calibrated = calibrate_light_files(captures, board_json, rig_json)
+    calibration = calibrate_light_files(captures, board_json, rig_json)
+    estimate, calibrated = calibration.estimate, calibration.rig
     print(estimate.summary())
     error_m = np.linalg.norm(estimate.position_m - TRUE_LIGHT_M)
     paper_m = np.linalg.norm(estimate.closed_form_position_m - TRUE_LIGHT_M)

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ._atomic import write_atomic
 from .errors import SRDEError
 
 __all__ = ["json_safe", "load_json_source", "dump_json"]
@@ -89,6 +90,6 @@ def dump_json(data: Any, path: str | os.PathLike | None = None) -> str:
     """Serialise ``data`` as indented JSON; write it to ``path`` if given. Returns the text."""
     text = json.dumps(data, indent=2) + "\n"
     if path is not None:
-        Path(path).write_text(text)
+        write_atomic(path, text)
     return text
 

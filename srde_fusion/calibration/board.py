@@ -28,6 +28,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from .._atomic import write_atomic
 from .._checks import (
     check_keys,
     check_number,
@@ -450,6 +451,6 @@ def write_board(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     png, js = out / "board.png", out / "board.json"
-    png.write_bytes(_png_with_dpi(render_board_image(board, dpi), dpi))
+    write_atomic(png, _png_with_dpi(render_board_image(board, dpi), dpi), error=BoardError)
     board.to_json(js)
     return png, js

@@ -11,11 +11,13 @@ from __future__ import annotations
 import os
 import shutil
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .._atomic import backup_path
 from .._checks import check_views
 from ..errors import FileFormatError, LightError, RigError
 from ..geometry import CameraRig
@@ -37,6 +39,7 @@ __all__ = [
     "estimate_light",
     "read_capture",
     "calibrate_light_files",
+    "LightCalibration",
 ]
 
 # ---------------------------------------------------------------------- the whole calibration
@@ -185,6 +188,25 @@ def estimate_light(
     )
 
 
+@dataclass(frozen=True)
+class LightCalibration:
+    """What :func:`calibrate_light_files` found and wrote.
+
+    Attributes
+    ----------
+    estimate : LightEstimate
+        The light and its residuals.
+    rig : CameraRig
+        The rig with the light set.
+    backup : pathlib.Path or None
+        Where the previous ``rig.json`` was kept; None when nothing was written.
+    """
+
+    estimate: LightEstimate
+    rig: CameraRig
+    backup: Path | None = None
+
+
 def calibrate_light_files(
     capture_dirs: Sequence[str | os.PathLike],
     board_path: str | os.PathLike,
@@ -192,10 +214,11 @@ def calibrate_light_files(
     *,
     write: bool = True,
     **options: Any,
-) -> tuple[LightEstimate, CameraRig]:
+) -> LightCalibration:
     """Calibrate from capture folders and store the light in ``rig.json``.
 
-    The previous ``rig.json`` is kept as ``rig.json.bak``.
+    The previous ``rig.json`` is kept as ``rig.json.bak`` (or ``.bak1``, ``.bak2``, ...: an
+    earlier backup is never overwritten), and the new one is written atomically.
 
     Parameters
     ----------
@@ -212,15 +235,20 @@ def calibrate_light_files(
 
     Returns
     -------
-    (LightEstimate, CameraRig)
-        The estimate and the rig with the light set.
+    LightCalibration
+        The estimate, the rig with the light set, and the backup of the old file.
     """
     rig = CameraRig.from_json(rig_path)
     board = Board.from_json(board_path)
     estimate = estimate_light(list(capture_dirs), rig, board, **options)
     new_rig = rig.with_light(estimate.position_m)
+    backup = None
     if write:
         path = Path(rig_path)
-        shutil.copy2(path, path.with_name(path.name + ".bak"))
+        backup = backup_path(path)
+        try:
+            shutil.copy2(path, backup)
+        except OSError as exc:
+            raise FileFormatError(f"{backup}: could not back up {path.name}: {exc}") from None
         new_rig.to_json(path)
-    return estimate, new_rig
+    return LightCalibration(estimate, new_rig, backup)

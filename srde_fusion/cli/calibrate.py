@@ -75,7 +75,7 @@ def _register_make_board(subparsers) -> None:
 
 
 def _calibrate_light_command(args) -> int:
-    estimate, _ = calibrate_light_files(
+    calibration = calibrate_light_files(
         args.captures,
         args.board,
         args.rig,
@@ -86,11 +86,11 @@ def _calibrate_light_command(args) -> int:
         max_incidence_deg=args.max_incidence_deg,
         max_residual_m=args.max_residual_mm / 1000.0,
     )
-    print(estimate.summary())
+    print(calibration.estimate.summary())
     if args.dry_run:
         print(f"{args.rig} left unchanged (--dry-run)")
     else:
-        print(f"wrote the light into {args.rig} (previous file kept as {args.rig}.bak)")
+        print(f"wrote the light into {args.rig} (previous file kept as {calibration.backup})")
     return 0
 
 
@@ -102,7 +102,8 @@ def _register_calibrate_light(subparsers) -> None:
         description="Estimate the light position from captures of the ArUco plate (board.json "
         "from make-board): plate pose from the markers of all views, reflected rays of the "
         "highlight centres, least-squares intersection over all captures. Writes the light "
-        "into rig.json (keeping rig.json.bak) and prints position and residual.",
+        "into rig.json (keeping the previous file as rig.json.bak, .bak1, ...) and prints "
+        "position and residual.",
     )
     p.add_argument(
         "captures",

@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from .._atomic import write_atomic
 from .._json import json_safe
 from ..errors import DisparityError, FileFormatError, LightError, SRDEError
 from ..fusion import DEFAULT_BORDER_CHECK, BorderCheck, FusionResult, fuse
@@ -245,8 +246,8 @@ class DatasetEvaluation:
         except OSError as exc:
             raise FileFormatError(f"{out}: could not create the output folder: {exc}") from None
         md, js = out / "eval.md", out / "eval.json"
-        md.write_text(f"## {title}\n\n{self.to_markdown()}")
-        js.write_text(json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n")
+        write_atomic(md, f"## {title}\n\n{self.to_markdown()}")
+        write_atomic(js, json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n")
         return [md, js]
 
 

@@ -6,6 +6,7 @@ Agg backend, so nothing here touches pyplot's global state or needs a display.
 
 from __future__ import annotations
 
+import io
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -16,6 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
+from .._atomic import write_atomic
 from ..errors import DisparityError
 
 __all__ = [
@@ -217,6 +219,6 @@ def comparison_figure(image: np.ndarray, disparities: Mapping[str, np.ndarray], 
 def save_figure(fig: Figure, path: str | os.PathLike, *, dpi: int = 110) -> Path:
     """Write a figure to an image file (format from the extension) and return its path."""
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
-    return out
+    buffer = io.BytesIO()
+    fig.savefig(buffer, dpi=dpi, format=out.suffix.lstrip(".").lower() or "png")
+    return write_atomic(out, buffer.getvalue())

@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .._atomic import write_atomic
 from ..errors import FileFormatError
 
 
@@ -40,11 +41,7 @@ def read_bytes(path: Path, what: str) -> bytes:
 
 
 def write_bytes(path: Path, data: bytes) -> None:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(data)
-    except OSError as exc:
-        raise FileFormatError(f"{path}: could not write the file: {exc}") from None
+    write_atomic(path, data)
 
 
 def decode_image(path: Path, what: str) -> np.ndarray:

@@ -9,6 +9,7 @@ KITTI PNG, NaN in ``.npy`` (DESIGN §5).
 
 from __future__ import annotations
 
+import io
 import math
 import os
 import re
@@ -299,9 +300,7 @@ def write_disparity(path: str | os.PathLike, disparity_px: np.ndarray) -> Path:
     if ext == ".pfm":
         # Middlebury marks invalid disparity with inf.
         return write_pfm(p, np.where(np.isnan(d), np.float32(np.inf), d))
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        np.save(p, d, allow_pickle=False)
-    except OSError as exc:
-        raise FileFormatError(f"{p}: could not write the file: {exc}") from None
+    buffer = io.BytesIO()
+    np.save(buffer, d, allow_pickle=False)
+    write_bytes(p, buffer.getvalue())
     return p

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .._atomic import write_atomic
 from .._json import json_safe
 from ..errors import FileFormatError, SRDEError
 from ..evaluation import (
@@ -185,7 +186,8 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
     if extra:
         report.update(extra)
     files["report_json"] = out / REPORT_JSON
-    files["report_json"].write_text(json.dumps(json_safe(report), indent=2, allow_nan=False) + "\n")
+    write_atomic(files["report_json"], json.dumps(json_safe(report), indent=2, allow_nan=False)
+                 + "\n")
     return SceneRun(result, scores, files, tuple(notes))
 
 

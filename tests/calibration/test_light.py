@@ -355,16 +355,27 @@ def test_calibrate_light_command_writes_the_light_into_rig_json(capture_dirs, tm
     out = capsys.readouterr().out
     assert "light position:" in out and "residual:" in out
     assert (tmp_path / "rig.json.bak").read_text() == before
+    assert f"previous file kept as {tmp_path / 'rig.json.bak'}" in out
     light = np.array(json.loads(rig_path.read_text())["light"]["position"])
     assert np.linalg.norm(light - LIGHT_M) < DETECTED_TOL_M
     assert CameraRig.from_json(rig_path).light_position_m is not None
+    # A second calibration keeps both earlier versions: backups are never overwritten.
+    first = rig_path.read_text()
+    assert main(["calibrate-light", *map(str, dirs), "--board", str(root / "board.json"),
+                 "--rig", str(rig_path)]) == 0
+    assert (tmp_path / "rig.json.bak").read_text() == before
+    assert (tmp_path / "rig.json.bak1").read_text() == first
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.json", "rig.json.bak",
+                                                          "rig.json.bak1"]
 
 
 def test_calibrate_light_dry_run_and_errors(capture_dirs, tmp_path, capsys):
     root, dirs = capture_dirs
-    estimate, rig = calibrate_light_files(
+    calibration = calibrate_light_files(
         dirs[:1], root / "board.json", root / "rig.json", write=False
     )
+    estimate, rig = calibration.estimate, calibration.rig
+    assert calibration.backup is None
     assert rig.light_position_m is not None
     assert "light" not in json.loads((root / "rig.json").read_text())
     assert np.linalg.norm(estimate.position_m - LIGHT_M) < DETECTED_TOL_M
