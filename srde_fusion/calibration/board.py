@@ -439,18 +439,38 @@ def _png_with_dpi(image: np.ndarray, dpi: float) -> bytes:
 
 
 def write_board(
-    board: Board, out_dir: str | os.PathLike, *, dpi: float = 300.0
+    board: Board, out_dir: str | os.PathLike, *, dpi: float = 300.0, overwrite: bool = False
 ) -> tuple[Path, Path]:
     """Write ``board.png`` (printable, with its resolution stored) and ``board.json``.
+
+    Parameters
+    ----------
+    board : Board
+    out_dir : path
+    dpi : float
+        Print resolution.
+    overwrite : bool
+        Replace an existing ``board.png``/``board.json``. Without it they are kept and
+        this is an error: a ``board.json`` is often corrected by hand after printing.
 
     Returns
     -------
     (Path, Path)
         The image path and the JSON path.
+
+    Raises
+    ------
+    BoardError
+        ``board.png`` or ``board.json`` exists and ``overwrite`` is false.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     png, js = out / "board.png", out / "board.json"
+    there = [p.name for p in (png, js) if p.exists()]
+    if there and not overwrite:
+        raise BoardError(f"{out}: expected a folder without a board, got {' and '.join(there)} "
+                         f"(a hand-corrected board.json would be lost); pass overwrite=True "
+                         f"(make-board --force) to replace them")
     write_atomic(png, _png_with_dpi(render_board_image(board, dpi), dpi), error=BoardError)
     board.to_json(js)
     return png, js

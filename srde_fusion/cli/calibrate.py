@@ -28,7 +28,7 @@ def _make_board_command(args) -> int:
         margin_m=None if args.margin_mm is None else args.margin_mm / 1000.0,
         first_id=args.first_id,
     )
-    png, js = write_board(board, args.out_dir, dpi=args.dpi)
+    png, js = write_board(board, args.out_dir, dpi=args.dpi, overwrite=args.force)
     w, h = board.plate_size_m
     print(f"wrote {png} ({w * 1000:g} x {h * 1000:g} mm at {args.dpi:g} dpi) and {js}")
     print(
@@ -71,6 +71,8 @@ def _register_make_board(subparsers) -> None:
         "--dictionary", default="DICT_4X4_50", help="OpenCV ArUco dictionary (default DICT_4X4_50)"
     )
     p.add_argument("--first-id", type=int, default=0, help="id of the first marker (default 0)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing board.png/board.json (refused without it)")
     p.set_defaults(func=_make_board_command)
 
 

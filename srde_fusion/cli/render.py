@@ -25,6 +25,7 @@ def _cli_render(args: argparse.Namespace) -> int:
         supersample=args.supersample,
         lobe=args.lobe,
         progress=not args.quiet,
+        overwrite=args.force,
     )
     print(f"wrote {len(folders)} scene(s) to {args.out_dir}")
     return 0
@@ -60,4 +61,6 @@ def register(subparsers: Any) -> None:
         "--supersample", type=int, default=1, help="k: average k x k samples per pixel (default 1)"
     )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--force", action="store_true",
+                   help="replace the scene folders already in OUT_DIR (refused without it)")
     p.set_defaults(func=_cli_render)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -128,6 +129,7 @@ def render_dataset(
     n_objects: int = 1,
     supersample: int = 1,
     progress: bool = True,
+    overwrite: bool = False,
     **scene_options: Any,
 ) -> list[Path]:
     """Render ``n_scenes`` random scenes into scene folders ``scene_0000``, ... (DESIGN §5).
@@ -151,11 +153,20 @@ def render_dataset(
         Passed to :func:`render`.
     progress : bool
         Show a progress bar.
+    overwrite : bool
+        Replace the scene folders (``scene_NNNN``) already in ``out_dir``. Without it an
+        ``out_dir`` holding scene folders is refused: rendering would overwrite some and
+        leave others beside the new ones, where an evaluation would mix them in.
 
     Returns
     -------
     list of pathlib.Path
         The scene folders.
+
+    Raises
+    ------
+    SceneError
+        Invalid options, or scene folders in ``out_dir`` without ``overwrite``.
     """
     if isinstance(n_scenes, bool) or not isinstance(n_scenes, (int, np.integer)) or n_scenes < 1:
         raise SceneError(f"n_scenes: expected a positive integer, got {n_scenes!r}")
@@ -163,6 +174,15 @@ def render_dataset(
         raise SceneError(f"seed: expected a non-negative integer, got {seed!r}")
     rig = default_rig() if rig is None else check_rig(rig)
     out = Path(out_dir)
+    existing = sorted(p for p in out.glob("scene_*") if p.is_dir()) if out.is_dir() else []
+    if existing and not overwrite:
+        raise SceneError(
+            f"{out}: expected a folder without scene folders, got {len(existing)} "
+            f"({', '.join(p.name for p in existing[:3])}{', ...' if len(existing) > 3 else ''}) "
+            f"with their images, rig.json and ground truth; rendering would overwrite or mix "
+            f"with them: pass overwrite=True (render --force) to replace them")
+    for folder in existing:
+        shutil.rmtree(folder)
     folders = []
     for i in tqdm(range(n_scenes), desc="render", unit="scene", disable=not progress):
         scene_seed = int(np.random.SeedSequence([seed, i]).generate_state(1)[0])

@@ -323,3 +323,16 @@ def test_estimate_plate_pose_rejects_a_board_that_does_not_fit(rendered_plate, r
         r"plate pose \(RMS reprojection error <= 2 px\), got",
     ):
         estimate_plate_pose(views, rig3x3, wrong)
+
+
+def test_make_board_keeps_an_existing_board_unless_forced(tmp_path, capsys):
+    assert main(["make-board", str(tmp_path), "--dpi", "50"]) == 0
+    edited = (tmp_path / "board.json").read_text().replace("0.05", "0.0498")
+    (tmp_path / "board.json").write_text(edited)
+    capsys.readouterr()
+    assert main(["make-board", str(tmp_path), "--dpi", "50"]) == 2
+    assert "got board.png and board.json (a hand-corrected board.json would be lost)" in \
+        capsys.readouterr().err
+    assert (tmp_path / "board.json").read_text() == edited
+    assert main(["make-board", str(tmp_path), "--dpi", "50", "--force"]) == 0
+    assert (tmp_path / "board.json").read_text() != edited

@@ -665,3 +665,23 @@ def test_random_scene_options_are_checked_with_their_name(options, message):
     rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, image_size=(320, 240))
     with pytest.raises(SceneError, match=message):
         random_scene(0, rig, **options)
+
+
+def test_render_refuses_a_folder_with_scenes_unless_forced(tmp_path, capsys):
+    from srde_fusion.cli import main
+
+    rig = CameraRig.stereo(0.1, fx=100.0, image_size=(64, 48))
+    rig.to_json(tmp_path / "rig.json")
+    args = ["render", str(tmp_path / "data"), "--scenes", "2", "--rig", str(tmp_path / "rig.json"),
+            "--quiet"]
+    assert main(args) == 0
+    before = (tmp_path / "data" / "scene_0001" / "left.png").read_bytes()
+    capsys.readouterr()
+    assert main([*args[:3], "1", *args[4:]]) == 2
+    err = capsys.readouterr().err
+    assert "expected a folder without scene folders, got 2 (scene_0000, scene_0001)" in err
+    assert "render --force" in err
+    assert (tmp_path / "data" / "scene_0001" / "left.png").read_bytes() == before
+    # --force replaces them all: no stale scene_0001 left beside the new scene_0000
+    assert main([*args[:3], "1", *args[4:], "--force"]) == 0
+    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["scene_0000"]
