@@ -65,6 +65,11 @@ SRDE_PFM = "srde_disparity.pfm"
 SOURCE_PNG = "source.png"
 REPORT_JSON = "report.json"
 FIGURE_PNG = "figure.png"
+SRDE_PNG = "srde_disparity.png"
+#: Every name :func:`write_fusion_outputs` may write; one left from an earlier run and not
+#: written by this one is removed, so a folder never mixes two runs.
+OUTPUT_FILES = (FUSED_PFM, FUSED_PNG, BACKBONE_PFM, SRDE_PFM, SRDE_PNG, SOURCE_PNG,
+                REPORT_JSON, FIGURE_PNG)
 
 
 @dataclass(frozen=True)
@@ -126,7 +131,9 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
     ``source.png`` (8-bit: 0 = backbone, k = object k's SRDE plane), ``report.json``
     (per-object decisions and, with ground truth, the scores) and ``figure.png``. With
     ``srde_only`` (SRDE run without a backbone) the disparity files are
-    ``srde_disparity.pfm`` and ``srde_disparity.png`` only.
+    ``srde_disparity.pfm`` and ``srde_disparity.png`` only. Files of these names left in
+    ``out_dir`` by an earlier run and not written by this one are removed (and a note
+    says so); ``report.json``, written last, lists this run's files.
 
     Parameters
     ----------
@@ -186,6 +193,14 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
     if extra:
         report.update(extra)
     files["report_json"] = out / REPORT_JSON
+    written = {p.name for p in files.values()}
+    stale = [name for name in OUTPUT_FILES if name not in written and (out / name).is_file()]
+    for name in stale:
+        (out / name).unlink()
+    if stale:
+        notes.append(f"removed {', '.join(stale)} left by an earlier run")
+        report["notes"] = notes
+    # The report is the folder's manifest: written last, it lists what this run wrote.
     write_atomic(files["report_json"], json.dumps(json_safe(report), indent=2, allow_nan=False)
                  + "\n")
     return SceneRun(result, scores, files, tuple(notes))

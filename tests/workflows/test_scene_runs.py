@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from srde_fusion.io import read_scene
-from srde_fusion.workflows import fuse_scene, run_demo
+from srde_fusion.workflows import fuse_scene, run_demo, srde_scene
 from tests.support import FLAT_PX, flat
 
 
@@ -30,3 +30,17 @@ def test_fuse_scene_with_a_mask_file_and_auto_mask(dataset, tmp_path):
     report = json.loads((tmp_path / "b" / "report.json").read_text())
     assert report["masks"].startswith("auto")
     assert len(auto.fusion.objects) >= 1
+
+
+def test_an_output_folder_never_mixes_two_runs(dataset, tmp_path):
+    out = tmp_path / "out"
+    fuse_scene(dataset / "scene_0000", out, backbone=flat)
+    assert (out / "backbone_disparity.pfm").is_file()
+    # SRDE alone into the same folder: the fused maps of the first run are not left behind
+    run = srde_scene(dataset / "scene_0000", out)
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["figure.png", "report.json", "source.png", "srde_disparity.pfm",
+                     "srde_disparity.png"]
+    assert any("left by an earlier run" in note for note in run.notes)
+    report = json.loads((out / "report.json").read_text())
+    assert sorted(report["files"].values()) == names
