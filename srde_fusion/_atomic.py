@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import FileFormatError, SRDEError
 
-__all__ = ["write_atomic", "backup_path"]
+__all__ = ["write_atomic", "backup_path", "folder_lock"]
 
 # The rename that makes a write visible (a name of its own so tests can fail it).
 _replace = os.replace
@@ -70,3 +72,38 @@ def backup_path(path: str | os.PathLike) -> Path:
         n += 1
         candidate = path.with_name(f"{path.name}.bak{n}")
     return candidate
+
+
+#: Name of the lock file a writer keeps in its output folder while it runs.
+LOCK_FILE = ".srde-fusion.lock"
+
+
+@contextmanager
+def folder_lock(folder: str | os.PathLike, *, error: type[SRDEError] = FileFormatError
+                ) -> Iterator[Path]:
+    """Hold an output folder for one writer: create it, and a lock file in it, or refuse.
+
+    Two runs writing into one folder would interleave their files and both report
+    success; the second one is refused instead, before it computes anything.
+
+    Raises
+    ------
+    FileFormatError (or ``error``)
+        The folder cannot be created or written, or another run holds it.
+    """
+    folder = Path(folder)
+    lock = folder / LOCK_FILE
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        raise error(f"{folder}: expected a folder no other run is writing into, got its lock "
+                    f"file {LOCK_FILE} (remove it if no run is going on)") from None
+    except OSError as exc:
+        raise error(f"{folder}: could not create or write the output folder: {exc}") from None
+    try:
+        os.write(fd, f"{os.getpid()}\n".encode())
+        os.close(fd)
+        yield folder
+    finally:
+        lock.unlink(missing_ok=True)

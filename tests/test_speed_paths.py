@@ -145,6 +145,20 @@ def test_parallel_evaluation_gives_the_serial_numbers(two_scenes):
     assert parallel.to_dict()["run"]["jobs"] == 2
 
 
+def test_a_bad_scene_is_recorded_in_parallel_too_and_raised_with_strict(two_scenes, tmp_path):
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(two_scenes, data)
+    (data / "scene_0000" / "rig.json").write_text("{")
+    loader = BackboneLoader(functools.partial(backbone_from, "default", None, threads=1))
+    evaluation = evaluate_dataset(data, loader, progress=False, jobs=2)
+    assert [s.name for s in evaluation.scenes] == ["scene_0001"]
+    assert [(f.name, f.error) for f in evaluation.failures] == [("scene_0000", "RigError")]
+    with pytest.raises(SRDEError, match="rig.json: expected valid JSON"):
+        evaluate_dataset(data, loader, progress=False, jobs=1, strict=True)
+
+
 @pytest.mark.parametrize("jobs", [0, -1, 1.5, True])
 def test_bad_jobs_raise(two_scenes, jobs):
     with pytest.raises(SRDEError, match="jobs: expected a positive integer"):

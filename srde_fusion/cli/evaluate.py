@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
+from .._atomic import folder_lock
 from ..errors import SRDEError
 from ..evaluation import BackboneLoader, evaluate_dataset
 from ..io import list_scenes
@@ -27,16 +30,24 @@ def _cli_eval(args: argparse.Namespace) -> int:
                                                     threads=threads))
     else:
         backbone = backbone_from(args.backbone, args.preset)
-    evaluation = evaluate_dataset(args.dataset_dir, backbone, masks=args.masks,
-                                  progress=not args.quiet, jobs=jobs, srde_method=args.method)
-    text = evaluation.to_markdown()
-    print(text, end="")
-    print(f"\n{len(evaluation.scenes)} scene(s) in {evaluation.wall_s:.1f} s: "
-          f"{evaluation.scenes_per_second:.2f} scenes/s with {evaluation.jobs} process(es)")
-    if args.out is not None:
-        files = evaluation.write(args.out, f"{Path(args.dataset_dir).name}: backbone "
-                                 f"{args.backbone}, masks {args.masks}")
-        print(f"wrote {Path(args.out)}/: {', '.join(f.name for f in files)}")
+    with contextlib.ExitStack() as stack:
+        if args.out is not None:  # checked and held before any scene is computed
+            stack.enter_context(folder_lock(args.out))
+        evaluation = evaluate_dataset(args.dataset_dir, backbone, masks=args.masks,
+                                      progress=not args.quiet, jobs=jobs,
+                                      srde_method=args.method, strict=args.strict)
+        text = evaluation.to_markdown()
+        print(text, end="")
+        print(f"\n{len(evaluation.scenes)} scene(s) in {evaluation.wall_s:.1f} s: "
+              f"{evaluation.scenes_per_second:.2f} scenes/s with {evaluation.jobs} process(es)")
+        if args.out is not None:
+            files = evaluation.write(args.out, f"{Path(args.dataset_dir).name}: backbone "
+                                     f"{args.backbone}, masks {args.masks}")
+            print(f"wrote {Path(args.out)}/: {', '.join(f.name for f in files)}")
+    if evaluation.failures:
+        print(f"{len(evaluation.failures)} scene(s) could not be evaluated (see the table "
+              f"above); --strict stops at the first", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -56,7 +67,11 @@ def register(subparsers: Any) -> None:
                    help="'user': each scene's mask.png; 'auto': the built-in segmenter")
     p.add_argument("--method", choices=("default", "paper"), default="default",
                    help="SRDE variant")
-    p.add_argument("--out", default=None, help="folder for eval.md and eval.json")
+    p.add_argument("--out", default=None, help="folder for eval.md and eval.json (checked, "
+                   "and locked against a second run, before any scene is evaluated)")
+    p.add_argument("--strict", action="store_true",
+                   help="stop at the first scene that cannot be evaluated (default: evaluate "
+                   "the others, list the failed ones, exit status 1)")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes, each loading the model once (default: one per core)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -45,7 +45,7 @@ def _one_line_errors(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command; returns the exit code (0 ok, 2 bad input)."""
+    """Run the command; returns the exit code (0 ok, 1 some scenes failed, 2 bad input)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

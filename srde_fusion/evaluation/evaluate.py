@@ -43,6 +43,7 @@ __all__ = [
     "mask_iou",
     "SceneEvaluation",
     "DatasetEvaluation",
+    "SceneFailure",
     "BackboneLoader",
     "evaluate_scene",
     "evaluate_dataset",
@@ -161,21 +162,48 @@ class SceneEvaluation:
 
 
 @dataclass(frozen=True)
+class SceneFailure:
+    """A scene that could not be evaluated, and why.
+
+    Attributes
+    ----------
+    name : str
+        The scene folder's name.
+    error : str
+        The error's type (``"FileFormatError"``, ``"MaskError"``, ...).
+    reason : str
+        The error's message.
+    """
+
+    name: str
+    error: str
+    reason: str
+
+    def to_dict(self) -> dict[str, str]:
+        """Return a JSON-serialisable view."""
+        return {"name": self.name, "error": self.error, "reason": self.reason}
+
+
+@dataclass(frozen=True)
 class DatasetEvaluation:
     """Scores of every scene of a dataset, and their summary.
 
     Attributes
     ----------
     scenes : tuple of SceneEvaluation
+        The scenes evaluated, in dataset order.
     jobs : int
         Processes that evaluated the scenes (1: in the calling process).
     wall_s : float
         Wall-clock time of the whole evaluation, seconds (NaN if not measured).
+    failures : tuple of SceneFailure
+        Scenes that could not be evaluated (bad files, no mask, no light, ...).
     """
 
     scenes: tuple[SceneEvaluation, ...]
     jobs: int = 1
     wall_s: float = math.nan
+    failures: tuple[SceneFailure, ...] = ()
 
     @property
     def scenes_per_second(self) -> float:
@@ -191,6 +219,7 @@ class DatasetEvaluation:
         """Objects, objects fused with SRDE, and fallbacks, over all scenes."""
         return {
             "scenes": len(self.scenes),
+            "failed": len(self.failures),
             "objects": sum(s.report["n_objects"] for s in self.scenes),
             "srde": sum(s.report["n_srde"] for s in self.scenes),
             "fallback": sum(s.report["n_fallback"] for s in self.scenes),
@@ -202,30 +231,39 @@ class DatasetEvaluation:
         return float(np.mean(ious)) if ious else math.nan
 
     def to_markdown(self, keys: Sequence[str] = TABLE_KEYS) -> str:
-        """Two tables (full scene, objects only), mean ± std over scenes."""
-        summary = self.summary()
+        """Two tables (full scene, objects only), mean ± std over scenes; failed scenes."""
         counts = self.counts()
         lines = [
             f"{counts['scenes']} scene(s), {counts['objects']} object(s): SRDE used on "
-            f"{counts['srde']}, backbone kept on {counts['fallback']} (fallback).",
+            f"{counts['srde']}, backbone kept on {counts['fallback']} (fallback)."
+            + (f" {counts['failed']} scene(s) failed (listed below)." if self.failures else ""),
         ]
         iou = self.mean_mask_iou()
         if not math.isnan(iou):
             lines.append(f"Mask IoU with the ground-truth objects: {iou:.3f} (mean over objects).")
-        for region, title in (("full", "Full scene"), ("masked", "Objects (masked)")):
-            rows = {method: summary[method][region] for method in METHODS}
-            lines += ["", f"### {title}", "", format_markdown_table(rows, keys).rstrip("\n")]
+        if self.scenes:
+            summary = self.summary()
+            for region, title in (("full", "Full scene"), ("masked", "Objects (masked)")):
+                rows = {method: summary[method][region] for method in METHODS}
+                lines += ["", f"### {title}", "", format_markdown_table(rows, keys).rstrip("\n")]
+        if self.failures:
+            lines += ["", "### Scenes that failed", "", "| scene | error | reason |",
+                      "|---|---|---|"]
+            lines += [f"| {f.name} | {f.error} | {f.reason.replace('|', '/')} |"
+                      for f in self.failures]
         return "\n".join(lines) + "\n"
 
     def to_dict(self) -> dict[str, Any]:
         """Return a JSON-serialisable view: summary, counts and every scene."""
         summary = {m: {r: {k: {"mean": v[0], "std": v[1]} for k, v in keys.items()}
-                       for r, keys in regions.items()} for m, regions in self.summary().items()}
+                       for r, keys in regions.items()}
+                   for m, regions in self.summary().items()} if self.scenes else {}
         run = {"jobs": self.jobs, "wall_s": self.wall_s,
                "scenes_per_second": self.scenes_per_second}
         return json_safe({"counts": self.counts(), "mask_iou_mean": self.mean_mask_iou(),
                            "summary": summary, "run": run,
-                           "scenes": [s.to_dict() for s in self.scenes]})
+                           "scenes": [s.to_dict() for s in self.scenes],
+                           "failures": [f.to_dict() for f in self.failures]})
 
     def write(self, out_dir: str | os.PathLike, title: str) -> list[Path]:
         """Write ``eval.md`` (the tables under ``title``) and ``eval.json`` into ``out_dir``.
@@ -275,7 +313,8 @@ class BackboneLoader:
 _WORKER: dict[str, Any] = {}
 
 
-def _start_worker(backbone: Any, masks: Any, options: dict[str, Any], threads: int) -> None:
+def _start_worker(backbone: Any, masks: Any, options: dict[str, Any], threads: int,
+                  strict: bool) -> None:
     # Each worker gets its share of the cores; OpenCV (and torch, if loaded) would
     # otherwise start a thread per core in every process.
     cv2.setNumThreads(threads)
@@ -285,14 +324,25 @@ def _start_worker(backbone: Any, masks: Any, options: dict[str, Any], threads: i
         _WORKER["backbone"] = backbone.load() if isinstance(backbone, BackboneLoader) else backbone
     except Exception as exc:  # raised again with the first scene, where the caller sees it
         _WORKER["error"] = exc
-    _WORKER["masks"], _WORKER["options"] = masks, options
+    _WORKER["masks"], _WORKER["options"], _WORKER["strict"] = masks, options, strict
 
 
-def _evaluate_in_worker(folder: str) -> SceneEvaluation:
+def _evaluate_in_worker(folder: str) -> SceneEvaluation | SceneFailure:
     if "error" in _WORKER:
         raise _WORKER["error"]
-    return evaluate_scene(Path(folder), _WORKER["backbone"], masks=_WORKER["masks"],
-                          **_WORKER["options"])
+    return _evaluate_or_fail(Path(folder), _WORKER["backbone"], _WORKER["masks"],
+                             _WORKER["strict"], _WORKER["options"])
+
+
+def _evaluate_or_fail(folder: Path, backbone: Backbone, masks: Any, strict: bool,
+                      options: dict[str, Any]) -> SceneEvaluation | SceneFailure:
+    """Evaluate one scene; a bad scene is a failure record unless ``strict``."""
+    try:
+        return evaluate_scene(folder, backbone, masks=masks, **options)
+    except SRDEError as exc:
+        if strict:
+            raise
+        return SceneFailure(folder.name, type(exc).__name__, str(exc))
 
 
 
@@ -366,7 +416,7 @@ def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
 
 def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | BackboneLoader, *,
                      masks: Any = "user", progress: bool = True, jobs: int = 1,
-                     **options: Any) -> DatasetEvaluation:
+                     strict: bool = False, **options: Any) -> DatasetEvaluation:
     """Evaluate every scene folder of a dataset, in one process or several.
 
     Scenes are independent, so with ``jobs > 1`` a pool of worker processes evaluates
@@ -388,6 +438,9 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
     jobs : int
         Worker processes (at most one per scene); 1 evaluates in this process.
         ``os.cpu_count()`` uses every core.
+    strict : bool
+        Stop at the first scene that cannot be evaluated (raise its error). By default
+        such a scene is recorded in ``failures`` and the others are still evaluated.
     **options
         Passed to :func:`evaluate_scene` (``srde_method``, ``border_check``).
 
@@ -400,7 +453,7 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
     ------
     SRDEError
         ``jobs`` is not a positive integer, or a backbone that cannot be pickled is
-        given with ``jobs > 1``; and whatever :func:`evaluate_scene` raises.
+        given with ``jobs > 1``; with ``strict``, whatever :func:`evaluate_scene` raises.
     """
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise SRDEError(f"jobs: expected a positive integer (worker processes), got {jobs!r}")
@@ -413,12 +466,12 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
         if progress:
             folders = tqdm(folders, desc="evaluating", unit="scene")
         try:
-            scenes = tuple(evaluate_scene(Path(f), backbone, masks=masks, **options)
-                           for f in folders)
+            results = [_evaluate_or_fail(Path(f), backbone, masks, strict, options)
+                       for f in folders]
         finally:
             if progress:  # end the bar's line, so an error message starts on its own
                 folders.close()
-        return DatasetEvaluation(scenes, 1, time.perf_counter() - start)
+        return _collect(results, 1, time.perf_counter() - start)
     try:
         pickle.dumps(backbone)
     except Exception as exc:  # pickling raises several exception types
@@ -430,10 +483,16 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
     # can deadlock the child.
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(jobs, mp_context=context, initializer=_start_worker,
-                             initargs=(backbone, masks, options, threads)) as pool:
+                             initargs=(backbone, masks, options, threads, strict)) as pool:
         results = pool.map(_evaluate_in_worker, [str(f) for f in folders])
         if progress:
             results = tqdm(results, total=len(folders), desc=f"evaluating ({jobs} processes)",
                            unit="scene")
-        scenes = tuple(results)
-    return DatasetEvaluation(scenes, jobs, time.perf_counter() - start)
+        results = list(results)
+    return _collect(results, jobs, time.perf_counter() - start)
+
+
+def _collect(results: list[SceneEvaluation | SceneFailure], jobs: int, wall_s: float
+             ) -> DatasetEvaluation:
+    return DatasetEvaluation(tuple(r for r in results if isinstance(r, SceneEvaluation)), jobs,
+                             wall_s, tuple(r for r in results if isinstance(r, SceneFailure)))

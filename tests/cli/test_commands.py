@@ -160,8 +160,39 @@ def test_eval_user_masks_needs_masks(dataset, flat_backbone, tmp_path, capsys):
     scene = read_scene(dataset / "scene_0000")
     write_scene(tmp_path / "ds" / "a", scene.views, scene.rig, gt_disparity=scene.gt_disparity)
     code, out, err = run_cli(capsys, "eval", tmp_path / "ds", "--backbone", flat_backbone,
-                             "--quiet")
+                             "--quiet", "--strict")
     assert_one_line_error(code, out, err, "eval", "expected a mask.png for --masks user")
+
+
+def test_eval_keeps_going_past_a_bad_scene(dataset, flat_backbone, tmp_path, capsys):
+    ds = tmp_path / "ds"
+    for name in ("scene_0000", "scene_0001"):
+        scene = read_scene(dataset / name)
+        write_scene(ds / name, scene.views, scene.rig, mask=scene.mask_labels,
+                    gt_disparity=scene.gt_disparity)
+    (ds / "scene_0001" / "cam4.png").write_bytes(b"not an image")
+    code, out, err = run_cli(capsys, "eval", ds, "--backbone", flat_backbone, "--quiet",
+                             "--out", tmp_path / "e", "--jobs", "1")
+    assert code == 1
+    assert "1 scene(s), 1 object(s)" in out and "1 scene(s) failed" in out
+    assert "| scene_0001 | FileFormatError |" in out and "expected a readable" in out
+    assert "could not be evaluated" in err
+    report = json.loads((tmp_path / "e" / "eval.json").read_text())
+    assert [s["name"] for s in report["scenes"]] == ["scene_0000"]  # nothing computed is lost
+    assert report["failures"][0]["name"] == "scene_0001"
+    assert not (tmp_path / "e" / ".srde-fusion.lock").exists()
+
+
+def test_eval_checks_and_locks_its_output_folder_first(dataset, tmp_path, capsys):
+    (tmp_path / "e").mkdir()
+    (tmp_path / "e" / ".srde-fusion.lock").write_text("123\n")
+    code, out, err = run_cli(capsys, "eval", dataset, "--backbone", "default", "--quiet",
+                             "--out", tmp_path / "e")
+    assert_one_line_error(code, out, err, "eval", "expected a folder no other run is writing")
+    (tmp_path / "file").write_text("")
+    code, out, err = run_cli(capsys, "eval", dataset, "--backbone", "default", "--quiet",
+                             "--out", tmp_path / "file" / "e")
+    assert_one_line_error(code, out, err, "eval", "could not create or write the output folder")
 
 
 def test_every_command_has_help(capsys):
