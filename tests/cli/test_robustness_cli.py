@@ -158,8 +158,13 @@ def test_a_dataset_with_a_broken_scene(capfd, good_scene, tmp_path):
     shutil.copytree(good_scene, dataset / "a")
     shutil.copytree(good_scene, dataset / "b")
     _truncate(dataset / "b" / "cam0.png", 30)
-    code, _, err = run(capfd, "eval", dataset, "--backbone", "default", "--quiet")
+    # --strict: the first bad scene stops the run, with one line and exit status 2
+    code, _, err = run(capfd, "eval", dataset, "--backbone", "default", "--quiet", "--strict")
     assert_one_line(code, err, "eval", "cam0.png: expected a readable 8-bit image")
+    # by default the good scene is still evaluated and the bad one listed: exit status 1
+    code, out, err = run(capfd, "eval", dataset, "--backbone", "default", "--quiet")
+    assert code == 1 and "Traceback" not in err
+    assert "| b | FileFormatError |" in out and "cam0.png: expected a readable 8-bit image" in out
 
 
 def test_as_a_process(tmp_path, good_scene):
