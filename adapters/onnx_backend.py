@@ -240,7 +240,15 @@ class OnnxStereo(StereoAdapter):
         feed = {self.input_names[0]: left.astype(self._input_dtype, copy=False),
                 self.input_names[1]: right.astype(self._input_dtype, copy=False),
                 **self._extra_feed}
-        (raw,) = self.session.run([self.output_name], feed)
+        try:
+            (raw,) = self.session.run([self.output_name], feed)
+        # onnxruntime raises its own exception types (Fail, InvalidArgument, RuntimeException)
+        # from the model's graph; the caller gets the one contract's error, naming the model.
+        except Exception as exc:
+            raise BackboneError(
+                f"{self.spec.name} model: expected onnxruntime to run it on inputs of shape "
+                f"{tuple(left.shape)}, got {type(exc).__name__}: {str(exc).strip()[:500]}"
+            ) from exc
         return raw
 
     def describe(self) -> str:

@@ -63,12 +63,23 @@ class TorchStereo(StereoAdapter):
         left_t = torch.from_numpy(left).to(self.device)
         right_t = torch.from_numpy(right).to(self.device)
         extras = dict(spec.extra_inputs)
-        with torch.inference_mode():
-            if spec.call == "positional":
-                out = self.module(left_t, right_t, *extras.values())
-            else:
-                inputs = {spec.input_names[0]: left_t, spec.input_names[1]: right_t, **extras}
-                out = self.module(**inputs) if spec.call == "keywords" else self.module(inputs)
+        try:
+            with torch.inference_mode():
+                if spec.call == "positional":
+                    out = self.module(left_t, right_t, *extras.values())
+                else:
+                    inputs = {spec.input_names[0]: left_t, spec.input_names[1]: right_t,
+                              **extras}
+                    out = (self.module(**inputs) if spec.call == "keywords"
+                           else self.module(inputs))
+        # The module's own exception (a shape it cannot take, a missing argument) becomes
+        # the adapter contract's error; the original stays attached as its cause.
+        except Exception as exc:
+            raise BackboneError(
+                f"{type(self.module).__name__} (torch, spec {spec.name}): expected the module "
+                f"to run on inputs of shape {tuple(left_t.shape)}, got {type(exc).__name__}: "
+                f"{str(exc).strip()[:500]}"
+            ) from exc
         return _to_numpy(_select_output(out, spec))
 
     def describe(self) -> str:

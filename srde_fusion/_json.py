@@ -84,6 +84,11 @@ def load_json_source(source: Any, name: str, error: type[SRDEError]) -> Any:
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise error(f"{where}: expected valid JSON, got a parse error: {exc}") from None
+    except RecursionError:
+        raise error(f"{where}: expected JSON nested a few levels deep, got nesting deeper "
+                    f"than Python's parser allows") from None
+    except ValueError as exc:  # e.g. an integer literal beyond int's digit limit
+        raise error(f"{where}: expected valid JSON numbers, got {exc}") from None
 
 
 def dump_json(data: Any, path: str | os.PathLike | None = None) -> str:

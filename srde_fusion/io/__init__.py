@@ -5,6 +5,7 @@ Imports ``geometry`` (the rig) and the foundation; nothing above.
 
 from __future__ import annotations
 
+from ._files import load_npy
 from .calibration_files import (
     MiddleburyCalib,
     read_middlebury_calib,
@@ -42,6 +43,7 @@ from .scene import (
 )
 
 __all__ = [
+    "load_npy",
     "MiddleburyCalib",
     "read_middlebury_calib",
     "read_opencv_stereo_yaml",

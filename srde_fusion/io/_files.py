@@ -44,6 +44,20 @@ def write_bytes(path: Path, data: bytes) -> None:
     write_atomic(path, data)
 
 
+def load_npy(path: Path, what: str) -> np.ndarray:
+    """Load a ``.npy`` array (no pickles); any failure is a FileFormatError naming the file."""
+    existing_file(path, what)
+    try:
+        return np.load(path, allow_pickle=False)
+    # numpy parses the header with Python's own parser: a damaged or empty file can raise
+    # SyntaxError, tokenize.TokenError, EOFError, MemoryError, ... besides I/O errors.
+    except Exception as exc:
+        raise FileFormatError(
+            f"{path}: expected a numpy .npy array, got an unreadable file: "
+            f"{type(exc).__name__}: {exc}"
+        ) from None
+
+
 def decode_image(path: Path, what: str) -> np.ndarray:
     """Decode an image file with OpenCV, untouched (bit depth and channels as stored)."""
     data = read_bytes(existing_file(path, what), what)

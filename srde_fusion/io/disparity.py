@@ -19,7 +19,14 @@ import numpy as np
 
 from .._checks import check_disparity
 from ..errors import FileFormatError
-from ._files import decode_image, encode_image, existing_file, read_bytes, write_bytes
+from ._files import (
+    decode_image,
+    encode_image,
+    existing_file,
+    load_npy,
+    read_bytes,
+    write_bytes,
+)
 
 __all__ = [
     "KITTI_DISPARITY_SCALE",
@@ -247,15 +254,7 @@ def read_disparity(path: str | os.PathLike) -> np.ndarray:
     if ext == ".pfm":
         raw = read_pfm(p)
     else:
-        existing_file(p, "disparity .npy")
-        try:
-            raw = np.load(p, allow_pickle=False)
-        # numpy parses the header with Python's own parser: a damaged header can raise
-        # SyntaxError, tokenize.TokenError, MemoryError, ... besides the usual I/O errors.
-        except Exception as exc:
-            raise FileFormatError(
-                f"{p}: expected a numpy .npy array, got an unreadable file: {exc}"
-            ) from None
+        raw = load_npy(p, "disparity .npy")
     if raw.ndim != 2 or not (
         np.issubdtype(raw.dtype, np.floating) or np.issubdtype(raw.dtype, np.integer)
     ):

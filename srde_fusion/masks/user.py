@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import FileFormatError, MaskError
 from ..geometry import CameraRig
-from ..io import masks_from_labels, read_mask
+from ..io import load_npy, masks_from_labels, read_mask
 
 __all__ = [
     "AUTO_SPLIT_MIN_AREA_PX",
@@ -151,11 +151,7 @@ class UserMasks:
             if not path.is_file():
                 raise FileFormatError(f"mask file: expected an existing file, got {str(path)!r}")
             if path.suffix.lower() == ".npy":
-                try:
-                    labels = np.load(path, allow_pickle=False)
-                except ValueError as exc:
-                    raise FileFormatError(f"{path}: expected a .npy label array, got {exc}"
-                                          ) from None
+                labels = load_npy(path, "mask .npy")
             else:
                 labels = read_mask(path)
             if labels.ndim != 2:

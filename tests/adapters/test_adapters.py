@@ -146,8 +146,26 @@ def test_torch_model_that_requires_a_multiple_gets_padded_input():
     model = TorchStereo(Probe(multiple=32), "igev")
     left = random_image(50, 70)
     np.testing.assert_allclose(model(left, left), left[:, :, 0], atol=EXACT_PX)
-    with pytest.raises(RuntimeError, match="multiple"):
+    # the module's own error comes back as the adapter contract's, naming the module
+    with pytest.raises(BackboneError, match=r"Probe \(torch, spec generic\): expected the "
+                       r"module to run on inputs of shape \(1, 3, 50, 70\), got RuntimeError: "
+                       r".*multiple") as info:
         TorchStereo(Probe(multiple=32), "generic")(left, left)
+    assert isinstance(info.value.__cause__, RuntimeError)
+
+
+class FixedReshape(nn.Module):
+    """Dynamic axes declared, but a reshape baked to the export size: fails at run time."""
+
+    def forward(self, left, right):
+        return (left[:, :1] + 0 * right[:, :1]).reshape(1, 1, 64, 96)
+
+
+def test_an_onnx_model_failing_while_running_is_a_backbone_error(tmp_path):
+    path = export(FixedReshape(), tmp_path / "fixed.onnx")
+    with pytest.raises(BackboneError, match=r"generic model: expected onnxruntime to run it on "
+                       r"inputs of shape \(1, 3, 50, 70\), got"):
+        OnnxStereo(path, "generic")(random_image(50, 70), random_image(50, 70))
 
 
 # ---------------------------------------------------------------- sign, channel, scale

@@ -470,3 +470,13 @@ def test_stereo_validation():
         CameraRig.stereo(0.0, fx=100.0)
     with pytest.raises(RigError, match="expected unique names"):
         CameraRig.stereo(0.1, fx=100.0, names=("x", "x"))
+
+
+@pytest.mark.parametrize(("text", "match"), [
+    ("[" * 100_000 + "]" * 100_000, "expected JSON nested a few levels deep"),
+    ('{"format": ' + "9" * 5000 + "}", "expected valid JSON numbers"),
+], ids=["deep", "huge-int"])
+def test_hostile_json_is_a_rig_error(tmp_path, text, match):
+    (tmp_path / "rig.json").write_text(text)
+    with pytest.raises(RigError, match=match):
+        CameraRig.from_json(tmp_path / "rig.json")

@@ -132,9 +132,15 @@ def test_user_masks_of_the_wrong_size_for_the_rig(rig):
         masks(None, rig)
 
 
-def test_user_masks_bad_npy_file(tmp_path):
-    (tmp_path / "bad.npy").write_bytes(b"not numpy")
-    with pytest.raises(FileFormatError, match=r"expected a .npy label array"):
+@pytest.mark.parametrize("data", [
+    b"not numpy", b"",  # garbage, empty (EOFError inside numpy)
+    b"\x93NUMPY\x01\x00\x10\x00{'descr': '<f4', 'fortran_o",  # damaged header (SyntaxError)
+    b"\x93NUMPY\x01\x00\x10\x00{'descr': \"<f4\" \\\n   ",  # header the tokenizer rejects
+], ids=["garbage", "empty", "cut-header", "bad-token"])
+def test_user_masks_bad_npy_file(tmp_path, data):
+    (tmp_path / "bad.npy").write_bytes(data)
+    with pytest.raises(FileFormatError, match=r"bad.npy: expected a numpy .npy array, got an "
+                       r"unreadable file"):
         UserMasks(tmp_path / "bad.npy")
 
 
