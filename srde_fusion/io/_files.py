@@ -6,11 +6,15 @@ image codecs. Every failure is a :class:`~srde_fusion.errors.FileFormatError` na
 
 from __future__ import annotations
 
+import io
 import os
+import struct
+import warnings
 from pathlib import Path
 
 import cv2
 import numpy as np
+import PIL.Image
 
 from .._atomic import write_atomic
 from ..errors import FileFormatError
@@ -58,9 +62,46 @@ def load_npy(path: Path, what: str) -> np.ndarray:
         ) from None
 
 
-def decode_image(path: Path, what: str) -> np.ndarray:
-    """Decode an image file with OpenCV, untouched (bit depth and channels as stored)."""
+#: Largest image decoded by default, pixels (a 200-megapixel frame is about 600 MB as
+#: uint8 RGB): a small file can declare a huge size and exhaust memory when decoded.
+MAX_IMAGE_PIXELS = 200_000_000
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _declared_size(data: bytes) -> tuple[int, int] | None:
+    """Return ``(width, height)`` from the file header, without decoding the pixels.
+
+    PNG's IHDR is read directly; other formats through Pillow's lazy header parsing.
+    None when the header cannot be read (OpenCV then decides).
+    """
+    if data[:8] == _PNG_SIGNATURE and data[12:16] == b"IHDR" and len(data) >= 24:
+        return struct.unpack(">II", data[16:24])
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PIL.Image.DecompressionBombWarning)
+            with PIL.Image.open(io.BytesIO(data)) as header:
+                return header.size
+    except PIL.Image.DecompressionBombError:  # over twice Pillow's own limit
+        return (2**31, 2**31)
+    except Exception:  # not a format Pillow knows, or a damaged header
+        return None
+
+
+def decode_image(path: Path, what: str, *, max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
+    """Decode an image file with OpenCV, untouched (bit depth and channels as stored).
+
+    The size the header declares is checked against ``max_pixels`` before any pixel
+    is decoded.
+    """
     data = read_bytes(existing_file(path, what), what)
+    size = _declared_size(data) if data else None
+    if size is not None and size[0] * size[1] > max_pixels:
+        raise FileFormatError(
+            f"{path}: expected a {what} of at most {max_pixels:,} pixels, got a header "
+            f"declaring {size[0]}x{size[1]} ({size[0] * size[1]:,} pixels); raise max_pixels "
+            f"if the image is real")
     # imdecode on the bytes (rather than imread on the path) handles non-ASCII paths
     # and gives us one place to turn a failed decode into a FileFormatError.
     image = None

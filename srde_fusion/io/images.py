@@ -17,7 +17,7 @@ import numpy as np
 
 from .._checks import check_image
 from ..errors import FileFormatError, MaskError
-from ._files import decode_image, encode_image
+from ._files import MAX_IMAGE_PIXELS, decode_image, encode_image
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -40,13 +40,16 @@ _MAX_LABEL_U8 = 255
 
 
 # ---------------------------------------------------------------------- images
-def read_image(path: str | os.PathLike) -> np.ndarray:
+def read_image(path: str | os.PathLike, *, max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
     """Read an 8-bit image as RGB (or grey).
 
     Parameters
     ----------
     path : str or path-like
         Any format OpenCV decodes (PNG, JPEG, BMP, TIFF, ...).
+    max_pixels : int
+        Largest image accepted, checked on the header before decoding (a guard against
+        files that declare a huge size, as Pillow's decompression-bomb check is).
 
     Returns
     -------
@@ -56,11 +59,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     Raises
     ------
     FileFormatError
-        Missing or undecodable file, a bit depth other than 8, or an alpha channel
+        Missing or undecodable file, a header declaring more than ``max_pixels``, a bit
+        depth other than 8, or an alpha channel
         that is not fully opaque (transparency has no meaning for a camera image).
     """
     p = Path(path)
-    image = decode_image(p, "8-bit image")
+    image = decode_image(p, "8-bit image", max_pixels=max_pixels)
     if image.dtype != np.uint8:
         raise FileFormatError(
             f"{p}: expected an 8-bit image, got dtype {image.dtype}; convert it to 8 bits "

@@ -19,12 +19,17 @@ from ..geometry import CameraRig
 from ..io import load_npy, masks_from_labels, read_mask
 
 __all__ = [
+    "MAX_OBJECTS",
     "AUTO_SPLIT_MIN_AREA_PX",
     "Masker",
     "UserMasks",
 ]
 
 Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
+
+#: Most objects a mask source may hold by default: each object takes a full-image mask
+#: (12 MB at 4000x3000), so thousands of labels would exhaust memory.
+MAX_OBJECTS = 64
 
 #: A binary mask split automatically ignores components smaller than this, pixels (edge
 #: specks of a hand-drawn or thresholded mask, not objects).
@@ -37,8 +42,13 @@ def _describe(value: Any) -> str:
     return type(value).__name__
 
 
-def _labels_to_masks(labels: np.ndarray, name: str) -> list[np.ndarray]:
-    """Split labels into masks, also accepting float arrays holding whole numbers."""
+def _labels_to_masks(labels: np.ndarray, name: str, max_objects: int = 10**9
+                     ) -> list[np.ndarray]:
+    """Split labels into masks, also accepting float arrays holding whole numbers.
+
+    The labels are counted before any mask is built: each object costs a full-image
+    mask, so a label image with thousands of labels is refused, not allocated.
+    """
     if np.issubdtype(labels.dtype, np.floating):
         if not np.all(np.isfinite(labels)) or np.any(labels != np.round(labels)):
             raise MaskError(f"{name}: expected integer labels (0 = background), got non-integer "
@@ -52,6 +62,11 @@ def _labels_to_masks(labels: np.ndarray, name: str) -> list[np.ndarray]:
         raise MaskError(f"{name}: expected a bool or integer label image, got dtype {labels.dtype}")
     if labels.size and labels.min() < 0:
         raise MaskError(f"{name}: expected labels >= 0 (0 = background), got {labels.min()}")
+    values = np.unique(labels)
+    n_objects = int(np.count_nonzero(values))
+    if n_objects > max_objects:
+        raise MaskError(f"{name}: expected at most {max_objects} objects (max_objects), got "
+                        f"{n_objects} labels; each object takes a full-image mask")
     return masks_from_labels(labels)
 
 
@@ -86,6 +101,9 @@ class UserMasks:
         object.
     min_area_px : int
         When splitting, components smaller than this are dropped.
+    max_objects : int
+        Most objects accepted (labels, list entries or components); more is a
+        ``MaskError`` raised before the masks are built.
 
     Attributes
     ----------
@@ -103,14 +121,15 @@ class UserMasks:
     """
 
     def __init__(self, source: Any, *, split_components: bool | None = None,
-                 min_area_px: int = 1) -> None:
+                 min_area_px: int = 1, max_objects: int = MAX_OBJECTS) -> None:
         if split_components not in (None, True, False):
             raise MaskError(f"split_components: expected True, False or None, got "
                             f"{split_components!r}")
         self.source = source
         self.split_components = split_components
         self.min_area_px = int(min_area_px)
-        self._masks = self._load(source)
+        self.max_objects = int(max_objects)
+        self._masks = self._load(source, self.max_objects)
         self.notes: tuple[str, ...] = ()
         if split_components:
             self._masks = [c for m in self._masks
@@ -120,6 +139,9 @@ class UserMasks:
         if not self._masks:
             raise MaskError(f"masks: expected at least one object (a non-zero label), got none "
                             f"in {self._where(source)}")
+        if len(self._masks) > self.max_objects:
+            raise MaskError(f"masks: expected at most {self.max_objects} objects (max_objects), "
+                            f"got {len(self._masks)} in {self._where(source)}")
 
     @staticmethod
     def _is_label_image(source: Any) -> bool:
@@ -145,7 +167,7 @@ class UserMasks:
         return repr(str(source)) if isinstance(source, (str, os.PathLike)) else _describe(source)
 
     @staticmethod
-    def _load(source: Any) -> list[np.ndarray]:
+    def _load(source: Any, max_objects: int) -> list[np.ndarray]:
         if isinstance(source, (str, os.PathLike)):
             path = Path(source)
             if not path.is_file():
@@ -156,10 +178,10 @@ class UserMasks:
                 labels = read_mask(path)
             if labels.ndim != 2:
                 raise MaskError(f"{path}: expected an (H, W) label image, got shape {labels.shape}")
-            return _labels_to_masks(labels, str(path))
+            return _labels_to_masks(labels, str(path), max_objects)
         if isinstance(source, np.ndarray):
             if source.ndim == 2:
-                return _labels_to_masks(source, "masks")
+                return _labels_to_masks(source, "masks", max_objects)
             if source.ndim == 3:
                 source = list(source)
             else:

@@ -708,3 +708,27 @@ def test_list_scenes(tmp_path, small_stereo_rig):
         list_scenes(tmp_path / "data" / "a")
     with pytest.raises(FileFormatError, match="expected a dataset folder"):
         list_scenes(tmp_path / "missing")
+
+
+def test_images_declaring_a_huge_size_are_refused_before_decoding(tmp_path):
+    import struct
+    import zlib
+
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(
+            ">I", zlib.crc32(kind + body) & 0xFFFFFFFF)
+
+    # A 60 kB file whose header declares 100000 x 100000 pixels (a decompression bomb).
+    ihdr = struct.pack(">IIBBBBB", 100_000, 100_000, 8, 0, 0, 0, 0)
+    bomb = (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
+            + chunk(b"IDAT", zlib.compress(b"\x00" * 60_000)) + chunk(b"IEND", b""))
+    (tmp_path / "bomb.png").write_bytes(bomb)
+    with pytest.raises(FileFormatError, match=r"bomb.png: expected a 8-bit image of at most "
+                       r"200,000,000 pixels, got a header declaring 100000x100000"):
+        read_image(tmp_path / "bomb.png")
+    with pytest.raises(FileFormatError, match="mask image of at most"):
+        read_mask(tmp_path / "bomb.png")
+    write_image(tmp_path / "small.png", np.zeros((30, 40, 3), np.uint8))
+    with pytest.raises(FileFormatError, match="at most 1,000 pixels, got a header declaring 40x30"):
+        read_image(tmp_path / "small.png", max_pixels=1000)
+    assert read_image(tmp_path / "small.png").shape == (30, 40, 3)

@@ -355,3 +355,14 @@ def test_segmenter_options_are_validated():
         HighlightSegmenter(contrast_sigmas_px=(3.0, 1.0))
     with pytest.raises(SRDEError, match=r"max_region_fraction: expected a value in \(0, 1\]"):
         HighlightSegmenter(max_region_fraction=2.0)
+
+
+def test_the_number_of_objects_is_bounded_before_masks_are_built(rig, tmp_path):
+    labels = (np.arange(H * W).reshape(H, W) % 300).astype(np.uint16)  # 299 labels
+    np.save(tmp_path / "many.npy", labels)
+    with pytest.raises(MaskError, match=r"many.npy: expected at most 64 objects \(max_objects\), "
+                       r"got 299 labels"):
+        UserMasks(tmp_path / "many.npy")
+    assert len(UserMasks(labels, max_objects=300)(None, rig)) == 299
+    with pytest.raises(MaskError, match="expected at most 2 objects"):
+        UserMasks([labels == 1, labels == 2, labels == 3], max_objects=2)
