@@ -62,6 +62,8 @@ _DEFAULT_MARGIN_FRACTION = 0.2
 # this many times finer than the output.
 _FINE_MARKER_PX = 1600
 _MAX_BOARD_SUPERSAMPLE = 8
+#: Highest print resolution drawn; an A4 plate at this dpi is already 140 megapixels.
+MAX_DPI = 4800.0
 
 
 def _number(value: Any, field_name: str, *, positive: bool = False) -> float:
@@ -383,6 +385,9 @@ def render_board_image(board: Board, dpi: float = 300.0) -> np.ndarray:
     ((207, 292), dtype('uint8'), 255)
     """
     dpi = _number(dpi, "dpi", positive=True)
+    if dpi > MAX_DPI:
+        raise BoardError(f"dpi: expected at most {MAX_DPI:g} dots per inch (printers stop "
+                         f"well below), got {dpi:g}")
     w_m, h_m = board.plate_size_m
     w_px = max(1, round(w_m / METRES_PER_INCH * dpi))
     h_px = max(1, round(h_m / METRES_PER_INCH * dpi))

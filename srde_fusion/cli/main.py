@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from .. import __version__
 from ..errors import SRDEError
 from . import calibrate, evaluate, render, scenes, train
 
@@ -26,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Disparity of flat glossy objects from their specular highlight (SRDE), "
         "fused into a neural stereo pipeline.",
     )
+    parser.add_argument("--version", action="version", version=f"srde-fusion {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for module in _COMMAND_MODULES:

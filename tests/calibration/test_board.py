@@ -336,3 +336,8 @@ def test_make_board_keeps_an_existing_board_unless_forced(tmp_path, capsys):
     assert (tmp_path / "board.json").read_text() == edited
     assert main(["make-board", str(tmp_path), "--dpi", "50", "--force"]) == 0
     assert (tmp_path / "board.json").read_text() != edited
+
+
+def test_board_dpi_is_capped():
+    with pytest.raises(BoardError, match="dpi: expected at most 4800 dots per inch"):
+        render_board_image(Board.corner_layout(), dpi=1e6)

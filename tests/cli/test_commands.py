@@ -201,3 +201,12 @@ def test_every_command_has_help(capsys):
             main([command, "--help"])
         assert info.value.code == 0
         assert f"usage: srde-fusion {command}" in capsys.readouterr().out
+
+
+def test_version(capsys):
+    import srde_fusion
+
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.strip() == f"srde-fusion {srde_fusion.__version__}"
