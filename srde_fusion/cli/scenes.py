@@ -51,8 +51,9 @@ def _cli_demo(args: argparse.Namespace) -> int:
 
 
 def _cli_fuse(args: argparse.Namespace) -> int:
-    run = fuse_scene(args.scene_dir, args.out,
-                     backbone=backbone_from(args.backbone, args.preset), mask=args.mask,
+    backbone = None if args.backbone is None else backbone_from(args.backbone, args.preset)
+    run = fuse_scene(args.scene_dir, args.out, backbone=backbone, disparity=args.disparity,
+                     disparity_scale=args.disparity_scale, mask=args.mask,
                      auto_mask=args.auto_mask, light=args.light)
     _print_objects(run.fusion)
     _print_masks(run)
@@ -128,14 +129,21 @@ def register(subparsers: Any) -> None:
 
     p = subparsers.add_parser(
         "fuse", help="fuse a stereo model's disparity with SRDE for one scene folder",
-        description="Run a stereo model on the scene's stereo pair, find the glossy objects "
+        description="Run a stereo model on the scene's stereo pair (or take the disparity "
+        "map your pipeline already made, --disparity), find the glossy objects "
         "(mask file, the scene's mask.png, or the built-in segmenter), replace their "
         "disparity by SRDE's where SRDE succeeds and agrees with the model, and write the "
         "fused disparity, source map, report and figure.")
     p.add_argument("scene_dir", help="scene folder: rig.json (with the light), cam*.png, "
                    "optional mask.png and gt_disparity.pfm")
-    p.add_argument("--backbone", required=True,
-                   help="'default' (bundled stand-in network) or a stereo model .onnx")
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--backbone",
+                        help="'default' (bundled stand-in network) or a stereo model .onnx")
+    source.add_argument("--disparity", metavar="FILE",
+                        help="a disparity map your pipeline already made for the reference "
+                        "view (.pfm, KITTI 16-bit .png or .npy), instead of running a model")
+    p.add_argument("--disparity-scale", type=float, default=1.0, metavar="S",
+                   help="multiply --disparity's values by S to get pixels (default 1)")
     p.add_argument("--preset", default=None,
                    help="conventions of the .onnx model: igev, igev++, raft-stereo, crestereo, "
                    "nmrf, foundationstereo or generic")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -29,9 +30,9 @@ from ..evaluation import (
     save_figure,
     score_fusion,
 )
-from ..fusion import FusionResult, HybridStereo, fuse
+from ..fusion import FusionResult, HybridStereo, fuse, postprocess
 from ..geometry import CameraRig
-from ..io import read_scene, write_disparity, write_mask, write_scene
+from ..io import read_disparity, read_scene, write_disparity, write_mask, write_scene
 from ..masks import HighlightSegmenter, resolve_masker
 from ..srde import SRDE
 from ..synthetic import default_rig, random_scene, render, scene_to_dict
@@ -261,7 +262,8 @@ def run_demo(out_dir: str | os.PathLike = "demo_out", *, seed: int = DEMO_SEED,
 
 
 def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
-               backbone: Backbone, mask: Any = None, auto_mask: bool = False,
+               backbone: Backbone | None = None, disparity: Any = None,
+               disparity_scale: float = 1.0, mask: Any = None, auto_mask: bool = False,
                light: Any = None) -> SceneRun:
     """Fuse a backbone's disparity with SRDE for one scene folder and write the outputs.
 
@@ -271,9 +273,17 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
         A scene folder (``rig.json`` with the light, one image per camera, optional
         ``mask.png`` and ground truth).
     out_dir : path
-    backbone : callable
+    backbone : callable, optional
         ``backbone(left, right) -> (H, W)`` disparity in pixels (see
         :mod:`srde_fusion.adapters` to wrap a model file or a torch module).
+    disparity : path or numpy.ndarray, optional
+        Instead of a backbone: the disparity map a pipeline already produced for the
+        reference view (PFM, KITTI 16-bit PNG or ``.npy``, see
+        :func:`~srde_fusion.io.read_disparity`; or an array). Exactly one of
+        ``backbone`` and ``disparity``.
+    disparity_scale : float
+        Factor from the map's values to pixels of the stereo pair (e.g. 0.5 for a map
+        stored at twice the resolution's disparity).
     mask : path or array, optional
         Object masks; the scene's ``mask.png`` if present, else the built-in segmenter.
     auto_mask : bool
@@ -285,12 +295,23 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     -------
     SceneRun
     """
+    if (backbone is None) == (disparity is None):
+        raise SRDEError("backbone, disparity: expected exactly one (a model to run, or the "
+                        f"disparity map it already made), got "
+                        f"{'both' if backbone is not None else 'neither'}")
+    if (isinstance(disparity_scale, bool) or not isinstance(disparity_scale, (int, float))
+            or not (math.isfinite(disparity_scale) and disparity_scale > 0)):
+        raise SRDEError(f"disparity_scale: expected a positive number, got {disparity_scale!r}")
     scene = read_scene(scene_dir)
     choice = resolve_masker("auto" if auto_mask and mask is None else mask,
                             scene_labels=scene.mask_labels, where=str(scene.path))
     masker, source = choice.masker, choice.description
-    model = HybridStereo(backbone, scene.rig, light, masker)
-    result = model(scene.views)
+    if backbone is not None:
+        result = HybridStereo(backbone, scene.rig, light, masker)(scene.views)
+    else:
+        given = disparity if isinstance(disparity, np.ndarray) else read_disparity(disparity)
+        result = postprocess(np.asarray(given, dtype=np.float32) * np.float32(disparity_scale),
+                             scene.views, scene.rig, masker, light=light)
     region = None
     if scene.mask_labels is not None:
         region = scene.mask_labels > 0

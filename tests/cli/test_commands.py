@@ -210,3 +210,20 @@ def test_version(capsys):
         main(["--version"])
     assert info.value.code == 0
     assert capsys.readouterr().out.strip() == f"srde-fusion {srde_fusion.__version__}"
+
+
+def test_fuse_command_on_an_existing_disparity_file(dataset, tmp_path, capsys):
+    from srde_fusion.io import write_disparity
+
+    scene = read_scene(dataset / "scene_0000")
+    write_disparity(tmp_path / "disp.png", np.full(scene.gt_disparity.shape, 15.0, np.float32))
+    code, out, err = run_cli(capsys, "fuse", scene.path, "--disparity", tmp_path / "disp.png",
+                             "--out", tmp_path / "o")
+    assert code == 0, err
+    fused = read_disparity(tmp_path / "o" / "fused_disparity.pfm")
+    source = read_mask(tmp_path / "o" / "source.png")
+    assert np.all(fused[source == 0] == 15.0) and np.count_nonzero(source) > 0
+    with pytest.raises(SystemExit) as info:  # argparse's own exit for a usage error
+        main(["fuse", str(scene.path), "--disparity", str(tmp_path / "disp.png"),
+              "--backbone", "default", "--out", str(tmp_path / "o2")])
+    assert info.value.code == 2 and "not allowed with argument" in capsys.readouterr().err

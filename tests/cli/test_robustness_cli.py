@@ -65,7 +65,11 @@ def test_the_good_scene_runs(capfd, good_scene):
     ([], None, "the following arguments are required: COMMAND"),
     (["nope"], None, "argument COMMAND: invalid choice: 'nope'"),
     (["render"], "render", "the following arguments are required: out_dir"),
-    (["fuse"], "fuse", "the following arguments are required: scene_dir, --backbone, --out"),
+    (["fuse"], "fuse", "the following arguments are required: scene_dir, --out"),
+    (["fuse", "x", "--out", "y"], "fuse", "one of the arguments --backbone --disparity is "
+     "required"),
+    (["fuse", "x", "--out", "y", "--backbone", "default", "--disparity", "d.pfm"], "fuse",
+     "argument --disparity: not allowed with argument --backbone"),
     (["srde"], "srde", "the following arguments are required: scene_dir"),
     (["eval"], "eval", "the following arguments are required: dataset_dir, --backbone"),
     (["calibrate-light"], "calibrate-light", "the following arguments are required"),

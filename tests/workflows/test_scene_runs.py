@@ -5,7 +5,9 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
+from srde_fusion.errors import SRDEError
 from srde_fusion.io import read_scene
 from srde_fusion.workflows import fuse_scene, run_demo, srde_scene
 from tests.support import FLAT_PX, flat
@@ -44,3 +46,26 @@ def test_an_output_folder_never_mixes_two_runs(dataset, tmp_path):
     assert any("left by an earlier run" in note for note in run.notes)
     report = json.loads((out / "report.json").read_text())
     assert sorted(report["files"].values()) == names
+
+
+def test_fuse_a_disparity_map_the_pipeline_already_made(dataset, tmp_path):
+    from srde_fusion.io import write_disparity
+
+    scene = read_scene(dataset / "scene_0000")
+    h, w = scene.gt_disparity.shape
+    write_disparity(tmp_path / "pipeline.pfm", np.full((h, w), FLAT_PX / 2, np.float32))
+    run = fuse_scene(scene.path, tmp_path / "out", disparity=tmp_path / "pipeline.pfm",
+                     disparity_scale=2.0)
+    outside = run.fusion.source == 0
+    assert np.all(run.fusion.disparity[outside] == np.float32(FLAT_PX))
+    assert run.fusion.objects[0].used_srde
+
+
+def test_fuse_scene_needs_exactly_one_disparity_source(dataset, tmp_path):
+    with pytest.raises(SRDEError, match="backbone, disparity: expected exactly one .* got neither"):
+        fuse_scene(dataset / "scene_0000", tmp_path)
+    with pytest.raises(SRDEError, match="got both"):
+        fuse_scene(dataset / "scene_0000", tmp_path, backbone=flat, disparity=tmp_path / "d.pfm")
+    with pytest.raises(SRDEError, match="disparity_scale: expected a positive number"):
+        fuse_scene(dataset / "scene_0000", tmp_path, disparity=tmp_path / "d.pfm",
+                   disparity_scale=0)
