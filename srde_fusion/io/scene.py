@@ -16,12 +16,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from .._checks import check_disparity, check_views
 from ..errors import FileFormatError, MaskError, RigError
 from ..geometry import CameraRig
 from ._files import path_exists, read_bytes, write_bytes
+from .calibration_files import read_middlebury_calib
 from .disparity import read_disparity, write_disparity
 from .images import (
     IMAGE_EXTENSIONS,
@@ -49,6 +51,8 @@ RIG_FILE = "rig.json"
 MASK_FILE = "mask.png"
 GT_DISPARITY_STEM = "gt_disparity"
 METADATA_FILE = "scene.json"
+#: A Middlebury 2014/2021 scene folder is recognised by this file (with im0 and im1).
+MIDDLEBURY_CALIB_FILE = "calib.txt"
 
 
 # ---------------------------------------------------------------------- scene folders
@@ -194,7 +198,11 @@ def read_scene(folder: str | os.PathLike) -> SceneData:
     folder : str or path-like
         Holds ``rig.json``, one image per camera named after it (any of
         :data:`IMAGE_EXTENSIONS`), optional ``mask.png``, ``gt_disparity.pfm`` or
-        ``gt_disparity.npy``, and ``scene.json``.
+        ``gt_disparity.npy``, and ``scene.json``. A Middlebury 2014/2021 folder
+        (``calib.txt``, ``im0.png``, ``im1.png``, optional ``disp0.pfm``) is read too:
+        its rig has no light (give one, e.g. ``--light``), ``im1`` is shifted by the
+        file's ``doffs`` so both views share one principal point as the rig does, and
+        ``disp0.pfm`` becomes the ground truth in the rig's convention (``d + doffs``).
 
     Returns
     -------
@@ -213,8 +221,12 @@ def read_scene(folder: str | os.PathLike) -> SceneData:
     if not path_exists(path, "dir"):
         raise FileFormatError(f"{path}: expected a scene folder, got no such directory")
     rig_path = path / RIG_FILE
+    if not rig_path.is_file() and (path / MIDDLEBURY_CALIB_FILE).is_file():
+        return _read_middlebury_scene(path)
     if not rig_path.is_file():
-        raise FileFormatError(f"{path}: expected a scene folder with {RIG_FILE}, got none")
+        raise FileFormatError(f"{path}: expected a scene folder with {RIG_FILE} (or a "
+                              f"Middlebury folder with {MIDDLEBURY_CALIB_FILE}, im0.png and "
+                              f"im1.png), got neither")
     try:
         rig = CameraRig.from_json(rig_path)
     except RigError as exc:
@@ -314,8 +326,47 @@ def list_scenes(dataset_dir: str | os.PathLike) -> list[Path]:
     root = Path(dataset_dir)
     if not path_exists(root, "dir"):
         raise FileFormatError(f"{root}: expected a dataset folder, got no such directory")
-    scenes = sorted(p for p in root.iterdir() if p.is_dir() and (p / RIG_FILE).is_file())
+    scenes = sorted(p for p in root.iterdir() if p.is_dir() and (
+        (p / RIG_FILE).is_file() or (p / MIDDLEBURY_CALIB_FILE).is_file()))
     if not scenes:
         hint = " (it is itself a scene folder)" if (root / RIG_FILE).is_file() else ""
         raise FileFormatError(f"{root}: expected sub-folders holding {RIG_FILE}, got none{hint}")
     return scenes
+
+
+def _read_middlebury_scene(path: Path) -> SceneData:
+    """Read a Middlebury-style folder (calib.txt, im0, im1, optional disp0.pfm) as a scene."""
+    views = []
+    for stem in ("im0", "im1"):
+        found = _find_one(path, stem, IMAGE_EXTENSIONS, f"Middlebury view {stem}")
+        if found is None:
+            raise FileFormatError(f"{path}: expected {stem}.png beside "
+                                  f"{MIDDLEBURY_CALIB_FILE}, got none")
+        views.append(read_image(found))
+    h, w = views[0].shape[:2]
+    calib = read_middlebury_calib(path / MIDDLEBURY_CALIB_FILE, image_size=(w, h))
+    rig = calib.rig
+    for stem, view in zip(("im0", "im1"), views, strict=True):
+        if view.shape[:2] != (rig.height, rig.width):
+            raise FileFormatError(f"{path}: {stem}: expected {_size_text(rig)}, got "
+                                  f"{view.shape[1]}x{view.shape[0]}")
+    # Middlebury's right camera has cx1 = cx0 + doffs; shifting im1 by doffs px to the
+    # right gives it the reference's principal point, which the rig assumes.
+    shift = np.float32([[1.0, 0.0, calib.doffs_px], [0.0, 1.0, 0.0]])
+    views[1] = cv2.warpAffine(views[1], shift, (rig.width, rig.height),
+                              flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    gt = None
+    gt_path = _find_one(path, "disp0", (".pfm",), "Middlebury ground truth")
+    if gt_path is not None:
+        gt = calib.to_rig_disparity(read_disparity(gt_path))
+        if gt.shape != (rig.height, rig.width):
+            raise FileFormatError(f"{gt_path}: expected {_size_text(rig)}, got "
+                                  f"{gt.shape[1]}x{gt.shape[0]}")
+    return SceneData(path=path, name=path.name, rig=rig, views=tuple(views), gt_disparity=gt,
+                     metadata={"format": "middlebury", "doffs_px": calib.doffs_px,
+                               "im1_shifted_px": calib.doffs_px})
+
+
+def _size_text(rig: CameraRig) -> str:
+    """Say the calibration's image size, for messages."""
+    return f"the calibration's size {rig.width}x{rig.height}"

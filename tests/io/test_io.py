@@ -732,3 +732,31 @@ def test_images_declaring_a_huge_size_are_refused_before_decoding(tmp_path):
     with pytest.raises(FileFormatError, match="at most 1,000 pixels, got a header declaring 40x30"):
         read_image(tmp_path / "small.png", max_pixels=1000)
     assert read_image(tmp_path / "small.png").shape == (30, 40, 3)
+
+
+def test_a_middlebury_folder_reads_as_a_scene(tmp_path):
+    from srde_fusion.io import list_scenes, read_scene
+
+    rng = np.random.default_rng(0)
+    im0 = rng.integers(0, 256, (40, 60, 3), dtype=np.uint8)
+    im1 = rng.integers(0, 256, (40, 60, 3), dtype=np.uint8)
+    folder = tmp_path / "data" / "Motorcycle"
+    folder.mkdir(parents=True)
+    write_image(folder / "im0.png", im0)
+    write_image(folder / "im1.png", im1)
+    (folder / "calib.txt").write_text(
+        "cam0=[100 0 30; 0 100 20; 0 0 1]\ncam1=[100 0 33; 0 100 20; 0 0 1]\n"
+        "doffs=3\nbaseline=120\nwidth=60\nheight=40\nndisp=64\n")
+    write_disparity(folder / "disp0.pfm", np.full((40, 60), 10.0, np.float32))
+    scene = read_scene(folder)
+    assert scene.rig.camera_names == ["cam0", "cam1"] and scene.rig.light_position_m is None
+    assert scene.rig.baseline_m == pytest.approx(0.12)
+    assert np.array_equal(scene.views[0], im0)
+    # im1 moved 3 px right: the rig's shared principal point
+    assert np.array_equal(scene.views[1][:, 3:], im1[:, :-3])
+    np.testing.assert_allclose(scene.gt_disparity, 13.0)  # d + doffs, the rig's convention
+    assert scene.metadata["format"] == "middlebury"
+    assert list_scenes(tmp_path / "data") == [folder]
+    (folder / "im1.png").unlink()
+    with pytest.raises(FileFormatError, match="expected im1.png beside calib.txt"):
+        read_scene(folder)
