@@ -31,6 +31,10 @@ from .images import (
     write_image,
     write_mask,
 )
+from .point_cloud import (
+    disparity_to_points,
+    write_ply,
+)
 from .scene import (
     GT_DISPARITY_STEM,
     MASK_FILE,
@@ -63,6 +67,8 @@ __all__ = [
     "write_mask",
     "masks_from_labels",
     "labels_from_masks",
+    "write_ply",
+    "disparity_to_points",
     "RIG_FILE",
     "MASK_FILE",
     "GT_DISPARITY_STEM",

@@ -25,6 +25,7 @@ from ..errors import FileFormatError, SRDEError
 from ..evaluation import (
     METHODS,
     TABLE_KEYS,
+    colorize_disparity,
     comparison_figure,
     format_markdown_table,
     save_figure,
@@ -32,7 +33,17 @@ from ..evaluation import (
 )
 from ..fusion import FusionResult, HybridStereo, fuse, postprocess
 from ..geometry import CameraRig
-from ..io import read_disparity, read_scene, write_disparity, write_mask, write_scene
+from ..io import (
+    disparity_to_points,
+    read_disparity,
+    read_scene,
+    write_disparity,
+    write_image,
+    write_mask,
+    write_pfm,
+    write_ply,
+    write_scene,
+)
 from ..masks import HighlightSegmenter, resolve_masker
 from ..srde import SRDE
 from ..synthetic import default_rig, random_scene, render, scene_to_dict
@@ -67,10 +78,13 @@ SOURCE_PNG = "source.png"
 REPORT_JSON = "report.json"
 FIGURE_PNG = "figure.png"
 SRDE_PNG = "srde_disparity.png"
+DEPTH_PFM = "depth.pfm"
+POINTS_PLY = "points.ply"
+COLOR_PNG = "disparity_color.png"
 #: Every name :func:`write_fusion_outputs` may write; one left from an earlier run and not
 #: written by this one is removed, so a folder never mixes two runs.
 OUTPUT_FILES = (FUSED_PFM, FUSED_PNG, BACKBONE_PFM, SRDE_PFM, SRDE_PNG, SOURCE_PNG,
-                REPORT_JSON, FIGURE_PNG)
+                REPORT_JSON, FIGURE_PNG, DEPTH_PFM, POINTS_PLY, COLOR_PNG)
 
 
 @dataclass(frozen=True)
@@ -124,7 +138,8 @@ def scores_table(scores: dict) -> str:
 def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
                          image: np.ndarray, *, gt_disparity: np.ndarray | None = None,
                          region: np.ndarray | None = None, extra: dict | None = None,
-                         title: str | None = None, srde_only: bool = False) -> SceneRun:
+                         title: str | None = None, srde_only: bool = False,
+                         rig: CameraRig | None = None) -> SceneRun:
     """Write a fusion result: disparity maps, source map, JSON report and figure.
 
     Files: ``fused_disparity.pfm`` (invalid = inf) and ``fused_disparity.png`` (KITTI
@@ -153,6 +168,10 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
         Figure title.
     srde_only : bool
         Write and draw SRDE's map only.
+    rig : CameraRig, optional
+        With the rig, the map is also written as ``depth.pfm`` (reference camera z,
+        metres, inf = invalid), ``points.ply`` (the valid pixels as 3D points in the
+        array frame, coloured from the reference view) and ``disparity_color.png``.
 
     Returns
     -------
@@ -176,6 +195,12 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
         files["backbone_pfm"] = write_disparity(out / BACKBONE_PFM, result.backbone_disparity)
         files["srde_pfm"] = write_disparity(out / SRDE_PFM, result.srde_disparity)
     files["source_png"] = write_mask(out / SOURCE_PNG, result.source)
+    if rig is not None:
+        depth = rig.disparity_to_depth(result.disparity).astype(np.float32)
+        files["depth_pfm"] = write_pfm(out / DEPTH_PFM, np.where(np.isnan(depth), np.inf, depth))
+        files["points_ply"] = write_ply(out / POINTS_PLY,
+                                        *disparity_to_points(result.disparity, rig, image))
+        files["color_png"] = write_image(out / COLOR_PNG, colorize_disparity(result.disparity))
 
     scores = None
     if gt_disparity is not None:
@@ -255,7 +280,7 @@ def run_demo(out_dir: str | os.PathLike = "demo_out", *, seed: int = DEMO_SEED,
     diagnostics = model.masker.last_diagnostics
     run = write_fusion_outputs(
         out, result, rendering.views[rig.reference], gt_disparity=rendering.disparity_px,
-        region=rendering.instance_mask > 0, title=f"demo scene (seed {seed})",
+        region=rendering.instance_mask > 0, title=f"demo scene (seed {seed})", rig=rig,
         extra={"scene_dir": scene_dir.name, "masks": _AUTO_MASKS,
                "segmenter": None if diagnostics is None else list(diagnostics.reasons)})
     return DemoResult(run.fusion, run.scores, run.files, run.notes, _AUTO_MASKS, scene_dir)
@@ -317,7 +342,8 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
         region = scene.mask_labels > 0
     run = write_fusion_outputs(out_dir, result, scene.views[scene.rig.reference],
                                 gt_disparity=scene.gt_disparity, region=region,
-                                title=scene.name, extra={"scene": str(scene.path),
+                                title=scene.name, rig=scene.rig,
+                                extra={"scene": str(scene.path),
                                                          "masks": source})
     return dataclasses.replace(run, masks=source)
 
@@ -351,6 +377,6 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
     region = scene.mask_labels > 0 if scene.mask_labels is not None else None
     run = write_fusion_outputs(out_dir, result, scene.views[rig.reference],
                                 gt_disparity=scene.gt_disparity, region=region,
-                                title=f"{scene.name}: SRDE alone", srde_only=True,
+                                title=f"{scene.name}: SRDE alone", srde_only=True, rig=rig,
                                 extra={"scene": str(scene.path), "masks": source})
     return dataclasses.replace(run, masks=source)

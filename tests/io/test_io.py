@@ -760,3 +760,19 @@ def test_a_middlebury_folder_reads_as_a_scene(tmp_path):
     (folder / "im1.png").unlink()
     with pytest.raises(FileFormatError, match="expected im1.png beside calib.txt"):
         read_scene(folder)
+
+
+def test_ply_round_trip_and_errors(tmp_path):
+    from srde_fusion.io import write_ply
+
+    points = np.array([[0.0, 1.0, 2.0], [-1.5, 0.25, 3.0]], np.float32)
+    colors = np.array([[255, 0, 10], [1, 2, 3]], np.uint8)
+    data = write_ply(tmp_path / "p.ply", points, colors).read_bytes()
+    header, body = data.split(b"end_header\n", 1)
+    assert header.startswith(b"ply\nformat binary_little_endian 1.0\nelement vertex 2\n")
+    rows = np.frombuffer(body, dtype=[("xyz", "<f4", 3), ("rgb", "u1", 3)])
+    assert np.array_equal(rows["xyz"], points) and np.array_equal(rows["rgb"], colors)
+    with pytest.raises(FileFormatError, match=r"expected points of shape \(N, 3\)"):
+        write_ply(tmp_path / "q.ply", points[:, :2])
+    with pytest.raises(FileFormatError, match=r"expected uint8 colours of shape \(2, 3\)"):
+        write_ply(tmp_path / "q.ply", points, colors.astype(np.float32))

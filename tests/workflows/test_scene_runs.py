@@ -41,8 +41,8 @@ def test_an_output_folder_never_mixes_two_runs(dataset, tmp_path):
     # SRDE alone into the same folder: the fused maps of the first run are not left behind
     run = srde_scene(dataset / "scene_0000", out)
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["figure.png", "report.json", "source.png", "srde_disparity.pfm",
-                     "srde_disparity.png"]
+    assert names == ["depth.pfm", "disparity_color.png", "figure.png", "points.ply",
+                     "report.json", "source.png", "srde_disparity.pfm", "srde_disparity.png"]
     assert any("left by an earlier run" in note for note in run.notes)
     report = json.loads((out / "report.json").read_text())
     assert sorted(report["files"].values()) == names
@@ -69,3 +69,23 @@ def test_fuse_scene_needs_exactly_one_disparity_source(dataset, tmp_path):
     with pytest.raises(SRDEError, match="disparity_scale: expected a positive number"):
         fuse_scene(dataset / "scene_0000", tmp_path, disparity=tmp_path / "d.pfm",
                    disparity_scale=0)
+
+
+def test_depth_and_point_cloud_outputs_agree_with_the_disparity(dataset, tmp_path):
+    from srde_fusion.io import read_disparity, read_pfm
+
+    run = fuse_scene(dataset / "scene_0000", tmp_path / "out", backbone=flat)
+    rig = read_scene(dataset / "scene_0000").rig
+    fused = read_disparity(tmp_path / "out" / "fused_disparity.pfm")
+    depth = read_pfm(tmp_path / "out" / "depth.pfm")
+    valid = np.isfinite(fused)
+    np.testing.assert_allclose(depth[valid], rig.intrinsics.fx * rig.baseline_m / fused[valid],
+                               rtol=1e-6)
+    data = (tmp_path / "out" / "points.ply").read_bytes()
+    header, body = data.split(b"end_header\n", 1)
+    assert f"element vertex {int(valid.sum())}".encode() in header
+    assert len(body) == int(valid.sum()) * (3 * 4 + 3)  # xyz float32 + rgb uint8
+    points = np.frombuffer(body, dtype=[("xyz", "<f4", 3), ("rgb", "u1", 3)])
+    np.testing.assert_allclose(points["xyz"][:, 2] - rig.reference_center_m[2],
+                               depth[valid], rtol=1e-5)
+    assert set(run.files) >= {"depth_pfm", "points_ply", "color_png"}
