@@ -66,6 +66,11 @@ class OnnxStereo(StereoAdapter):
 
         self.spec = preset(spec_or_preset)
         self.path = Path(path)
+        available = ort.get_available_providers()
+        missing = [p for p in providers if p not in available]
+        if missing:
+            raise BackboneError(f"providers: expected onnxruntime execution providers this "
+                                f"installation has ({', '.join(available)}), got {missing}")
         if not self.path.is_file():
             raise BackboneError(f"model: expected an existing .onnx file, got {str(path)!r}")
         try:

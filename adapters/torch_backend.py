@@ -52,7 +52,20 @@ class TorchStereo(StereoAdapter):
             raise BackboneError(
                 f"spec.input_names: expected two names for call={self.spec.call!r}, got None"
             )
-        self.device = torch.device(device)
+        try:
+            self.device = torch.device(device)
+        except (TypeError, RuntimeError):
+            raise BackboneError(f"device: expected a torch device such as 'cpu', 'cuda' or "
+                                f"'cuda:1', got {device!r}") from None
+        # Fail now, with the reason, rather than with torch's message on the first call.
+        if self.device.type == "cuda":
+            if not torch.cuda.is_available():
+                raise BackboneError(f"device: expected an available device, got {device!r} "
+                                    f"(this torch build or machine has no CUDA)")
+            index = self.device.index or 0
+            if index >= torch.cuda.device_count():
+                raise BackboneError(f"device: expected one of the {torch.cuda.device_count()} "
+                                    f"CUDA devices, got {device!r}")
         self.module = module.to(self.device).eval()
         self.model_size = self.spec.input_size
 

@@ -9,11 +9,22 @@ import sys
 from typing import Any
 
 from ..adapters import load_backbone
+from ..errors import BackboneError
 
-__all__ = ["backbone_from"]
+__all__ = ["backbone_from", "providers_for"]
 
 
-def backbone_from(source: Any, preset: str | None = None, *, threads: int | None = None) -> Any:
+def providers_for(device: str) -> list[str]:
+    """Onnxruntime execution providers for ``"cpu"`` or ``"cuda[:N]"``."""
+    if device == "cpu":
+        return ["CPUExecutionProvider"]
+    if device.startswith("cuda"):
+        return ["CUDAExecutionProvider", "CPUExecutionProvider"]
+    raise BackboneError(f"--device: expected cpu or cuda[:N], got {device!r}")
+
+
+def backbone_from(source: Any, preset: str | None = None, *, threads: int | None = None,
+                  device: str = "cpu") -> Any:
     """Return a backbone callable for what the user named.
 
     Parameters
@@ -26,6 +37,10 @@ def backbone_from(source: Any, preset: str | None = None, *, threads: int | None
     threads : int, optional
         Threads of the model's onnxruntime session (one evaluation worker's share of
         the cores); onnxruntime's default when None.
+    device : str
+        ``"cpu"`` or ``"cuda[:N]"``: the torch device of a module, the onnxruntime
+        providers of a model file. A device this machine lacks is a BackboneError now,
+        not a failure on the first pair.
 
     Returns
     -------
@@ -36,12 +51,15 @@ def backbone_from(source: Any, preset: str | None = None, *, threads: int | None
     is_module = torch is not None and isinstance(source, torch.nn.Module)
     if callable(source) and not is_module:
         return source
+    if is_module:
+        return load_backbone(source, preset, device=device)
+    providers = providers_for(device)
     if threads is None:
-        return load_backbone(source, preset)
+        return load_backbone(source, preset, providers=providers)
     # onnxruntime loads only when worker threads are set (a heavy import for the CLI).
     import onnxruntime as ort
 
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
-    return load_backbone(source, preset, session_options=options)
+    return load_backbone(source, preset, session_options=options, providers=providers)

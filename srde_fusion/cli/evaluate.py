@@ -27,9 +27,10 @@ def _cli_eval(args: argparse.Namespace) -> int:
     if jobs > 1:
         threads = max(1, (os.cpu_count() or 1) // jobs)
         backbone = BackboneLoader(functools.partial(backbone_from, args.backbone, args.preset,
-                                                    threads=threads))
+                                                    threads=threads, device=args.device))
+        backbone_from(args.backbone, args.preset, device=args.device)  # fail here, not in workers
     else:
-        backbone = backbone_from(args.backbone, args.preset)
+        backbone = backbone_from(args.backbone, args.preset, device=args.device)
     with contextlib.ExitStack() as stack:
         if args.out is not None:  # checked and held before any scene is computed
             stack.enter_context(folder_lock(args.out))
@@ -75,4 +76,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--jobs", type=int, default=None, metavar="N",
                    help="worker processes, each loading the model once (default: one per core)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--device", default="cpu", metavar="cpu|cuda[:N]",
+                   help="where the model runs (torch device; CUDA execution provider for "
+                   "ONNX); default cpu")
     p.set_defaults(func=_cli_eval)

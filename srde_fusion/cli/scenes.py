@@ -41,7 +41,7 @@ def _print_files(run: SceneRun) -> None:
 
 def _cli_demo(args: argparse.Namespace) -> int:
     run = run_demo(args.out, seed=args.seed, n_objects=args.objects, scale=args.scale,
-                   backbone=backbone_from(args.backbone))
+                   backbone=backbone_from(args.backbone, device=args.device))
     _print_objects(run.fusion)
     _print_masks(run)
     print()
@@ -51,7 +51,8 @@ def _cli_demo(args: argparse.Namespace) -> int:
 
 
 def _cli_fuse(args: argparse.Namespace) -> int:
-    backbone = None if args.backbone is None else backbone_from(args.backbone, args.preset)
+    backbone = (None if args.backbone is None
+                else backbone_from(args.backbone, args.preset, device=args.device))
     run = fuse_scene(args.scene_dir, args.out, backbone=backbone, disparity=args.disparity,
                      disparity_scale=args.disparity_scale, mask=args.mask,
                      auto_mask=args.auto_mask, light=args.light)
@@ -107,6 +108,12 @@ def _add_mask_options(p: argparse.ArgumentParser) -> None:
                    help="light position in metres (array frame), overriding rig.json")
 
 
+def _add_device_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--device", default="cpu", metavar="cpu|cuda[:N]",
+                   help="where the model runs (torch device; CUDA execution provider for "
+                   "ONNX); default cpu")
+
+
 def register(subparsers: Any) -> None:
     """Add the ``demo``, ``fuse`` and ``srde`` subcommands."""
     p = subparsers.add_parser(
@@ -125,6 +132,7 @@ def register(subparsers: Any) -> None:
                    help="image scale relative to 640x480 (default 1; 0.5 is quicker)")
     p.add_argument("--backbone", default="default",
                    help="'default' (bundled stand-in network) or a stereo model .onnx")
+    _add_device_option(p)
     p.set_defaults(func=_cli_demo)
 
     p = subparsers.add_parser(
@@ -149,6 +157,7 @@ def register(subparsers: Any) -> None:
                    "nmrf, foundationstereo or generic")
     _add_mask_options(p)
     p.add_argument("--out", required=True, help="output folder")
+    _add_device_option(p)
     p.set_defaults(func=_cli_fuse)
 
     p = subparsers.add_parser(

@@ -383,3 +383,17 @@ def test_unknown_preset_and_field():
         preset("psmnet")
     with pytest.raises(BackboneError, match="unknown colour"):
         StereoSpec().replace(colour="red")
+
+
+def test_a_device_this_machine_lacks_fails_at_construction(tmp_path):
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(BackboneError, match=r"device: expected an available device, got "
+                       r"'cuda' \(this torch build or machine has no CUDA\)"):
+        TorchStereo(Probe(), "generic", device="cuda")
+    with pytest.raises(BackboneError, match="device: expected a torch device"):
+        TorchStereo(Probe(), "generic", device="gpu please")
+    path = export(Probe(), tmp_path / "m.onnx")
+    with pytest.raises(BackboneError, match=r"providers: expected onnxruntime execution "
+                       r"providers this installation has .*got \['NoSuchExecutionProvider'\]"):
+        OnnxStereo(path, "generic", providers=("NoSuchExecutionProvider",))

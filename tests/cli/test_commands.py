@@ -227,3 +227,17 @@ def test_fuse_command_on_an_existing_disparity_file(dataset, tmp_path, capsys):
         main(["fuse", str(scene.path), "--disparity", str(tmp_path / "disp.png"),
               "--backbone", "default", "--out", str(tmp_path / "o2")])
     assert info.value.code == 2 and "not allowed with argument" in capsys.readouterr().err
+
+
+def test_device_option_fails_early_without_the_device(dataset, tmp_path, capsys):
+    import onnxruntime as ort
+
+    if "CUDAExecutionProvider" in ort.get_available_providers():
+        pytest.skip("this machine has CUDA")
+    code, out, err = run_cli(capsys, "fuse", dataset / "scene_0000", "--backbone", "default",
+                             "--device", "cuda", "--out", tmp_path / "o")
+    assert_one_line_error(code, out, err, "fuse", "got ['CUDAExecutionProvider']")
+    assert not (tmp_path / "o").exists()
+    code, out, err = run_cli(capsys, "fuse", dataset / "scene_0000", "--backbone", "default",
+                             "--device", "tpu", "--out", tmp_path / "o")
+    assert_one_line_error(code, out, err, "fuse", "--device: expected cpu or cuda[:N], got 'tpu'")
