@@ -191,8 +191,7 @@ def run(n_scenes: int, backbone_names: list[str], seed0: int) -> dict:
 
 
 def summary_table(per_scene: list, region: str) -> tuple[str, dict]:
-    rows = {("hybrid (fused)" if m == "hybrid" else m):
-            summarize([s[m][region] for s in per_scene]) for m in METHODS}
+    rows = {m: summarize([s[m][region] for s in per_scene]) for m in METHODS}
     return format_markdown_table(rows, KEYS), rows
 
 
@@ -225,7 +224,7 @@ def main() -> None:
             entry[region] = {k: {key: list(v) for key, v in r.items()} for k, r in rows.items()}
         for region, target in (("full", TARGET_FULL), ("masked", TARGET_MASKED)):
             bb = np.mean([s["backbone"][region]["epe"] for s in per_scene])
-            hy = np.mean([s["hybrid"][region]["epe"] for s in per_scene])
+            hy = np.mean([s["fused"][region]["epe"] for s in per_scene])
             reduction = 1.0 - hy / bb
             entry[f"epe_reduction_{region}"] = reduction
             targets.append((bname, mname, region, bb, hy, reduction, target))

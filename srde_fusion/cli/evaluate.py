@@ -42,8 +42,12 @@ def _cli_eval(args: argparse.Namespace) -> int:
         print(f"\n{len(evaluation.scenes)} scene(s) in {evaluation.wall_s:.1f} s: "
               f"{evaluation.scenes_per_second:.2f} scenes/s with {evaluation.jobs} process(es)")
         if args.out is not None:
-            files = evaluation.write(args.out, f"{Path(args.dataset_dir).name}: backbone "
-                                     f"{args.backbone}, masks {args.masks}")
+            files = evaluation.write(
+                args.out, f"{Path(args.dataset_dir).name}: backbone {args.backbone}, masks "
+                f"{args.masks}", settings={
+                    "dataset": str(args.dataset_dir), "backbone": args.backbone,
+                    "preset": args.preset, "masks": args.masks, "srde_method": args.method,
+                    "device": args.device, "jobs": evaluation.jobs})
             print(f"wrote {Path(args.out)}/: {', '.join(f.name for f in files)}")
     if evaluation.failures:
         print(f"{len(evaluation.failures)} scene(s) could not be evaluated (see the table "

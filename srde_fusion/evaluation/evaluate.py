@@ -50,11 +50,11 @@ __all__ = [
 ]
 
 #: Methods compared, in table order.
-METHODS = ("backbone", "srde", "hybrid")
+METHODS = ("backbone", "srde", "fused")
 #: Regions scored: every pixel with ground truth, and the objects only.
 REGIONS = ("full", "masked")
 #: Columns of the markdown tables: the paper's metrics, then KITTI-style ones.
-TABLE_KEYS = (*PAPER_KEYS, "bad1", "d1", "coverage")
+TABLE_KEYS = (*PAPER_KEYS, "bad0.5", "bad1", "bad2", "bad3", "bad4", "d1", "coverage")
 #: Mask sources :func:`evaluate_scene` understands by name.
 
 
@@ -85,7 +85,7 @@ def score_fusion(result: FusionResult, gt_disparity: np.ndarray, region: np.ndar
     """
     gt = np.asarray(gt_disparity, dtype=np.float32)
     maps = {"backbone": result.backbone_disparity, "srde": result.srde_disparity,
-            "hybrid": result.disparity}
+            "fused": result.disparity}
     empty = np.zeros(gt.shape, dtype=bool)
     return {
         method: {
@@ -265,8 +265,12 @@ class DatasetEvaluation:
                            "scenes": [s.to_dict() for s in self.scenes],
                            "failures": [f.to_dict() for f in self.failures]})
 
-    def write(self, out_dir: str | os.PathLike, title: str) -> list[Path]:
+    def write(self, out_dir: str | os.PathLike, title: str,
+              settings: Mapping[str, Any] | None = None) -> list[Path]:
         """Write ``eval.md`` (the tables under ``title``) and ``eval.json`` into ``out_dir``.
+
+        ``settings`` (the backbone, mask source, SRDE method, ...) are recorded in both,
+        so a results folder says how it was made.
 
         Returns
         -------
@@ -284,8 +288,11 @@ class DatasetEvaluation:
         except OSError as exc:
             raise FileFormatError(f"{out}: could not create the output folder: {exc}") from None
         md, js = out / "eval.md", out / "eval.json"
-        write_atomic(md, f"## {title}\n\n{self.to_markdown()}")
-        write_atomic(js, json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n")
+        settings = dict(settings or {})
+        listed = "".join(f"- {k}: {v}\n" for k, v in settings.items())
+        write_atomic(md, f"## {title}\n\n{listed}{chr(10) if listed else ''}{self.to_markdown()}")
+        data = {"settings": json_safe(settings), **self.to_dict()}
+        write_atomic(js, json.dumps(data, indent=2, allow_nan=False) + "\n")
         return [md, js]
 
 

@@ -129,7 +129,7 @@ def scores_table(scores: dict) -> str:
     """Return markdown tables of ``scores[method][region]`` (full scene, then objects)."""
     parts = []
     for region, title in (("full", "Full scene"), ("masked", "Objects (masked)")):
-        rows = {("fused" if m == "hybrid" else m): scores[m][region] for m in METHODS}
+        rows = {m: scores[m][region] for m in METHODS}
         parts.append(f"### {title}\n\n" + format_markdown_table(rows, TABLE_KEYS))
     return "\n".join(parts)
 
@@ -355,7 +355,7 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
 
     Outside the objects there is no disparity (NaN, ``inf`` in the PFM). Parameters as
     :func:`fuse_scene`; ``method`` selects the SRDE variant. Without ``out_dir`` nothing
-    is written.
+    is written (the scores against the scene's ground truth are still computed).
 
     Returns
     -------
@@ -372,9 +372,13 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
     nothing = np.full((rig.height, rig.width), np.nan, np.float32)
     result = fuse(nothing, scene.views, rig, masks, SRDE(rig, method=method) if masks else None,
                   border_check=None)
-    if out_dir is None:
-        return SceneRun(result, None, {}, masks=source)
     region = scene.mask_labels > 0 if scene.mask_labels is not None else None
+    if out_dir is None:
+        scores = None
+        if scene.gt_disparity is not None:
+            scores = score_fusion(result, scene.gt_disparity,
+                                  region if region is not None else result.source > 0)
+        return SceneRun(result, scores, {}, masks=source)
     run = write_fusion_outputs(out_dir, result, scene.views[rig.reference],
                                 gt_disparity=scene.gt_disparity, region=region,
                                 title=f"{scene.name}: SRDE alone", srde_only=True, rig=rig,

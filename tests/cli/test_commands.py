@@ -62,8 +62,8 @@ def test_demo_end_to_end(tmp_path, capsys):
     # The stand-in fails on the glossy objects; the fused map does not.
     scores = report["scores"]
     assert report["fusion"]["n_srde"] >= 1
-    assert scores["hybrid"]["masked"]["epe"] < 0.2 * scores["backbone"]["masked"]["epe"]
-    assert scores["hybrid"]["full"]["epe"] < scores["backbone"]["full"]["epe"]
+    assert scores["fused"]["masked"]["epe"] < 0.2 * scores["backbone"]["masked"]["epe"]
+    assert scores["fused"]["full"]["epe"] < scores["backbone"]["full"]["epe"]
 
 
 # ---------------------------------------------------------------- fuse / srde / eval
@@ -94,6 +94,9 @@ def test_srde_command(dataset, tmp_path, capsys):
     # Without --out nothing is written, and the result is still returned.
     run = srde_scene(dataset / "scene_0000")
     assert run.files == {} and run.fusion.objects[0].srde.ok
+    assert run.scores["srde"]["masked"]["epe"] < 0.5  # scored without writing anything
+    code, out, err = run_cli(capsys, "srde", dataset / "scene_0000")
+    assert code == 0 and "| srde |" in out  # and printed
 
 
 def test_eval_command(dataset, tmp_path, capsys):
@@ -104,10 +107,17 @@ def test_eval_command(dataset, tmp_path, capsys):
     assert "### Full scene" in out and "### Objects (masked)" in out
     assert "±" in out
     data = json.loads((tmp_path / "e" / "eval.json").read_text())
-    masked = data["summary"]["hybrid"]["masked"]["epe"]["mean"]
+    masked = data["summary"]["fused"]["masked"]["epe"]["mean"]
     assert masked < 0.2 * data["summary"]["backbone"]["masked"]["epe"]["mean"]
     assert len(data["scenes"]) == 2
-    assert (tmp_path / "e" / "eval.md").read_text().startswith("## ")
+    md = (tmp_path / "e" / "eval.md").read_text()
+    assert md.startswith("## ")
+    # how the folder was made, and every stereo-benchmark threshold, are in it
+    assert data["settings"] == {"dataset": str(dataset), "backbone": "default", "preset": None,
+                                "masks": "user", "srde_method": "default", "device": "cpu",
+                                "jobs": data["run"]["jobs"]}
+    assert "- masks: user" in md and "| fused |" in md and "| hybrid |" not in md
+    assert all(f"| {k} " in md for k in ("bad0.5", "bad1", "bad2", "bad3", "bad4", "d1"))
 
 
 # ---------------------------------------------------------------- bad input
