@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.colors import Normalize
+from matplotlib.colors import LogNorm, Normalize
 from matplotlib.figure import Figure
+from matplotlib.patches import Patch
 
 from .._atomic import write_atomic
 from ..errors import DisparityError
@@ -44,6 +45,8 @@ _ERROR_PERCENTILE = 98.0
 _COLORBAR_WIDTH = 0.05
 # Lowest upper end of the error scale, px (a perfect map would otherwise get a 0-wide scale).
 _MIN_ERROR_SCALE_PX = 0.05
+# The error colour bar starts here (log scale), pixels: errors below look alike.
+_LOG_ERROR_FLOOR_PX = 1e-3
 
 
 def _finite_range(arrays, lo_pct: float = 1.0, hi_pct: float = 99.0) -> tuple[float, float]:
@@ -192,8 +195,18 @@ def comparison_figure(image: np.ndarray, disparities: Mapping[str, np.ndarray], 
 
     if n_rows == 2:
         if source is not None:
-            axes[1, 0].imshow(colorize_source(source), interpolation="nearest")
-            axes[1, 0].set_title("source (colour = object k)")
+            ax = axes[1, 0]
+            ax.imshow(colorize_source(source), interpolation="nearest")
+            ax.set_title("source (colour = object k)")
+            # Number each object where its SRDE pixels are, so "object 2: fallback" on the
+            # console can be found on the picture (a fallback object has no pixels here).
+            for k in np.unique(source[source > 0]):
+                vv, uu = np.nonzero(source == k)
+                ax.text(float(uu.mean()), float(vv.mean()), str(int(k)), color="white",
+                        ha="center", va="center", fontsize=9, fontweight="bold")
+            ax.legend(handles=[Patch(color=BACKBONE_RGB, label="backbone kept"),
+                               Patch(color=INVALID_RGB, label="no value (maps)")],
+                      loc="lower left", fontsize=6, framealpha=0.7)
         if gt_disparity is not None:
             gt = np.asarray(gt_disparity, dtype=np.float64)
             errors = {name: np.abs(np.asarray(d, dtype=np.float64) - gt)
@@ -202,11 +215,14 @@ def comparison_figure(image: np.ndarray, disparities: Mapping[str, np.ndarray], 
             finite = np.concatenate(finite) if finite else np.zeros(0)
             err_max = (max(float(np.percentile(finite, _ERROR_PERCENTILE)), _MIN_ERROR_SCALE_PX)
                        if finite.size else 1.0)
+            # A logarithmic scale: SRDE's errors (thousandths to tenths of a pixel) and a
+            # network's (pixels to tens) both stay visible on one colour bar.
+            norm = LogNorm(vmin=min(_LOG_ERROR_FLOOR_PX, err_max / 10.0), vmax=err_max)
             err_im = None
             first = n_cols - len(errors)
             for col, (name, e) in enumerate(errors.items(), start=first):
-                err_im = axes[1, col].imshow(np.ma.masked_invalid(e), cmap=error_cmap,
-                                             vmin=0.0, vmax=err_max)
+                shown = np.ma.masked_invalid(np.maximum(e, norm.vmin))
+                err_im = axes[1, col].imshow(shown, cmap=error_cmap, norm=norm)
                 axes[1, col].set_title(f"|{name} - gt|")
             if err_im is not None:
                 fig.colorbar(err_im, cax=fig.add_subplot(grid[1, n_cols]), extend="max",
