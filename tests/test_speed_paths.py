@@ -23,7 +23,6 @@ from srde_fusion.geometry import Plane, incidence_angle_deg, plane_depth, plane_
 from srde_fusion.imaging import SATURATION_LEVEL_U8, saturation_mask
 from srde_fusion.srde import shifted_window
 from srde_fusion.srde.estimator import _mask_box, _paste
-from srde_fusion.synthetic import default_rig, render_dataset
 
 # Grid rays and per-pixel rays differ only in the order of float64 operations; arccos
 # near a head-on ray (0 deg) turns that into a few 1e-12 deg absolute.
@@ -117,15 +116,6 @@ def test_clipping_test_matches_saturation_mask(channels):
 
 
 # ---------------------------------------------------------------- parallel evaluation
-@pytest.fixture(scope="module")
-def two_scenes(tmp_path_factory):
-    """Two rendered scenes at 320 x 240, one glossy object each."""
-    root = tmp_path_factory.mktemp("two_scenes")
-    render_dataset(root, n_scenes=2, seed=5, rig=default_rig().scaled(0.5),
-                   background="textured", progress=False)
-    return root
-
-
 def _scores_only(evaluation) -> dict:
     data = evaluation.to_dict()
     del data["run"]
@@ -134,10 +124,10 @@ def _scores_only(evaluation) -> dict:
     return data
 
 
-def test_parallel_evaluation_gives_the_serial_numbers(two_scenes):
+def test_parallel_evaluation_gives_the_serial_numbers(dataset):
     loader = BackboneLoader(functools.partial(backbone_from, "default", None, threads=1))
-    serial = evaluate_dataset(two_scenes, loader, progress=False, jobs=1)
-    parallel = evaluate_dataset(two_scenes, loader, progress=False, jobs=2)
+    serial = evaluate_dataset(dataset, loader, progress=False, jobs=1)
+    parallel = evaluate_dataset(dataset, loader, progress=False, jobs=2)
     assert (serial.jobs, parallel.jobs) == (1, 2)
     assert [s.name for s in parallel.scenes] == [s.name for s in serial.scenes]
     assert _scores_only(parallel) == _scores_only(serial)
@@ -145,11 +135,11 @@ def test_parallel_evaluation_gives_the_serial_numbers(two_scenes):
     assert parallel.to_dict()["run"]["jobs"] == 2
 
 
-def test_a_bad_scene_is_recorded_in_parallel_too_and_raised_with_strict(two_scenes, tmp_path):
+def test_a_bad_scene_is_recorded_in_parallel_too_and_raised_with_strict(dataset, tmp_path):
     import shutil
 
     data = tmp_path / "data"
-    shutil.copytree(two_scenes, data)
+    shutil.copytree(dataset, data)
     (data / "scene_0000" / "rig.json").write_text("{")
     loader = BackboneLoader(functools.partial(backbone_from, "default", None, threads=1))
     evaluation = evaluate_dataset(data, loader, progress=False, jobs=2)
@@ -160,19 +150,19 @@ def test_a_bad_scene_is_recorded_in_parallel_too_and_raised_with_strict(two_scen
 
 
 @pytest.mark.parametrize("jobs", [0, -1, 1.5, True])
-def test_bad_jobs_raise(two_scenes, jobs):
+def test_bad_jobs_raise(dataset, jobs):
     with pytest.raises(SRDEError, match="jobs: expected a positive integer"):
-        evaluate_dataset(two_scenes, lambda left, right: left[..., 0] * 0.0, jobs=jobs)
+        evaluate_dataset(dataset, lambda left, right: left[..., 0] * 0.0, jobs=jobs)
 
 
-def test_unpicklable_backbone_with_jobs_raises(two_scenes):
+def test_unpicklable_backbone_with_jobs_raises(dataset):
     with pytest.raises(SRDEError, match="expected a picklable backbone or a BackboneLoader"):
-        evaluate_dataset(two_scenes, lambda left, right: left[..., 0] * 0.0, jobs=2,
+        evaluate_dataset(dataset, lambda left, right: left[..., 0] * 0.0, jobs=2,
                          progress=False)
 
 
-def test_eval_command_rejects_zero_jobs(two_scenes, capsys):
-    code = main(["eval", str(two_scenes), "--backbone", "default", "--jobs", "0"])
+def test_eval_command_rejects_zero_jobs(dataset, capsys):
+    code = main(["eval", str(dataset), "--backbone", "default", "--jobs", "0"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1
     assert "--jobs: expected a positive number of worker processes, got 0" in err[0]
