@@ -23,6 +23,8 @@ Stereo-network adapters are in :mod:`srde_fusion.adapters`.
 
 from __future__ import annotations
 
+import logging
+
 from .calibration import Board, LightEstimate, estimate_light
 from .errors import (
     BackboneError,
@@ -44,6 +46,9 @@ from .masks import HighlightSegmenter, OnnxMasker, UserMasks
 from .srde import SRDE, BatchedSRDE, SRDEResult, detect_highlight
 
 __version__ = "0.1.0"
+
+# The library logs to "srde_fusion" and leaves handlers to the application (the CLI's -v).
+logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 
 

@@ -7,6 +7,7 @@ lives in the library. Bad input exits with code 2 and one line on stderr, no tra
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 
 from .. import __version__
@@ -32,9 +33,42 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for module in _COMMAND_MODULES:
         module.register(sub)
+    for p in sub.choices.values():
+        p.add_argument("-v", "--verbose", action="count", default=0,
+                       help="say what is being done (-vv: and every decision)")
+        if not any("--quiet" in a.option_strings for a in p._actions):
+            p.add_argument("--quiet", action="store_true", help="errors only")
     for p in (parser, *sub.choices.values()):
         _one_line_errors(p)
     return parser
+
+
+def _configure_logging(verbose: int, quiet: bool) -> None:
+    """Send the library's log records to stderr at the level the flags ask for."""
+    if quiet:
+        level = logging.ERROR
+    elif verbose >= 2:
+        level = logging.DEBUG
+    else:
+        level = logging.INFO if verbose == 1 else logging.WARNING
+    logger = logging.getLogger("srde_fusion")
+    logger.setLevel(level)
+    if not any(isinstance(h, _StderrHandler) for h in logger.handlers):
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("srde-fusion: %(message)s"))
+        logger.addHandler(handler)
+
+
+class _StderrHandler(logging.StreamHandler):
+    """A handler writing to whatever ``sys.stderr`` is when a record is emitted."""
+
+    @property
+    def stream(self):  # noqa: D102
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:
+        pass
 
 
 def _one_line_errors(parser: argparse.ArgumentParser) -> None:
@@ -50,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command; returns the exit code (0 ok, 1 some scenes failed, 2 bad input)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    _configure_logging(args.verbose, args.quiet)
     try:
         result = args.func(args)
     except SRDEError as exc:

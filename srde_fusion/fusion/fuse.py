@@ -25,6 +25,7 @@ bit for bit, or a finite SRDE value.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -49,6 +50,8 @@ from .checks import (
 )
 from .estimate import ObjectEstimate, PlaneEstimator, read_estimate
 from .report import SOURCE_BACKBONE, FusionResult, ObjectReport
+
+_log = logging.getLogger(__name__)
 
 __all__ = [
     "fuse",
@@ -147,6 +150,7 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
                            [gray_levels(v) for v in views])
 
     reports = []
+    _log.info("fusing %d object(s)", len(mask_list))
     for k, mask in enumerate(mask_list, start=1):
         estimate = read_estimate(srde.estimate(views, mask))
         n_mask = int(np.count_nonzero(mask))
@@ -164,6 +168,7 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
             fused[decision.take] = estimate.disparity[decision.take]
             source[decision.take] = k
         reports.append(decision.report)
+        _log.debug("object %d: %s - %s", k, decision.report.status, decision.report.reason)
 
     return FusionResult(fused, source, tuple(reports), backbone)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 import os
 from collections.abc import Callable
@@ -47,6 +48,8 @@ from ..io import (
 from ..masks import HighlightSegmenter, resolve_masker
 from ..srde import SRDE
 from ..synthetic import default_rig, random_scene, render, scene_to_dict
+
+_log = logging.getLogger(__name__)
 
 __all__ = [
     "DemoResult",
@@ -178,6 +181,7 @@ def write_fusion_outputs(out_dir: str | os.PathLike, result: FusionResult,
     SceneRun
     """
     out = Path(out_dir)
+    _log.info("writing the results into %s", out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -275,6 +279,7 @@ def run_demo(out_dir: str | os.PathLike = "demo_out", *, seed: int = DEMO_SEED,
                             gt_disparity=rendering.disparity_px,
                             metadata={"seed": seed, "scene": scene_to_dict(scene)})
 
+    _log.info("rendered the demo scene into %s; running the backbone and fusing", scene_dir)
     model = HybridStereo(backbone, rig, masker=HighlightSegmenter())
     result = model(rendering.views)
     diagnostics = model.masker.last_diagnostics
@@ -331,6 +336,8 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     choice = resolve_masker("auto" if auto_mask and mask is None else mask,
                             scene_labels=scene.mask_labels, where=str(scene.path))
     masker, source = choice.masker, choice.description
+    _log.info("%s: masks %s; %s", scene.name, source,
+              "running the backbone" if backbone is not None else "using the given disparity")
     if backbone is not None:
         result = HybridStereo(backbone, scene.rig, light, masker)(scene.views)
     else:

@@ -251,3 +251,14 @@ def test_device_option_fails_early_without_the_device(dataset, tmp_path, capsys)
     code, out, err = run_cli(capsys, "fuse", dataset / "scene_0000", "--backbone", "default",
                              "--device", "tpu", "--out", tmp_path / "o")
     assert_one_line_error(code, out, err, "fuse", "--device: expected cpu or cuda[:N], got 'tpu'")
+
+
+def test_verbose_says_what_is_done_and_quiet_keeps_stderr_for_errors(dataset, tmp_path, capsys):
+    code, out, err = run_cli(capsys, "fuse", "-vv", dataset / "scene_0000", "--disparity",
+                             dataset / "scene_0000" / "gt_disparity.pfm", "--out", tmp_path / "o")
+    assert code == 0, err
+    assert "srde-fusion: scene_0000: masks user (scene mask.png); using the given disparity" in err
+    assert "srde-fusion: fusing 1 object(s)" in err and "srde-fusion: object 1: srde" in err
+    code, out, err = run_cli(capsys, "fuse", "--quiet", dataset / "scene_0000", "--disparity",
+                             dataset / "scene_0000" / "gt_disparity.pfm", "--out", tmp_path / "o")
+    assert code == 0 and err == ""
