@@ -7,13 +7,23 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..errors import SRDEError
 from ..evaluation import format_markdown_table
 from ..fusion import FusionResult
-from ..workflows import DEMO_OBJECTS, DEMO_SEED, SceneRun, fuse_scene, run_demo, srde_scene
+from ..workflows import (
+    DEMO_OBJECTS,
+    DEMO_SEED,
+    SceneRun,
+    fuse_dataset,
+    fuse_scene,
+    run_demo,
+    srde_scene,
+)
 from .backbones import backbone_from
 
 __all__ = ["register"]
@@ -50,9 +60,29 @@ def _cli_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_dataset(folder: str) -> bool:
+    """Say whether the folder holds scene folders rather than being one scene."""
+    path = Path(folder)
+    return (path.is_dir() and not (path / "rig.json").is_file()
+            and not (path / "calib.txt").is_file()
+            and any((p / "rig.json").is_file() or (p / "calib.txt").is_file()
+                    for p in path.iterdir() if p.is_dir()))
+
+
 def _cli_fuse(args: argparse.Namespace) -> int:
     backbone = (None if args.backbone is None
                 else backbone_from(args.backbone, args.preset, device=args.device))
+    if _is_dataset(args.scene_dir):
+        if backbone is None:
+            raise SRDEError(f"{args.scene_dir}: expected --backbone for a folder of scenes "
+                            f"(one --disparity map cannot serve several scenes), got --disparity")
+        dataset = fuse_dataset(args.scene_dir, args.out, backbone=backbone, mask=args.mask,
+                               auto_mask=args.auto_mask, light=args.light,
+                               progress=not args.quiet)
+        for name, reason in dataset.failures.items():
+            print(f"{name}: failed - {reason}")
+        print(f"{dataset.summary()}; results in {Path(args.out)}/<scene>/")
+        return 1 if dataset.failures else 0
     run = fuse_scene(args.scene_dir, args.out, backbone=backbone, disparity=args.disparity,
                      disparity_scale=args.disparity_scale, mask=args.mask,
                      auto_mask=args.auto_mask, light=args.light)
@@ -143,7 +173,8 @@ def register(subparsers: Any) -> None:
         "disparity by SRDE's where SRDE succeeds and agrees with the model, and write the "
         "fused disparity, source map, report and figure.")
     p.add_argument("scene_dir", help="scene folder: rig.json (with the light), cam*.png, "
-                   "optional mask.png and gt_disparity.pfm")
+                   "optional mask.png and gt_disparity.pfm; or a Middlebury folder; or a folder "
+                   "of scene folders, each fused into OUT/<scene>")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--backbone",
                         help="'default' (bundled stand-in network) or a stereo model .onnx")

@@ -9,8 +9,10 @@ from __future__ import annotations
 from .scene_runs import (
     DEMO_OBJECTS,
     DEMO_SEED,
+    DatasetRun,
     DemoResult,
     SceneRun,
+    fuse_dataset,
     fuse_scene,
     run_demo,
     scores_table,
@@ -26,6 +28,8 @@ __all__ = [
     "run_demo",
     "fuse_scene",
     "srde_scene",
+    "fuse_dataset",
+    "DatasetRun",
     "DEMO_SEED",
     "DEMO_OBJECTS",
 ]

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from .._atomic import write_atomic
 from .._json import json_safe
@@ -36,6 +37,7 @@ from ..fusion import FusionResult, HybridStereo, fuse, postprocess
 from ..geometry import CameraRig
 from ..io import (
     disparity_to_points,
+    list_scenes,
     read_disparity,
     read_scene,
     write_disparity,
@@ -59,6 +61,8 @@ __all__ = [
     "run_demo",
     "fuse_scene",
     "srde_scene",
+    "fuse_dataset",
+    "DatasetRun",
     "DEMO_SEED",
     "DEMO_OBJECTS",
 ]
@@ -391,3 +395,65 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
                                 title=f"{scene.name}: SRDE alone", srde_only=True, rig=rig,
                                 extra={"scene": str(scene.path), "masks": source})
     return dataclasses.replace(run, masks=source)
+
+
+@dataclass(frozen=True)
+class DatasetRun:
+    """What :func:`fuse_dataset` produced: one :class:`SceneRun` per scene, and failures.
+
+    Attributes
+    ----------
+    runs : dict of str -> SceneRun
+        By scene name, in dataset order.
+    failures : dict of str -> str
+        Scene name -> why it could not be fused.
+    """
+
+    runs: dict
+    failures: dict
+
+    def summary(self) -> str:
+        """One line: scenes fused, objects, how many used SRDE, failures."""
+        objects = [o for r in self.runs.values() for o in r.fusion.objects]
+        used = sum(o.used_srde for o in objects)
+        text = (f"{len(self.runs)} scene(s) fused, {len(objects)} object(s): SRDE used on "
+                f"{used}, backbone kept on {len(objects) - used}")
+        return text + (f"; {len(self.failures)} scene(s) failed" if self.failures else "")
+
+
+def fuse_dataset(dataset_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
+                 backbone: Backbone, mask: Any = None, auto_mask: bool = False,
+                 light: Any = None, progress: bool = True, strict: bool = False) -> DatasetRun:
+    """Fuse every scene folder of a dataset with one backbone, each into ``out_dir/<scene>``.
+
+    Parameters
+    ----------
+    dataset_dir : path
+        A folder of scene folders (see :func:`~srde_fusion.io.list_scenes`).
+    out_dir : path
+    backbone : callable
+        Loaded once, run on every scene.
+    mask, auto_mask, light
+        As :func:`fuse_scene`, for every scene.
+    progress : bool
+        Show a progress bar on stderr.
+    strict : bool
+        Stop at the first scene that cannot be fused; by default it is recorded in
+        ``failures`` and the others are still fused.
+
+    Returns
+    -------
+    DatasetRun
+    """
+    folders = list_scenes(dataset_dir)
+    runs, failures = {}, {}
+    for folder in tqdm(folders, desc="fusing", unit="scene", disable=not progress):
+        try:
+            runs[folder.name] = fuse_scene(folder, Path(out_dir) / folder.name,
+                                           backbone=backbone, mask=mask, auto_mask=auto_mask,
+                                           light=light)
+        except SRDEError as exc:
+            if strict:
+                raise
+            failures[folder.name] = f"{type(exc).__name__}: {exc}"
+    return DatasetRun(runs, failures)

@@ -262,3 +262,22 @@ def test_verbose_says_what_is_done_and_quiet_keeps_stderr_for_errors(dataset, tm
     code, out, err = run_cli(capsys, "fuse", "--quiet", dataset / "scene_0000", "--disparity",
                              dataset / "scene_0000" / "gt_disparity.pfm", "--out", tmp_path / "o")
     assert code == 0 and err == ""
+
+
+def test_fuse_a_folder_of_scenes_in_one_call(dataset, flat_backbone, tmp_path, capsys):
+    ds = tmp_path / "ds"
+    for name in ("scene_0000", "scene_0001"):
+        scene = read_scene(dataset / name)
+        write_scene(ds / name, scene.views, scene.rig, mask=scene.mask_labels)
+    (ds / "scene_0001" / "cam4.png").write_bytes(b"broken")
+    code, out, err = run_cli(capsys, "fuse", ds, "--backbone", flat_backbone, "--preset",
+                             "generic", "--out", tmp_path / "o", "--quiet")
+    assert code == 1
+    assert "scene_0001: failed - FileFormatError:" in out
+    assert "1 scene(s) fused, 1 object(s): SRDE used on 1, backbone kept on 0; 1 scene(s) " \
+        "failed" in out
+    assert (tmp_path / "o" / "scene_0000" / "fused_disparity.pfm").is_file()
+    assert not (tmp_path / "o" / "scene_0001").exists()
+    code, out, err = run_cli(capsys, "fuse", ds, "--disparity", ds / "x.pfm", "--out",
+                             tmp_path / "o2")
+    assert_one_line_error(code, out, err, "fuse", "expected --backbone for a folder of scenes")
