@@ -15,12 +15,14 @@ __all__ = [
     "srgb_to_linear",
     "linear_to_srgb",
     "to_float",
+    "to_linear",
     "luminance",
     "saturation_mask",
     "REC709_LUMA",
     "IMAGE_ENCODINGS",
     "SATURATION_LEVEL_U8",
     "SRGB_TO_LINEAR_U8",
+    "LINEAR_U8",
 ]
 
 #: Rec. 709 / sRGB luminance weights for linear RGB.
@@ -60,6 +62,44 @@ def to_float(image: np.ndarray) -> np.ndarray:
     return image.astype(np.float32, copy=False)
 
 
+#: Linear value of every uint8 code of a linearly encoded image, (256,) float32.
+LINEAR_U8 = np.arange(256, dtype=np.float32) / 255.0
+
+
+def to_linear(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
+    """Linear intensity of an image, channels kept.
+
+    Parameters
+    ----------
+    image : numpy.ndarray, (H, W) or (H, W, 3), uint8 or float in [0, 1]
+    encoding : {"srgb", "linear"}
+        How the image values encode intensity.
+
+    Returns
+    -------
+    numpy.ndarray, same shape as ``image``, float32
+        Linear intensity in [0, 1]; a float32 linear image is returned as it is.
+
+    Raises
+    ------
+    ImageError
+        An unknown ``encoding``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> to_linear(np.array([[0, 255]], np.uint8)).tolist()
+    [[0.0, 1.0]]
+    """
+    if encoding not in IMAGE_ENCODINGS:
+        raise ImageError(f"encoding: expected one of {list(IMAGE_ENCODINGS)}, got {encoding!r}")
+    if image.dtype == np.uint8:
+        return (SRGB_TO_LINEAR_U8 if encoding == "srgb" else LINEAR_U8)[image]
+    if encoding == "srgb":
+        return srgb_to_linear(image)
+    return image.astype(np.float32, copy=False)
+
+
 def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
     """Linear luminance of a grey or RGB image.
 
@@ -85,15 +125,7 @@ def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
     >>> float(luminance(np.full((2, 2, 3), 255, np.uint8))[0, 0])
     1.0
     """
-    if encoding not in IMAGE_ENCODINGS:
-        raise ImageError(f"encoding: expected one of {list(IMAGE_ENCODINGS)}, got {encoding!r}")
-    if encoding == "srgb":
-        if image.dtype == np.uint8:
-            lin = SRGB_TO_LINEAR_U8[image]
-        else:
-            lin = srgb_to_linear(image)
-    else:
-        lin = to_float(image)
+    lin = to_linear(image, encoding)
     if lin.ndim == 3:
         lin = lin @ REC709_LUMA
     return lin.astype(np.float32, copy=False)

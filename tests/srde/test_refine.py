@@ -22,8 +22,11 @@ from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine import LOBES, PlaneRefinement, refine_plane
 from srde_fusion.srde.refine.layout import I_FORE, I_SPEC, I_TAIL, N_PLANE
 from srde_fusion.srde.refine.model import DEFAULT_F0, LobeModel
-from srde_fusion.srde.refine.plane import _warp_change_px
-from srde_fusion.srde.refine.samples import _references_from_views, sample_windows
+from srde_fusion.srde.refine.samples import (
+    references_from_views,
+    sample_windows,
+    warp_change_px,
+)
 from srde_fusion.synthetic import random_scene, render
 
 # Tolerances, in one place. Disparity errors are masked mean absolute errors (EPE), px.
@@ -323,7 +326,7 @@ def test_plane_induced_map_agrees_with_ray_casting(rig, tilt_x, tilt_y, depth, c
     center = rig.centers_m[camera]
     point = center + ray * (plane.offset_m - plane.n @ center) / (plane.n @ ray)
     expected = rig.project(point)
-    to_ref = _references_from_views(rig, plane)[camera]
+    to_ref = references_from_views(rig, plane)[camera]
     assert to_ref @ [u, v, 1.0] == pytest.approx(expected, abs=1e-6)
 
 
@@ -341,4 +344,4 @@ def test_warp_change_is_the_largest_corner_move_by_ray_casting(rig):
 
     expected = max(np.max(np.abs(seen(after, j) - seen(before, j))) for j in range(9))
     assert expected > 1.0
-    assert _warp_change_px(rig, before, after, box) == pytest.approx(expected, rel=1e-9)
+    assert warp_change_px(rig, before, after, box) == pytest.approx(expected, rel=1e-9)

@@ -67,7 +67,7 @@ from .samples import (
     low_quantile_of,
     mask_bbox,
     sample_windows,
-    views_from_reference,
+    warp_change_px,
 )
 from .solver import levenberg_marquardt
 
@@ -387,23 +387,10 @@ def _resampled(setup: _Setup, attempt: _Attempt, *, keep_photometry: bool) -> _A
     them off the object. Returns the new attempt if it passes, else None.
     """
     plane = attempt.model.plane(attempt.fit.theta)
-    if not _warp_change_px(setup.rig, attempt.sample_plane, plane, setup.box) > MASK_MARGIN_PX:
+    if not warp_change_px(setup.rig, attempt.sample_plane, plane, setup.box) > MASK_MARGIN_PX:
         return None
     again = _attempt(setup, plane, photometry=attempt.fit.theta if keep_photometry else None)
     return again if isinstance(again, _Attempt) and not again.problem else None
-
-
-def _warp_change_px(rig: CameraRig, before: Plane, after: Plane, box) -> float:
-    """Largest move (px) of the object box's corners, mapped into any other camera.
-
-    Compares where the mappings that two planes induce send the reference mask's box
-    ``(x, y, width, height)``.
-    """
-    x, y, w, h = box
-    corners = np.array([[x, x + w - 1, x, x + w - 1], [y, y, y + h - 1, y + h - 1],
-                        [1.0, 1.0, 1.0, 1.0]])
-    moved = (views_from_reference(rig, after) - views_from_reference(rig, before)) @ corners
-    return float(np.max(np.abs(moved)))  # (the reference view's rows are 0)
 
 
 def _fit(model: LobeModel, theta0: np.ndarray, max_iterations: int) -> _Fit:

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from ...geometry import CameraRig, Plane
-from ...imaging import REC709_LUMA, luminance, saturation_mask, srgb_to_linear
+from ...imaging import REC709_LUMA, luminance, saturation_mask, to_linear
 
 # --- fitting window -------------------------------------------------------------------
 #: The window's half-size is at most this fraction of the smaller image side.
@@ -59,13 +59,6 @@ _SIZING_VIEWS = 3
 _BACKGROUND_QUANTILE = 0.2
 
 
-# uint8 code -> linear intensity, per image encoding
-_DECODE_LUT = {
-    "srgb": srgb_to_linear(np.arange(256, dtype=np.float32) / 255.0),
-    "linear": np.arange(256, dtype=np.float32) / 255.0,
-}
-
-
 @dataclass(frozen=True)
 class HighlightSamples:
     """Samples fitted, all views stacked, unsaturated first; arrays ``(P,)`` or ``(P, 3)``.
@@ -106,7 +99,7 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
               and -max_half <= centers[i, 1] <= h + max_half]
     if not usable:
         return "samples: no view has a highlight centre inside or near the image"
-    maps = _references_from_views(rig, plane)
+    maps = references_from_views(rig, plane)
     to_ref = {i: None if i == rig.reference else maps[i] for i in usable}
 
     # Size the window from the blob's half-maximum radius, seen on a coarse grid in a few
@@ -227,7 +220,7 @@ def views_from_reference(rig: CameraRig, plane: Plane) -> np.ndarray:
     return maps
 
 
-def _references_from_views(rig: CameraRig, plane: Plane) -> np.ndarray:
+def references_from_views(rig: CameraRig, plane: Plane) -> np.ndarray:
     """Affine maps ``(N, 2, 3)`` from each camera's pixels to the reference pixels."""
     forward = views_from_reference(rig, plane)
     a, t = forward[:, :, :2], forward[:, :, 2]
@@ -237,6 +230,19 @@ def _references_from_views(rig: CameraRig, plane: Plane) -> np.ndarray:
     inverse[:, 0, 1], inverse[:, 1, 0] = -a[:, 0, 1] / det, -a[:, 1, 0] / det
     inverse[:, :, 2] = -np.einsum("nij,nj->ni", inverse[:, :, :2], t)
     return inverse
+
+
+def warp_change_px(rig: CameraRig, before: Plane, after: Plane, box) -> float:
+    """Largest move (px) of the object box's corners, mapped into any other camera.
+
+    Compares where the mappings that two planes induce send the reference mask's box
+    ``(x, y, width, height)``.
+    """
+    x, y, w, h = box
+    corners = np.array([[x, x + w - 1, x, x + w - 1], [y, y, y + h - 1, y + h - 1],
+                        [1.0, 1.0, 1.0, 1.0]])
+    moved = (views_from_reference(rig, after) - views_from_reference(rig, before)) @ corners
+    return float(np.max(np.abs(moved)))  # (the reference view's rows are 0)
 
 
 def _object_lookup(eroded_ref: _Eroded, to_ref: np.ndarray | None, uu: np.ndarray,
@@ -273,7 +279,7 @@ def _block_window(view: np.ndarray, rig: CameraRig, block_mask: np.ndarray, to_r
     u0, v0 = start + lo * block
     nu, nv = (int(x) for x in hi - lo)
     crop = view[v0:v0 + nv * block, u0:u0 + nu * block]
-    lum = _decode(crop, rig.image_encoding)
+    lum = to_linear(crop, rig.image_encoding)
     if lum.ndim == 3:
         lum = cv2.transform(lum, REC709_LUMA.reshape(1, 3))
     clipped = saturation_mask(crop)
@@ -289,12 +295,3 @@ def _block_window(view: np.ndarray, rig: CameraRig, block_mask: np.ndarray, to_r
     inside = _object_lookup(block_mask, to_ref, uu, vv)
     return (np.stack([uu, vv], axis=1), lum.ravel().astype(np.float64), clipped.ravel(),
             inside)
-
-
-def _decode(image: np.ndarray, encoding: str) -> np.ndarray:
-    """Linear intensity ``(H, W[, 3])`` float32 of a crop (a table for uint8 images)."""
-    if image.dtype == np.uint8:
-        return cv2.LUT(image, _DECODE_LUT[encoding])
-    if encoding == "srgb":
-        return srgb_to_linear(image)
-    return image.astype(np.float32)
