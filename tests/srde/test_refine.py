@@ -202,8 +202,8 @@ def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail):
         up, down = theta.copy(), theta.copy()
         up[index] += SLOPE_STEPS[index]
         down[index] -= SLOPE_STEPS[index]
-        expected = (model._model(model.reflection.geometry(up[:N_PLANE]), up)
-                    - model._model(model.reflection.geometry(down[:N_PLANE]), down)) / (
+        expected = (model.luminance(model.reflection.geometry(up[:N_PLANE]), up)
+                    - model.luminance(model.reflection.geometry(down[:N_PLANE]), down)) / (
                         2 * SLOPE_STEPS[index])
         scale = np.max(np.abs(expected))
         assert scale > 0

@@ -19,24 +19,8 @@ samples near the highlights, with the intensities solved in closed form at every
 (variable projection); its own cost decides whether the refined plane replaces the
 initial one.
 
-The shading model, for a sample whose ray meets the plane at X (array frame, metres)::
-
-    Y = level + diffuse * (g_d - 1) + specular * S(n . h) * g_s
-
-    g_d = cos(theta_i) / r^2
-    g_s = F(omega_i . h) * (cos(theta_i) cos(theta_o))^k / (cos(theta_o) r^2)
-
-``g_d`` and ``g_s`` are normalised to a median of 1 over the samples at the initial plane,
-so ``specular`` and ``diffuse`` read as luminances at the highlight and
-``level = ambient + diffuse``. ``r`` is the distance from X to the light, ``h`` the half
-vector between the directions to the light and to the camera, ``F`` Schlick's Fresnel
-term and ``S`` the lobe scaled to a peak of 1. The foreshortening exponent ``k`` spans the
-conventions in use: ``k = 0`` is the Cook-Torrance microfacet BRDF
-``D F G / (4 cos(theta_i) cos(theta_o))`` (its radiance under a point light is
-``I D F G / (4 cos(theta_o) r^2)``; ``G ~ 1`` near the mirror direction), ``k = 1`` a
-Phong-style BRDF without the ``1 / (4 cos cos)`` factor. Near the mirror direction the
-factor tilts the lobe across the image, which shifts its peak, so it must be modelled
-(or fitted) rather than ignored.
+The shading model and its parameters are described in
+:mod:`~srde_fusion.srde.refine.model`.
 """
 
 from __future__ import annotations
@@ -52,15 +36,8 @@ from ..._checks import check_mask, check_point3, check_views
 from ...errors import ImageError, SRDEError
 from ...geometry import CameraRig, Plane, plane_from_lights
 from .layout import I_FORE, I_SPEC, N_PLANE
-from .model import (
-    DEFAULT_F0,
-    DEFAULT_LOBE,
-    FORESHORTENING_BOUNDS,
-    LOBES,
-    WIDTH_GRID,
-    LobeFit,
-    LobeModel,
-)
+from .lobes import DEFAULT_LOBE, LOBES
+from .model import DEFAULT_F0, FORESHORTENING_BOUNDS, WIDTH_GRID, LobeFit, LobeModel
 from .samples import (
     MASK_MARGIN_PX,
     HighlightSamples,
@@ -83,6 +60,11 @@ MAX_RELATIVE_RESIDUAL = 0.05
 
 #: The refined highlight may move at most this fraction of the window half-size.
 MAX_SHIFT_FRACTION = 0.5
+
+
+# The joint fit also ends when a step lowers the cost by less than _COST_RTOL (relative;
+# see levenberg_marquardt for the plane's own rule). Fits that only seed or compare stop
+# at _PHOTOMETRIC_COST_RTOL.
 _COST_RTOL = 1e-7
 _PHOTOMETRIC_COST_RTOL = 1e-4
 

@@ -26,7 +26,7 @@ class ShadingGeometry:
     """Shading geometry of the samples for one plane, arrays ``(P,)``.
 
     Besides the shading terms it keeps the intermediates of their derivatives with
-    respect to the plane (see :meth:`LobeModel.jacobian`).
+    respect to the plane (see :mod:`~.slopes`).
     """
 
     cos_h: np.ndarray  # cosine of the half-vector angle

@@ -1,27 +1,26 @@
-"""Levenberg-Marquardt with bounds on the free parameters, for the lobe model.
+"""Levenberg-Marquardt with bounds on the free parameters, and 3x3 normal equations.
 
-The model supplies residuals, a Jacobian of the free parameters and bounds; the solver
-adds damping to the normal equations, keeps steps inside the bounds and stops when the
-cost or the disparity stops moving.
+:func:`levenberg_marquardt` works on any :class:`LeastSquaresModel`: the model supplies
+residuals, a Jacobian of the free parameters and its bounds; the solver adds damping to
+the normal equations, keeps steps inside the bounds and stops when the cost or the
+disparity stops moving. :func:`solve_normal` is the small solve the lobe model's
+intensities use.
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from .layout import N_PLANE
 
-if TYPE_CHECKING:  # the model imports this module's normal-equation solve
-    from .model import LobeModel
+__all__ = ["LeastSquaresModel", "levenberg_marquardt", "solve_normal"]
 
-# Levenberg-Marquardt: start and largest damping, and stopping rules. A joint step ends
-# the fit when it moves the disparity at the object's corners by less than
-# _DISPARITY_STEP_TOL_PX and lowers the cost by less than _PLANE_COST_RTOL (relative), or
-# lowers it by less than _COST_RTOL. Photometric-only fits only seed or compare, and stop
-# at _PHOTOMETRIC_COST_RTOL.
+# Levenberg-Marquardt: start and largest damping, and the plane's stopping rule: a step
+# that moves the disparity at the object's corners by less than _DISPARITY_STEP_TOL_PX
+# and lowers the cost by less than _PLANE_COST_RTOL (relative) ends the fit.
 _LAMBDA0 = 1e-3
 _LAMBDA_MAX = 1e8
 _DISPARITY_STEP_TOL_PX = 1e-4
@@ -62,7 +61,29 @@ def solve_normal(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     return (scale_v[:, None] * x).reshape(rhs.shape)
 
 
-def levenberg_marquardt(model: LobeModel, theta0: np.ndarray, free: np.ndarray,
+class LeastSquaresModel(Protocol):
+    """What :func:`levenberg_marquardt` needs of a model of parameters ``theta``.
+
+    Parameters ``0 .. N_PLANE - 1`` of ``theta`` are the plane's (see ``layout``).
+    """
+
+    def evaluate(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Residual ``(P,)`` at ``theta``, and ``theta`` with its dependent parameters set."""
+
+    def jacobian(self, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """Transposed Jacobian ``(len(free), P)`` of the residual by ``theta[free]``."""
+
+    def gram(self, jac: np.ndarray) -> np.ndarray:
+        """``jac @ jac.T``, ``(len(free), len(free))``."""
+
+    def clamp(self, theta: np.ndarray) -> np.ndarray:
+        """``theta`` with its bounded parameters moved inside their bounds (in place)."""
+
+    def disparity_change_px(self, before: np.ndarray, after: np.ndarray) -> float:
+        """Largest change of the disparity between the planes of two ``theta``, pixels."""
+
+
+def levenberg_marquardt(model: LeastSquaresModel, theta0: np.ndarray, free: np.ndarray,
                          max_iterations: int, *, cost_rtol: float):
     """Minimise the mean squared residual over ``theta[free]`` (intensities follow).
 
