@@ -13,8 +13,6 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
-from hypothesis import strategies as st
 
 from srde_fusion.errors import ImageError, LightError, MaskError, SRDEError
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity, plane_from_lights
@@ -22,11 +20,7 @@ from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine import LOBES, PlaneRefinement, refine_plane
 from srde_fusion.srde.refine.layout import I_FORE, I_SPEC, I_TAIL, N_PLANE
 from srde_fusion.srde.refine.model import DEFAULT_F0, LobeModel
-from srde_fusion.srde.refine.samples import (
-    references_from_views,
-    sample_windows,
-    warp_change_px,
-)
+from srde_fusion.srde.refine.samples import sample_windows
 from srde_fusion.synthetic import random_scene, render
 
 # Tolerances, in one place. Disparity errors are masked mean absolute errors (EPE), px.
@@ -315,33 +309,3 @@ def test_keyword_input_errors(rough_ggx, kwargs, error, match):
 def test_every_lobe_name_is_accepted(rough_ggx):
     for lobe in LOBES:
         assert refine_plane(*_args(rough_ggx), lobe=lobe, max_iterations=1).lobe == lobe
-
-
-# ------------------------------------------------------------------ geometry helper
-@given(tilt_x=st.floats(-0.5, 0.5), tilt_y=st.floats(-0.5, 0.5), depth=st.floats(0.4, 3.0),
-       camera=st.integers(0, 8), u=st.floats(0, 319), v=st.floats(0, 239))
-def test_plane_induced_map_agrees_with_ray_casting(rig, tilt_x, tilt_y, depth, camera, u, v):
-    plane = Plane.from_point_normal([0.0, 0.0, depth], [tilt_x, tilt_y, -1.0])
-    ray = rig.rays(np.array([u, v]))
-    center = rig.centers_m[camera]
-    point = center + ray * (plane.offset_m - plane.n @ center) / (plane.n @ ray)
-    expected = rig.project(point)
-    to_ref = references_from_views(rig, plane)[camera]
-    assert to_ref @ [u, v, 1.0] == pytest.approx(expected, abs=1e-6)
-
-
-def test_warp_change_is_the_largest_corner_move_by_ray_casting(rig):
-    before = Plane.from_point_normal([0.0, 0.0, 1.0], [0.1, -0.2, -1.0])
-    after = Plane.from_point_normal([0.0, 0.0, 1.1], [0.15, -0.2, -1.0])
-    box = (40, 30, 100, 80)  # x, y, width, height
-    corners = np.array([[40.0, 30.0], [139.0, 30.0], [40.0, 109.0], [139.0, 109.0]])
-    rays = rig.rays(corners)
-    ref = rig.reference_center_m
-
-    def seen(plane, camera):
-        points = ref + rays * ((plane.offset_m - plane.n @ ref) / (rays @ plane.n))[:, None]
-        return rig.project(points, camera)
-
-    expected = max(np.max(np.abs(seen(after, j) - seen(before, j))) for j in range(9))
-    assert expected > 1.0
-    assert warp_change_px(rig, before, after, box) == pytest.approx(expected, rel=1e-9)
