@@ -94,7 +94,12 @@ def to_linear(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
     if encoding not in IMAGE_ENCODINGS:
         raise ImageError(f"encoding: expected one of {list(IMAGE_ENCODINGS)}, got {encoding!r}")
     if image.dtype == np.uint8:
-        return (SRGB_TO_LINEAR_U8 if encoding == "srgb" else LINEAR_U8)[image]
+        table = SRGB_TO_LINEAR_U8 if encoding == "srgb" else LINEAR_U8
+        if image.size == 0 or image.ndim == 0:  # OpenCV takes no empty or 0-d arrays
+            return table[image]
+        # OpenCV's table lookup is several times faster than numpy's gather (the same
+        # values); it drops a trailing channel axis of length 1, hence the reshape.
+        return cv2.LUT(image, table).reshape(image.shape)
     if encoding == "srgb":
         return srgb_to_linear(image)
     return image.astype(np.float32, copy=False)
