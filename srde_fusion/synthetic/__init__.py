@@ -11,6 +11,9 @@ from .datasets import (
     scene_from_dict,
     scene_to_dict,
 )
+from .physics import (
+    Physics,
+)
 from .plates import (
     highlight_normal,
     plate_scene,
@@ -34,9 +37,13 @@ from .scene import (
 from .shading import (
     LOBES,
     blinn_phong_exponent,
+    disc_samples,
+    fresnel_exact,
     ggx_ndf,
+    ior_from_f0,
     schlick_fresnel,
     smith_g1_ggx,
+    smith_g2_height_correlated,
     specular_brdf,
     widened_roughness,
 )
@@ -51,6 +58,7 @@ __all__ = [
     "RandomSceneConfig",
     "random_scene",
     "render",
+    "Physics",
     "Material",
     "PlanarObject",
     "Light",
@@ -62,6 +70,10 @@ __all__ = [
     "ggx_ndf",
     "smith_g1_ggx",
     "schlick_fresnel",
+    "fresnel_exact",
+    "ior_from_f0",
+    "smith_g2_height_correlated",
+    "disc_samples",
     "blinn_phong_exponent",
     "widened_roughness",
     "specular_brdf",

@@ -46,6 +46,8 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
                 "roughness": o.material.roughness,
                 "lobe": o.material.lobe,
                 "f0": o.material.f0,
+                "ior": o.material.ior,
+                "extinction": o.material.extinction,
             },
             "textured": o.texture is not None,
         }

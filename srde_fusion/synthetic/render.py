@@ -5,10 +5,16 @@ analytically against planar objects, vectorised over the image; objects occlude 
 other and the background, the nearest hit wins. Shading is physically based in linear
 light: Lambertian diffuse with inverse-square and cosine falloff, a white ambient term,
 and a specular lobe from :mod:`srde_fusion.synthetic.shading` (GGX microfacet or
-normalised Blinn-Phong). The spherical light widens the lobe (see
-:func:`srde_fusion.synthetic.shading.widened_roughness`); nothing casts shadows and there
-are no inter-reflections. Linear radiance is scaled by the exposure, gets Gaussian sensor
-noise, is sRGB-encoded and clipped to 8 bits, so highlights saturate as in a real camera.
+normalised Blinn-Phong); nothing casts shadows and there are no inter-reflections.
+Linear radiance is scaled by the exposure, gets sensor noise, is sRGB-encoded and clipped
+to 8 bits, so highlights saturate as in a real camera.
+
+By default the physics is the refinement's own model: Schlick's Fresnel and a spherical
+light folded into a wider lobe (:func:`srde_fusion.synthetic.shading.widened_roughness`).
+A :class:`~srde_fusion.synthetic.physics.Physics` switches on, one by one, what that
+model does not assume: exact Fresnel, the light integrated over its area,
+height-correlated masking, diffuse transmittance and a photon-counting sensor; with
+``supersample`` the pixel's area is integrated too.
 
 Ground truth is for the reference camera at pixel centres: depth, stereo-pair disparity
 (``fx * B / z``; 0 where the background is at infinity), the instance mask, the object
@@ -28,8 +34,9 @@ import numpy as np
 from ..errors import SceneError
 from ..geometry import CameraRig, Plane
 from ..imaging import linear_to_srgb
-from .scene import Rendering, Scene, check_rig, inside_outline
-from .shading import specular_brdf, widened_roughness
+from .physics import Physics
+from .scene import Material, Rendering, Scene, check_rig, inside_outline
+from .shading import disc_samples, fresnel_exact, ior_from_f0, specular_brdf, widened_roughness
 from .surfaces import SKY_ALBEDO, TexturedSurface, background_surfaces, object_surface
 
 __all__ = [
@@ -46,6 +53,20 @@ _REMAP_COLS = 1024
 
 #: Largest supersampling factor accepted (k x k samples per pixel).
 MAX_SUPERSAMPLE = 8
+
+
+#: A sampled light is integrated where the widened-lobe estimate of the specular term is
+#: above this fraction of its largest value on the surface; below it the two differ by a
+#: small part of a value already under 1e-4 of the peak.
+_SAMPLED_LIGHT_MIN = 1e-4
+
+
+#: Shading points per block of the sampled light integration (bounds its memory).
+_SAMPLED_BLOCK = 2048
+
+
+#: The default physics: the refinement's own model.
+_MODEL_PHYSICS = Physics()
 
 
 # ---------------------------------------------------------------------------------- casting
@@ -204,6 +225,78 @@ def _albedo(surf: TexturedSurface, local: np.ndarray, footprint_m: float) -> np.
     return base * _sample_bilinear(mip, tu, tv, tiled=surf.tile_m > 0)
 
 
+def _fresnel(mat: Material, cos_i: np.ndarray, physics: Physics) -> np.ndarray | None:
+    """Exact Fresnel reflectance at ``cos_i`` (float32), or None for Schlick's term."""
+    if physics.fresnel != "exact":
+        return None
+    ior = mat.ior if mat.ior is not None else ior_from_f0(mat.f0)
+    return fresnel_exact(cos_i, ior, mat.extinction).astype(np.float32, copy=False)
+
+
+@functools.lru_cache(maxsize=16)
+def _hemispherical_fresnel(ior: float, extinction: float) -> float:
+    """Cosine-weighted mean of the Fresnel reflectance over the hemisphere, ``2 int F c dc``."""
+    c = (np.arange(512) + 0.5) / 512
+    return float(2.0 * np.mean(fresnel_exact(c, ior, extinction) * c))
+
+
+def _sampled_specular(
+    mat: Material, scene: Scene, physics: Physics, point_m: tuple[np.ndarray, ...],
+    normal: np.ndarray, view: tuple[np.ndarray, ...], cos_v: np.ndarray,
+) -> np.ndarray:
+    """Specular radiance ``(M,)`` of a spherical light integrated over its disc.
+
+    Seen from a surface point, a sphere of uniform radiance is a disc of the same radius
+    facing the point (to first order in ``R / d``); the disc is covered by
+    ``physics.light_samples`` stratified points, each carrying its share of the light's
+    intensity, and the BRDF is evaluated towards every one.
+
+    ``point_m`` and ``view`` are the points and unit directions to the eye, as ``(x, y,
+    z)`` component arrays ``(M,)``.
+    """
+    f32 = np.float32
+    light = scene.light
+    centre = np.asarray(light.position_m, dtype=f32)
+    offsets = disc_samples(physics.light_samples) * f32(light.radius_m)  # (S, 2)
+    px, py, pz = point_m
+    wx, wy, wz = centre[0] - px, centre[1] - py, centre[2] - pz
+    inv = f32(1.0) / np.sqrt(wx * wx + wy * wy + wz * wz)
+    wx, wy, wz = wx * inv, wy * inv, wz * inv
+    # A basis (a, b) of the disc, orthogonal to w: a = normalise(w x e) with e the axis w
+    # is least aligned with (here y or x; the light is never straight along both).
+    use_x = np.abs(wy) > f32(0.9)
+    ax = np.where(use_x, f32(0.0), -wz)
+    ay = np.where(use_x, wz, f32(0.0))
+    az = np.where(use_x, -wy, wx)
+    inv = f32(1.0) / np.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax * inv, ay * inv, az * inv
+    bx, by, bz = wy * az - wz * ay, wz * ax - wx * az, wx * ay - wy * ax
+    # Sample positions relative to the points, (M, S) per component.
+    u, v = offsets[None, :, 0], offsets[None, :, 1]
+    lx = (centre[0] - px)[:, None] + u * ax[:, None] + v * bx[:, None]
+    ly = (centre[1] - py)[:, None] + u * ay[:, None] + v * by[:, None]
+    lz = (centre[2] - pz)[:, None] + u * az[:, None] + v * bz[:, None]
+    dist2 = lx * lx + ly * ly + lz * lz
+    dist = np.sqrt(dist2)
+    lx, ly, lz = lx / dist, ly / dist, lz / dist
+    n = normal.astype(f32)
+    cos_l = n[0] * lx + n[1] * ly + n[2] * lz
+    vx, vy, vz = (c[:, None] for c in view)
+    hx, hy, hz = lx + vx, ly + vy, lz + vz
+    half_len = np.maximum(np.sqrt(hx * hx + hy * hy + hz * hz), f32(1e-6))
+    cos_h = (n[0] * hx + n[1] * hy + n[2] * hz) / half_len
+    cos_vh = (vx * hx + vy * hy + vz * hz) / half_len
+    above = cos_l > f32(1e-6)
+    cos_l_safe = np.where(above, cos_l, f32(1.0))
+    cos_v2 = np.broadcast_to(cos_v[:, None], cos_l.shape)
+    brdf = specular_brdf(cos_l_safe, cos_v2, cos_h, cos_vh, f32(mat.roughness),
+                         lobe=mat.lobe, f0=mat.f0, fresnel=_fresnel(mat, cos_vh, physics),
+                         masking=physics.masking)
+    irradiance = np.where(above, cos_l_safe / dist2, f32(0.0))
+    share = f32(light.intensity / physics.light_samples)
+    return share * np.sum(brdf * irradiance, axis=1, dtype=f32)
+
+
 def shade_points(
     surf: TexturedSurface,
     ray_x: np.ndarray,
@@ -212,13 +305,15 @@ def shade_points(
     eye_m: np.ndarray,
     scene: Scene,
     sample_angle_rad: float = 0.0,
+    physics: Physics = _MODEL_PHYSICS,
 ) -> np.ndarray:
     """Linear radiance ``(M, 3)`` float32 of surface points seen along camera rays.
 
     The points are ``eye + depth * (ray_x, ray_y, 1)`` (all ``(M,)``). Components are
     kept as separate arrays and the plane's constants folded in (``n . P = c`` on the
     plane), which keeps the per-pixel work to a few dozen element-wise float32 passes.
-    ``sample_angle_rad`` is the angular spacing of the image samples (texture filtering).
+    ``sample_angle_rad`` is the angular spacing of the image samples (texture filtering);
+    ``physics`` says which effects are simulated (:class:`Physics`).
     """
     f32 = np.float32
     light = scene.light
@@ -257,10 +352,21 @@ def shade_points(
         footprint_m = float(np.median(distance2)) / height_v * sample_angle_rad
     albedo = _albedo(surf, local, footprint_m)
     color = np.asarray(light.color_rgb, dtype=f32)
-    radiance = albedo * (irradiance[:, None] * (color / f32(np.pi)) + f32(scene.ambient))
     mat = surf.shape.material
+    ray_len = np.sqrt(x * x + y * y + f32(1.0))
+    direct, ambient = irradiance[:, None] * (color / f32(np.pi)), f32(scene.ambient)
+    if physics.diffuse_transmittance and height_l > 0.0 and height_v > 0.0:
+        # A coating lets (1 - F) of the light in and (1 - F) of the scattered light out;
+        # ambient light comes from everywhere, so it enters with the hemispherical mean.
+        ior = mat.ior if mat.ior is not None else ior_from_f0(mat.f0)
+        cos_l = f32(height_l) / dist
+        cos_v = f32(height_v) / (t * ray_len)
+        out = f32(1.0) - fresnel_exact(cos_v, ior, mat.extinction).astype(f32)
+        into = f32(1.0) - fresnel_exact(cos_l, ior, mat.extinction).astype(f32)
+        direct = direct * (into * out)[:, None]
+        ambient = (ambient * f32(1.0 - _hemispherical_fresnel(ior, mat.extinction))) * out[:, None]
+    radiance = albedo * (direct + ambient)
     if mat.specular > 0.0 and height_l > 0.0 and height_v > 0.0:
-        ray_len = np.sqrt(x * x + y * y + f32(1.0))
         cos_l = f32(height_l) / dist
         cos_v = f32(height_v) / (t * ray_len)
         # l . v with v = -ray / |ray|; then h = (l + v) / |l + v|.
@@ -269,8 +375,20 @@ def shade_points(
         cos_h = (cos_l + cos_v) / half_len
         cos_vh = (cos_lv + f32(1.0)) / half_len
         alpha = widened_roughness(mat.roughness, light.radius_m, dist).astype(f32)
-        brdf = specular_brdf(cos_l, cos_v, cos_h, cos_vh, alpha, lobe=mat.lobe, f0=mat.f0)
-        radiance += (f32(mat.specular) * brdf * irradiance)[:, None] * color
+        brdf = specular_brdf(cos_l, cos_v, cos_h, cos_vh, alpha, lobe=mat.lobe, f0=mat.f0,
+                             fresnel=_fresnel(mat, cos_vh, physics), masking=physics.masking)
+        specular = brdf * irradiance
+        if physics.light == "sampled" and light.radius_m > 0.0 and specular.size:
+            # The widened lobe says where the highlight is; integrate the light there.
+            near = np.flatnonzero(specular > f32(_SAMPLED_LIGHT_MIN) * specular.max())
+            view = (-x / ray_len, -y / ray_len, f32(-1.0) / ray_len)
+            point = (f32(eye_m[0]) + t * x, f32(eye_m[1]) + t * y, f32(eye_m[2]) + t)
+            for start in range(0, near.size, _SAMPLED_BLOCK):
+                idx = near[start:start + _SAMPLED_BLOCK]
+                specular[idx] = _sampled_specular(
+                    mat, scene, physics, tuple(c[idx] for c in point), n,
+                    tuple(c[idx] for c in view), cos_v[idx])
+        radiance += (f32(mat.specular) * specular)[:, None] * color
     return radiance.astype(f32, copy=False)
 
 
@@ -281,6 +399,7 @@ def _render_view(
     camera: int,
     offset_px: tuple[float, float],
     supersample: int = 1,
+    physics: Physics = _MODEL_PHYSICS,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Linear radiance ``(H, W, 3)`` float32 of one camera, plus its depth and index.
 
@@ -304,8 +423,8 @@ def _render_view(
         if pixels.size == 0:
             continue
         radiance[pixels] = shade_points(
-            surf, grid_x[pixels], grid_y[pixels], flat_depth[pixels], eye, scene, sample_angle
-        )
+            surf, grid_x[pixels], grid_y[pixels], flat_depth[pixels], eye, scene, sample_angle,
+            physics)
     return radiance.reshape(h, w, 3), depth, index
 
 
@@ -322,7 +441,8 @@ def _encode(linear: np.ndarray) -> np.ndarray:
 
 
 def render(
-    scene: Scene, rig: CameraRig, *, noise_seed: int | None = None, supersample: int = 1
+    scene: Scene, rig: CameraRig, *, noise_seed: int | None = None, supersample: int = 1,
+    physics: Physics | None = None,
 ) -> Rendering:
     """Render every view of a rig and the reference camera's ground truth.
 
@@ -338,6 +458,10 @@ def render(
     supersample : int
         ``k``: average ``k x k`` samples per pixel (anti-aliased edges); ground truth
         stays at pixel centres.
+    physics : Physics, optional
+        Which physical effects to simulate; the default is the refinement's own model
+        (:class:`Physics`); ``Physics.faithful()`` switches on everything it does not
+        assume.
 
     Returns
     -------
@@ -376,6 +500,10 @@ def render(
         or noise_seed < 0
     ):
         raise SceneError(f"noise_seed: expected a non-negative integer or None, got {noise_seed!r}")
+    if physics is None:
+        physics = _MODEL_PHYSICS
+    elif not isinstance(physics, Physics):
+        raise SceneError(f"physics: expected a Physics or None, got {type(physics).__name__}")
     surfaces = [object_surface(obj, k + 1) for k, obj in enumerate(scene.objects)]
     if scene.background == "textured":
         surfaces += background_surfaces(scene, rig)
@@ -391,11 +519,12 @@ def render(
     for cam in range(rig.n_cameras):
         total = None
         for off in offsets:
-            radiance, depth, index = _render_view(surfaces, scene, rig, cam, off, supersample)
+            radiance, depth, index = _render_view(surfaces, scene, rig, cam, off, supersample,
+                                                  physics)
             total = radiance if total is None else total + radiance
             if cam == rig.reference and supersample == 1:
                 ref_depth, ref_index = depth, index
-        linear = total * np.float32(scene.exposure / len(offsets))
+        linear = physics.expose(total * np.float32(scene.exposure / len(offsets)), rng)
         if scene.noise_std > 0:
             linear += np.float32(scene.noise_std) * rng.standard_normal(
                 linear.shape, dtype=np.float32

@@ -112,7 +112,12 @@ class Material:
     lobe : {"ggx", "blinn_phong"}
         Specular lobe model (:mod:`srde_fusion.synthetic.shading`).
     f0 : float
-        Fresnel reflectance at normal incidence, in [0, 1].
+        Fresnel reflectance at normal incidence, in [0, 1] (Schlick's term).
+    ior : float, optional
+        Refractive index used by the exact Fresnel equations (``Physics(fresnel="exact")``);
+        None: the dielectric whose normal-incidence reflectance is ``f0``.
+    extinction : float
+        Imaginary part of the refractive index (> 0 for metals), exact Fresnel only.
     """
 
     diffuse_rgb: tuple[float, float, float] = (0.3, 0.3, 0.3)
@@ -120,6 +125,8 @@ class Material:
     roughness: float = 0.02
     lobe: str = "ggx"
     f0: float = 0.04
+    ior: float | None = None
+    extinction: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(
@@ -135,6 +142,12 @@ class Material:
         if self.lobe not in LOBES:
             raise SceneError(f"material.lobe: expected one of {list(LOBES)}, got {self.lobe!r}")
         object.__setattr__(self, "f0", check_finite(self.f0, "material.f0", low=0.0, high=1.0))
+        if self.ior is not None:
+            object.__setattr__(self, "ior", check_finite(self.ior, "material.ior", low=0.0,
+                                                         low_open=True, high=100.0))
+        object.__setattr__(self, "extinction",
+                           check_finite(self.extinction, "material.extinction", low=0.0,
+                                        high=100.0))
 
 
 def _check_texture(texture: Any) -> np.ndarray | None:

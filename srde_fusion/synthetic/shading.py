@@ -13,6 +13,12 @@ tested on images rendered with a different one:
     ``e = 2 / alpha^2 - 2`` (the exponent whose lobe matches a Beckmann lobe of slope
     ``alpha`` near its peak). Narrower tails than GGX.
 
+Beside these, the renderer can switch on physics the refinement's model does not share
+(see :class:`srde_fusion.synthetic.physics.Physics`): the exact Fresnel equations for
+dielectrics and conductors (:func:`fresnel_exact`), height-correlated Smith
+masking-shadowing (:func:`smith_g2_height_correlated`), and a spherical light integrated
+over its visible disc (:func:`disc_samples`) instead of the widened lobe below.
+
 Both lobes take the same roughness ``alpha`` and have nearly the same peak at normal
 incidence, ``1 / (4 pi alpha^2)``; they differ in shape away from the peak.
 
@@ -27,6 +33,8 @@ point light.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = [
@@ -34,6 +42,10 @@ __all__ = [
     "ggx_ndf",
     "smith_g1_ggx",
     "schlick_fresnel",
+    "fresnel_exact",
+    "ior_from_f0",
+    "smith_g2_height_correlated",
+    "disc_samples",
     "blinn_phong_exponent",
     "widened_roughness",
     "specular_brdf",
@@ -83,6 +95,91 @@ def schlick_fresnel(cos_vh: np.ndarray, f0: float) -> np.ndarray:
     return f0 + (1.0 - f0) * np.power(np.clip(1.0 - cos_vh, 0.0, 1.0), 5)
 
 
+def ior_from_f0(f0: float) -> float:
+    """Refractive index of the dielectric whose normal-incidence reflectance is ``f0``.
+
+    Inverts ``f0 = ((n - 1) / (n + 1))^2``; ``f0 = 0.04`` gives ``n = 1.5``.
+    """
+    root = math.sqrt(min(max(f0, 0.0), 0.999999))
+    return (1.0 + root) / (1.0 - root)
+
+
+def fresnel_exact(cos_i: np.ndarray, ior: float, extinction: float = 0.0) -> np.ndarray:
+    """Unpolarised Fresnel reflectance from air onto a medium of index ``ior + i extinction``.
+
+    The mean of the s- and p-polarised reflectances of the Fresnel equations, written
+    for a complex index so that one formula covers dielectrics (``extinction = 0``) and
+    conductors (metals: ``extinction > 0``).
+
+    Parameters
+    ----------
+    cos_i : numpy.ndarray, (...)
+        Cosine of the angle of incidence on the (micro)surface, in [0, 1] (``v . h``
+        for a microfacet).
+    ior : float
+        Real part ``n`` of the refractive index, > 0 (1.49 for acrylic, 1.5 for glass).
+    extinction : float
+        Imaginary part ``k`` >= 0 (0 for dielectrics; about 1.0-7 for metals).
+
+    Returns
+    -------
+    numpy.ndarray, (...)
+        Reflectance in [0, 1]: ``((n - 1)^2 + k^2) / ((n + 1)^2 + k^2)`` at normal
+        incidence, 1 at grazing incidence.
+
+    Examples
+    --------
+    >>> round(float(fresnel_exact(np.array(1.0), 1.5)), 4)
+    0.04
+    >>> round(float(fresnel_exact(np.array(0.0), 1.5)), 4)
+    1.0
+    """
+    c = np.clip(cos_i, 0.0, 1.0)
+    c2 = c * c
+    s2 = 1.0 - c2
+    n2, k2 = ior * ior, extinction * extinction
+    # |eta^2 - sin^2|, written as a^2 + b^2 with a = Re(sqrt(eta^2 - sin^2)).
+    t = n2 - k2 - s2
+    modulus = np.sqrt(t * t + 4.0 * n2 * k2)
+    a = np.sqrt(np.maximum(0.5 * (modulus + t), 0.0))
+    two_ac = 2.0 * a * c
+    r_s = (modulus - two_ac + c2) / np.maximum(modulus + two_ac + c2, 1e-30)
+    # p-polarised relative to s: (c^2 |..| - 2 a c s^2 + s^4) / (c^2 |..| + 2 a c s^2 + s^4).
+    num = c2 * modulus - two_ac * s2 + s2 * s2
+    den = np.maximum(c2 * modulus + two_ac * s2 + s2 * s2, 1e-30)
+    return 0.5 * (r_s + r_s * num / den)
+
+
+def smith_g2_height_correlated(
+    cos_l: np.ndarray, cos_v: np.ndarray, alpha: np.ndarray | float
+) -> np.ndarray:
+    """Height-correlated Smith masking-shadowing for GGX, ``1 / (1 + Lambda_l + Lambda_v)``.
+
+    ``Lambda(c) = (sqrt(1 + alpha^2 (1 / c^2 - 1)) - 1) / 2``. It accounts for the light
+    and view being masked by the same microfacets, which the separable product
+    ``G1(l) G1(v)`` counts twice; the difference grows at grazing angles.
+    """
+    a2 = np.square(alpha)
+
+    def lam(c: np.ndarray) -> np.ndarray:
+        c2 = np.square(c)
+        return 0.5 * (np.sqrt(1.0 + a2 * (1.0 - c2) / c2) - 1.0)
+
+    return 1.0 / (1.0 + lam(cos_l) + lam(cos_v))
+
+
+def disc_samples(n: int) -> np.ndarray:
+    """``n`` points spread evenly over the unit disc, ``(n, 2)`` float32.
+
+    A golden-angle spiral (equal area per point): the stratified pattern the renderer
+    uses to integrate a spherical light over the disc it presents to a surface point.
+    """
+    i = np.arange(n) + 0.5
+    radius = np.sqrt(i / n)
+    angle = i * math.pi * (3.0 - math.sqrt(5.0))
+    return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1).astype(np.float32)
+
+
 def blinn_phong_exponent(alpha: np.ndarray | float) -> np.ndarray:
     """Blinn-Phong exponent ``2 / alpha^2 - 2`` equivalent to a lobe of roughness ``alpha``."""
     return 2.0 / np.square(alpha) - 2.0
@@ -119,6 +216,8 @@ def specular_brdf(
     *,
     lobe: str,
     f0: float,
+    fresnel: np.ndarray | None = None,
+    masking: str = "separable",
 ) -> np.ndarray:
     """Specular BRDF value (per steradian) for unit normal, light, view and half vectors.
 
@@ -134,16 +233,26 @@ def specular_brdf(
         Roughness (possibly widened by :func:`widened_roughness`).
     lobe : {"ggx", "blinn_phong"}
     f0 : float
-        Fresnel reflectance at normal incidence.
+        Fresnel reflectance at normal incidence (Schlick's term).
+    fresnel : numpy.ndarray, (...), optional
+        The Fresnel reflectance at ``cos_vh``, precomputed (exact Fresnel); Schlick's
+        approximation with ``f0`` when None.
+    masking : {"separable", "height_correlated"}
+        Smith masking-shadowing of the GGX lobe: ``G1(l) G1(v)`` or
+        :func:`smith_g2_height_correlated`.
 
     Returns
     -------
     numpy.ndarray, (...)
         The BRDF; multiply by the irradiance ``I cos_l / r^2`` for the outgoing radiance.
     """
-    fresnel = schlick_fresnel(cos_vh, f0)
+    if fresnel is None:
+        fresnel = schlick_fresnel(cos_vh, f0)
     if lobe == "ggx":
-        geometry = smith_g1_ggx(cos_l, alpha) * smith_g1_ggx(cos_v, alpha)
+        if masking == "height_correlated":
+            geometry = smith_g2_height_correlated(cos_l, cos_v, alpha)
+        else:
+            geometry = smith_g1_ggx(cos_l, alpha) * smith_g1_ggx(cos_v, alpha)
         return ggx_ndf(cos_h, alpha) * geometry * fresnel / (4.0 * cos_l * cos_v)
     exponent = blinn_phong_exponent(alpha)
     # exp(e log c) instead of c**e: e reaches 1e5 for mirror-like surfaces.
