@@ -35,7 +35,8 @@ from .._checks import check_views
 from ..errors import ImageError, SRDEError
 from ..geometry import CameraRig
 from ..imaging import REC709_LUMA, SATURATION_LEVEL_U8, SRGB_TO_LINEAR_U8
-from .backends import DetectionRequest
+from .backends import REDUCED_SMOOTHING_SIGMA_PX, DetectionRequest
+from .backends import smooth_at as smooth_on_host
 from .config import (
     BLOB_LEVEL,
     MIN_CORE_PX,
@@ -247,7 +248,19 @@ class TorchBackend:
         views = [j for j, _ in candidates]
         boxes = [(*c.lo, *c.hi) for _, c in candidates]
         crops = self.crops(frame.tensors, views, boxes)
-        kernel = gaussian_kernel(candidates[0][1].sigma_px, self.device)
+        sigma = candidates[0][1].sigma_px
+        if sigma >= REDUCED_SMOOTHING_SIGMA_PX:
+            # A blob this large is smoothed on a reduced image, a cost of one read of the
+            # crop: on the host, with the numpy backend's own function (same ranking).
+            lum = self.luminance(crops.pixels).cpu().numpy()
+            best = []
+            for crop, (h, w), (_, c) in zip(lum, crops.sizes, candidates, strict=True):
+                brightness = np.full(c.w_v.size, -np.inf)
+                brightness[c.ok] = smooth_on_host(np.ascontiguousarray(crop[:h, :w]),
+                                                  c.pix[c.ok] - np.asarray(c.lo), sigma)
+                best.append(int(np.argmax(brightness)))
+            return best
+        kernel = gaussian_kernel(sigma, self.device)
         extended = extend_borders(self.luminance(crops.pixels), crops.sizes, kernel.shape[1] // 2,
                            "symmetric")
         best = []

@@ -14,6 +14,8 @@ import torch
 import torch.nn.functional as F
 from kornia.filters import filter2d_separable
 
+from .backends import gaussian_ksize
+
 __all__ = [
     "label_components",
 ]
@@ -22,14 +24,9 @@ __all__ = [
 _POINTER_JUMPS = 2
 
 
-def _gaussian_ksize(sigma: float) -> int:
-    """OpenCV's Gaussian kernel size for float images: ``round(8 sigma + 1)``, made odd."""
-    return int(round(sigma * 8 + 1)) | 1
-
-
 def gaussian_kernel(sigma: float, device: torch.device) -> torch.Tensor:
     """Return the kernel OpenCV's ``GaussianBlur`` uses on float32 images, ``(1, ksize)``."""
-    kernel = cv2.getGaussianKernel(_gaussian_ksize(sigma), sigma, cv2.CV_32F)
+    kernel = cv2.getGaussianKernel(gaussian_ksize(sigma), sigma, cv2.CV_32F)
     return torch.from_numpy(kernel.reshape(1, -1)).to(device)
 
 
