@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from ..geometry import CameraRig
-from ..synthetic import BACKGROUNDS, LOBES, render_dataset
+from ..synthetic import BACKGROUNDS, LOBES, Physics, render_dataset
 
 __all__ = ["register"]
 
@@ -23,6 +23,7 @@ def _cli_render(args: argparse.Namespace) -> int:
         background=args.background,
         n_objects=args.objects,
         supersample=args.supersample,
+        physics=Physics.faithful() if args.physics == "faithful" else None,
         lobe=args.lobe,
         progress=not args.quiet,
         overwrite=args.force,
@@ -60,6 +61,11 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--supersample", type=int, default=1, help="k: average k x k samples per pixel (default 1)"
     )
+    p.add_argument(
+        "--physics", choices=("model", "faithful"), default="model",
+        help="'model': the refinement's own shading model (fast, fits are exact by "
+        "construction); 'faithful': exact Fresnel, the light integrated over its area, "
+        "height-correlated masking, diffuse transmittance, photon and read noise")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--force", action="store_true",
                    help="replace the scene folders already in OUT_DIR (refused without it)")

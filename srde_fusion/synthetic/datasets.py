@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ from tqdm import tqdm
 from ..errors import SceneError
 from ..geometry import CameraRig
 from ..io import write_scene
+from .physics import Physics
 from .random_scenes import random_scene
 from .render import render
 from .scene import Light, Material, PlanarObject, Scene, check_rig
@@ -130,6 +132,7 @@ def render_dataset(
     background: str = "none",
     n_objects: int = 1,
     supersample: int = 1,
+    physics: Physics | None = None,
     progress: bool = True,
     overwrite: bool = False,
     **scene_options: Any,
@@ -153,6 +156,9 @@ def render_dataset(
         Passed to :func:`random_scene`.
     supersample : int
         Passed to :func:`render`.
+    physics : Physics, optional
+        Passed to :func:`render` (the refinement's own model by default;
+        ``Physics.faithful()`` for what it does not assume); recorded in ``scene.json``.
     progress : bool
         Show a progress bar.
     overwrite : bool
@@ -192,10 +198,12 @@ def render_dataset(
             scene_seed, rig, n_objects=n_objects, background=background, **scene_options
         )
         scene_rig = rig.with_light(scene.light.position_m)
-        result = render(scene, scene_rig, supersample=supersample)
+        result = render(scene, scene_rig, supersample=supersample, physics=physics)
         metadata = {
             "generator": "srde_fusion.synthetic.random_scene",
             "seed": scene_seed,
+            "physics": dataclasses.asdict(physics or Physics()),
+            "supersample": supersample,
             "scene": scene_to_dict(scene),
             "virtual_lights_m": result.virtual_lights_m.tolist(),
             "highlight_uv": np.nan_to_num(result.highlight_uv, nan=-1.0).tolist(),

@@ -1,9 +1,12 @@
 """The renderer's switchable physics: each effect does what its physics says, and the
 default stays the refinement's own model."""
 
+import json
+
 import numpy as np
 import pytest
 
+from srde_fusion.cli.main import main
 from srde_fusion.errors import SceneError
 from srde_fusion.geometry import CameraRig
 from srde_fusion.synthetic import (
@@ -183,3 +186,17 @@ def test_material_checks_its_refractive_index():
         Material(ior=-1.0)
     with pytest.raises(SceneError, match="material.extinction"):
         Material(extinction=float("nan"))
+
+
+def test_render_command_records_the_physics(tmp_path):
+    assert main(["render", str(tmp_path / "faithful"), "--scenes", "1", "--physics",
+                 "faithful", "--quiet"]) == 0
+    assert main(["render", str(tmp_path / "model"), "--scenes", "1", "--quiet"]) == 0
+    faithful = json.loads((tmp_path / "faithful/scene_0000/scene.json").read_text())
+    model = json.loads((tmp_path / "model/scene_0000/scene.json").read_text())
+    assert faithful["physics"] == {**vars(Physics.faithful())}
+    assert model["physics"] == {**vars(Physics())}
+    assert faithful["scene"] == model["scene"]  # same scene, other physics
+    a = (tmp_path / "faithful/scene_0000/cam4.png").read_bytes()
+    b = (tmp_path / "model/scene_0000/cam4.png").read_bytes()
+    assert a != b
