@@ -191,7 +191,7 @@ def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail):
     # off the initial plane, a tail where both of the "gtr" derivative's branches apply
     theta[:N_PLANE] = [0.01, -0.02, 0.003]
     theta[I_TAIL], theta[I_FORE], theta[I_SPEC:] = tail, 0.7, [0.5, 0.1, 0.2]
-    slopes = model.model_slopes(theta, model.free_all)
+    slopes = model.reduce(model.model_slopes(theta, model.free_all))
     for row, index in enumerate(model.free_all):
         up, down = theta.copy(), theta.copy()
         up[index] += SLOPE_STEPS[index]

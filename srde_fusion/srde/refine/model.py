@@ -19,6 +19,10 @@ Phong-style BRDF without the ``1 / (4 cos cos)`` factor. Near the mirror directi
 factor tilts the lobe across the image, which shifts its peak, so it must be modelled
 (or fitted) rather than ignored.
 
+Each sample is the mean luminance of a square of pixels, so the model is averaged over
+the same square (``samples.support_points``): the rendering runs at ``S`` points per
+sample and is reduced with their quadrature weights before it meets the data.
+
 ``theta = (tilt_1, tilt_2, offset_m, log_width, tail, foreshortening, specular, diffuse,
 level)`` (see ``layout``): the plane parameters move the reflection geometry of every
 sample (``reflection``), the shape parameters the lobe (``lobes``), and the intensities
@@ -38,7 +42,7 @@ from .intensities import IntensitySolver
 from .layout import I_DIFF, I_FORE, I_LEVEL, I_SPEC, I_TAIL, I_WIDTH, N_PARAMS, N_PLANE
 from .lobes import lobe_shape, start_tail
 from .reflection import PlaneReflection, ShadingGeometry
-from .samples import HighlightSamples
+from .samples import HighlightSamples, support_points
 from .slopes import model_slopes
 
 __all__ = [
@@ -48,6 +52,17 @@ __all__ = [
 
 #: Fresnel reflectance at normal incidence assumed for the Schlick term (dielectrics).
 DEFAULT_F0 = 0.04
+
+
+#: Gauss-Legendre points per axis over which the model is averaged on each sample's block.
+SUPPORT_POINTS = 2
+
+
+@dataclass(frozen=True, eq=False)
+class SampleShading:
+    """The part of a geometry the intensity solve reads, reduced to the samples, ``(P,)``."""
+
+    diffuse: np.ndarray
 
 
 # --- optimisation ---------------------------------------------------------------------
@@ -128,12 +143,18 @@ class LobeModel:
         Normal-incidence reflectance of Schlick's Fresnel term.
     foreshortening : float or None
         The exponent ``k``, held; fitted if None.
+    support : int
+        Points per axis at which the model is averaged over each sample's block (1: at
+        block centres).
     """
 
     def __init__(self, samples: HighlightSamples, rig: CameraRig, box, light: np.ndarray,
-                 plane0: Plane, lobe: str, f0: float, foreshortening: float | None) -> None:
+                 plane0: Plane, lobe: str, f0: float, foreshortening: float | None,
+                 support: int = SUPPORT_POINTS) -> None:
         self.lobe = lobe
-        self.reflection = PlaneReflection(samples, rig, box, light, plane0, f0)
+        points, self.support_weights = support_points(samples, rig, support)
+        self.n_support = len(self.support_weights)
+        self.reflection = PlaneReflection(points, rig, box, light, plane0, f0)
         self.valid = self.reflection.valid
         self.foreshortening0 = (_FORESHORTENING_START if foreshortening is None
                                 else float(foreshortening))
@@ -150,6 +171,19 @@ class LobeModel:
         # Reused across steps: arrays this large would cost page faults on every call.
         self._jacobian_buffer = np.empty((len(self.free_all), samples.n_samples))
         self._jacobian_partner = np.empty_like(self._jacobian_buffer)
+        self._slopes_buffer = (self._jacobian_buffer if self.n_support == 1 else
+                               np.empty((len(self.free_all), points.n_samples)))
+
+    def reduce(self, values: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Average model values ``(..., S * P)`` over each sample's support, ``(..., P)``."""
+        if self.n_support == 1:
+            return values  # the model points are the samples (``out`` is not needed)
+        grouped = values.reshape(*values.shape[:-1], self.n_support, -1)
+        return np.einsum("...sp,s->...p", grouped, self.support_weights, out=out)
+
+    def _reduced(self, g: ShadingGeometry) -> SampleShading:
+        """Return the samples' diffuse term of a geometry of the model points."""
+        return SampleShading(self.reduce(g.diffuse))
 
     def plane(self, theta: np.ndarray) -> Plane:
         """Return the plane of ``theta``."""
@@ -188,22 +222,26 @@ class LobeModel:
         return self._specular_value
 
     def luminance(self, g: ShadingGeometry, theta: np.ndarray) -> np.ndarray:
-        """Modelled luminance ``(P,)`` at a geometry with ``theta``'s lobe and intensities."""
-        return theta[I_SPEC] * self._lobe(g, theta) + theta[I_DIFF] * g.diffuse + theta[I_LEVEL]
+        """Modelled luminance of the samples ``(P,)``: ``theta``'s lobe and intensities."""
+        point = theta[I_SPEC] * self._lobe(g, theta) + theta[I_DIFF] * g.diffuse + theta[I_LEVEL]
+        return self.reduce(point)
 
     def _lobe_at(self, theta: np.ndarray):
-        """Return the geometry, lobe and shape ``(P,)`` of ``theta`` (Nones if invalid).
+        """Return ``theta``'s geometry, lobe, shape, and the samples' shading and lobe.
 
-        The last one is kept: a step's Jacobian is taken where it was evaluated.
+        Geometry, lobe and shape are at the model points ``(S * P,)``, the shading and
+        the lobe reduced to the samples ``(P,)``; Nones if the plane is invalid. The last one
+        is kept: a step's Jacobian is taken where it was evaluated.
         """
         key = theta[:I_SPEC].tobytes()
         if self._lobe_key != key:
             g = self.reflection.at(theta)
             if g is None:
-                self._lobe_value = (None, None, None)
+                self._lobe_value = (None, None, None, None, None)
             else:
                 shape = self._shape(g, theta)
-                self._lobe_value = (g, shape * self._specular_term(g, theta[I_FORE]), shape)
+                lobe = shape * self._specular_term(g, theta[I_FORE])
+                self._lobe_value = (g, lobe, shape, self._reduced(g), self.reduce(lobe))
             self._lobe_key = key
         return self._lobe_value
 
@@ -213,10 +251,10 @@ class LobeModel:
 
         Returns the residual ``(P,)`` and ``theta`` with those intensities filled in.
         """
-        g, lobe, _ = self._lobe_at(theta)
+        g, _, _, shading, lobe = self._lobe_at(theta)
         if g is None:
             return np.full(self.intensities.y.shape, np.inf), theta.copy()
-        coef, model = self.intensities.solve(g, lobe)
+        coef, model = self.intensities.solve(shading, lobe)
         out = theta.copy()
         out[I_SPEC:] = coef
         return self.intensities.residual(model), out
@@ -229,9 +267,10 @@ class LobeModel:
         intensity basis removed. The array is a buffer of the model's, overwritten by
         the next call.
         """
-        g, lobe, _ = self._lobe_at(theta)
-        jac = self.model_slopes(theta, free, out=self._jacobian_buffer[:len(free)])
-        return self.intensities.project_out(jac, g, lobe, theta[I_SPEC:])
+        _, _, _, shading, lobe = self._lobe_at(theta)
+        slopes = self.model_slopes(theta, free, out=self._slopes_buffer[:len(free)])
+        jac = self.reduce(slopes, out=self._jacobian_buffer[:len(free)])
+        return self.intensities.project_out(jac, shading, lobe, theta[I_SPEC:])
 
     def gram(self, jac: np.ndarray) -> np.ndarray:
         """Return ``jac @ jac.T`` ``(K, K)`` for a Jacobian from :meth:`jacobian`.
@@ -245,11 +284,12 @@ class LobeModel:
 
     def model_slopes(self, theta: np.ndarray, free: np.ndarray, *,
                      out: np.ndarray | None = None) -> np.ndarray:
-        """Return the model's derivatives ``(len(free), P)`` by ``theta[free]`` (intensities held).
+        """Return the model's derivatives ``(len(free), S * P)`` by ``theta[free]``.
 
+        At the model points, intensities held (:meth:`reduce` gives the samples').
         Analytic (see :mod:`~.slopes`). ``theta``'s plane must be valid.
         """
-        g, lobe, shape = self._lobe_at(theta)
+        g, lobe, shape, _, _ = self._lobe_at(theta)
         out = np.empty((len(free), len(lobe))) if out is None else out
         return model_slopes(self.reflection, self.lobe, g, theta, free, lobe_term=lobe,
                             shape=shape, specular_factor=self._specular_term(g, theta[I_FORE]),
@@ -263,6 +303,7 @@ class LobeModel:
         specular term.
         """
         g = self.reflection.at(self.start_theta())
+        shading = self._reduced(g)
         n_unclipped = self.intensities.n_unclipped
         best_cost, best = math.inf, None
 
@@ -270,10 +311,10 @@ class LobeModel:
             nonlocal best_cost, best
             theta = self.start_theta()
             theta[I_WIDTH], theta[I_TAIL] = math.log(width), tail
-            lobe = self._lobe(g, theta)
+            lobe = self.reduce(self._lobe(g, theta))
             if not lobe[:n_unclipped].max(initial=0.0) > _MIN_LOBE_ON_UNCLIPPED:
                 return  # so narrow that no unsaturated sample sees it
-            coef, model = self.intensities.solve(g, lobe)
+            coef, model = self.intensities.solve(shading, lobe)
             if not coef[0] > 0.0:
                 return
             residual = self.intensities.residual(model)

@@ -4,6 +4,11 @@ For every view a window around the highlight centre is cut, pixels outside the o
 (as the current plane maps the reference mask into that view) are dropped, and the rest
 is averaged over small blocks (larger blocks on larger windows) into samples with their
 pixel ray, camera centre, luminance and clipping flag.
+
+A sample is a mean over its block's area, not a value at its centre: on a lobe's steep
+flank the two differ, and the difference shifts the fitted highlight. The model is
+therefore averaged over the same square (:func:`support_points`: Gauss-Legendre points
+across the block, which integrate it exactly up to third order along each axis).
 """
 
 from __future__ import annotations
@@ -161,6 +166,44 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
     cameras_m = np.repeat(rig.centers_m[used], counts, axis=0)
     return HighlightSamples(cameras_m[order], rig.rays(np.concatenate(uvs)[order]),
                     luminance_all[order], saturated_all[order], tuple(used), half, block)
+
+
+def support_points(samples: HighlightSamples, rig: CameraRig, points: int
+                   ) -> tuple[HighlightSamples, np.ndarray]:
+    """Where to evaluate the model so that its mean over each block is the sample's value.
+
+    Parameters
+    ----------
+    samples : HighlightSamples
+        ``P`` samples, each the mean of a ``block_px`` square (a pixel's own area when
+        ``block_px`` is 1: the image integrates over it too).
+    rig : CameraRig
+    points : int
+        Gauss-Legendre points per axis; 1 evaluates the model at block centres only.
+
+    Returns
+    -------
+    HighlightSamples
+        ``S * P`` model points, ``S = points**2`` groups of ``P`` (group ``s`` holds
+        every sample's ``s``-th point); the observations are repeated per group.
+    numpy.ndarray, (S,)
+        The quadrature weight of each group (they sum to 1).
+    """
+    if points == 1:
+        return samples, np.ones(1)
+    nodes, weights = np.polynomial.legendre.leggauss(points)
+    offsets_px = 0.5 * samples.block_px * nodes  # across [-block / 2, block / 2]
+    k = rig.intrinsics
+    rays, group_weights = [], []
+    for dv, wv in zip(offsets_px, weights, strict=True):
+        for du, wu in zip(offsets_px, weights, strict=True):
+            rays.append(samples.ray + np.array([du / k.fx, dv / k.fy, 0.0]))
+            group_weights.append(0.25 * wu * wv)  # Gauss weights sum to 2 per axis
+    n = len(rays)
+    expanded = HighlightSamples(np.tile(samples.camera_m, (n, 1)), np.concatenate(rays),
+                                np.tile(samples.luminance, n), np.tile(samples.saturated, n),
+                                samples.view_indices, samples.half_window_px, samples.block_px)
+    return expanded, np.array(group_weights)
 
 
 def low_quantile_of(values: np.ndarray) -> float:
