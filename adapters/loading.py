@@ -1,4 +1,4 @@
-"""One entry point that turns a model file, a torch module or ``"default"`` into a backbone."""
+"""One entry point from a model file, a torch module, ``"default"`` or ``"sgbm"`` to a backbone."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from srde_fusion.errors import BackboneError
 
 from ._pipeline import StereoAdapter
 from .onnx_backend import OnnxStereo
+from .sgbm import SGBMSpec, SGBMStereo
 from .spec import StereoSpec, preset
 from .torch_backend import TorchStereo
 
@@ -49,25 +50,27 @@ def default_model_info() -> dict[str, Any]:
     return json.loads(path.read_text(encoding="utf-8"))
 
 
-def load_backbone(source: Any, spec: StereoSpec | str | None = None, **options: Any
-                  ) -> StereoAdapter:
-    """Make a backbone callable from a model file, a torch module, or the bundled default.
+def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
+                  **options: Any) -> StereoAdapter | SGBMStereo:
+    """Make a backbone callable from a model file, a torch module, or a named backbone.
 
     Parameters
     ----------
     source : str, os.PathLike or torch.nn.Module
-        ``"default"`` for the bundled stand-in network, a path to an ``.onnx`` file, or a
-        torch module.
-    spec : StereoSpec or str, optional
-        Conventions of the model or a preset name. ``None``: the stand-in's own preset
-        for ``"default"``, ``"generic"`` otherwise.
+        ``"default"`` for the bundled stand-in network, ``"sgbm"`` for OpenCV's
+        semi-global block matching, a path to an ``.onnx`` file, or a torch module.
+    spec : StereoSpec, SGBMSpec or str, optional
+        Conventions of the model or a preset name; for ``"sgbm"`` an :class:`SGBMSpec`
+        (or None, or ``"sgbm"``). ``None``: the stand-in's own preset for
+        ``"default"``; for a model file or module, ``"generic"`` with a warning.
     **options
         Passed on to :class:`OnnxStereo` (``providers``, ``session_options``) or
-        :class:`TorchStereo` (``device``).
+        :class:`TorchStereo` (``device``); for ``"sgbm"``, fields of :class:`SGBMSpec`
+        (``block_size=7``, ``left_right_check=True``, ...).
 
     Returns
     -------
-    OnnxStereo or TorchStereo
+    OnnxStereo, TorchStereo or SGBMStereo
         ``backbone(left, right) -> (H, W) float32`` disparity in pixels.
 
     Raises
@@ -84,6 +87,19 @@ def load_backbone(source: Any, spec: StereoSpec | str | None = None, **options: 
     >>> backbone(left, left).shape
     (40, 60)
     """
+    if isinstance(source, str) and source.strip().lower() == "sgbm":
+        if spec is None or (isinstance(spec, str) and spec.strip().lower() == "sgbm"):
+            spec = SGBMSpec()
+        if not isinstance(spec, SGBMSpec):
+            raise BackboneError(
+                f"spec: expected an SGBMSpec (or None) for the 'sgbm' backbone, got {spec!r}"
+            )
+        return SGBMStereo(spec, **options)
+    if isinstance(spec, SGBMSpec):
+        raise BackboneError(
+            f"spec: expected a StereoSpec or a preset name for source {source!r}, got an "
+            f"SGBMSpec (it goes with source 'sgbm')"
+        )
     if isinstance(source, str) and source == "default":
         info = default_model_info()
         spec = preset(spec or info.get("preset", _DEFAULT_PRESET))
@@ -92,7 +108,7 @@ def load_backbone(source: Any, spec: StereoSpec | str | None = None, **options: 
         path = Path(source)
         if path.suffix.lower() != ".onnx":
             raise BackboneError(
-                f"source: expected 'default', a .onnx file or a torch.nn.Module, "
+                f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
                 f"got {str(source)!r}"
             )
         return OnnxStereo(path, preset(spec or "generic"), **options)
@@ -100,6 +116,6 @@ def load_backbone(source: Any, spec: StereoSpec | str | None = None, **options: 
     if torch is not None and isinstance(source, torch.nn.Module):
         return TorchStereo(source, preset(spec or "generic"), **options)
     raise BackboneError(
-        f"source: expected 'default', a .onnx file or a torch.nn.Module, "
+        f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
         f"got {type(source).__name__}"
     )

@@ -319,7 +319,7 @@ def test_file_that_is_not_a_model(tmp_path):
         OnnxStereo(bogus)
     with pytest.raises(BackboneError, match="existing .onnx file"):
         OnnxStereo(tmp_path / "missing.onnx")
-    with pytest.raises(BackboneError, match="expected 'default', a .onnx file"):
+    with pytest.raises(BackboneError, match="expected 'default', 'sgbm', a .onnx file"):
         load_backbone(tmp_path / "weights.pth")
     with pytest.raises(BackboneError, match="got int"):
         load_backbone(42)
