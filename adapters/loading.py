@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -13,16 +14,20 @@ from srde_fusion.errors import BackboneError
 from ._pipeline import StereoAdapter
 from .onnx_backend import OnnxStereo
 from .sgbm import SGBMSpec, SGBMStereo
-from .spec import StereoSpec, preset
+from .spec import PRESETS, StereoSpec, preset
 from .torch_backend import TorchStereo
 
-__all__ = ["load_backbone", "default_weights_path", "default_model_info"]
+__all__ = ["load_backbone", "default_weights_path", "default_model_info",
+           "STANDIN_BYTES_PER_PX"]
 
 _WEIGHTS_DIR = Path(__file__).resolve().parent / "standin" / "weights"
 _DEFAULT_MODEL = "standin.onnx"
 _DEFAULT_INFO = "standin.json"
 # The stand-in follows IGEV's conventions (RGB 0..255, pad to 32, positive disparity).
 _DEFAULT_PRESET = "igev"
+#: Peak memory of the bundled stand-in per input pixel on a CPU (onnxruntime): 1.68 GB
+#: more at 1280x960 than at 640x480 (0.92 MP more), about 1.75 GB per megapixel.
+STANDIN_BYTES_PER_PX = 1750.0
 
 
 def default_weights_path() -> Path:
@@ -65,8 +70,10 @@ def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
         ``"default"``; for a model file or module, ``"generic"`` with a warning.
     **options
         Passed on to :class:`OnnxStereo` (``providers``, ``session_options``) or
-        :class:`TorchStereo` (``device``); for ``"sgbm"``, fields of :class:`SGBMSpec`
-        (``block_size=7``, ``left_right_check=True``, ...).
+        :class:`TorchStereo` (``device``), and to both ``max_pixels`` and
+        ``large_images`` (the bundled stand-in's default budget comes from its measured
+        memory per pixel, :data:`STANDIN_BYTES_PER_PX`); for ``"sgbm"``, fields of
+        :class:`SGBMSpec` (``block_size=7``, ``left_right_check=True``, ...).
 
     Returns
     -------
@@ -103,6 +110,8 @@ def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
     if isinstance(source, str) and source == "default":
         info = default_model_info()
         spec = preset(spec or info.get("preset", _DEFAULT_PRESET))
+        if spec.bytes_per_px is None:
+            spec = spec.replace(bytes_per_px=STANDIN_BYTES_PER_PX)
         return OnnxStereo(default_weights_path(), spec, **options)
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
@@ -111,11 +120,24 @@ def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
                 f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
                 f"got {str(source)!r}"
             )
-        return OnnxStereo(path, preset(spec or "generic"), **options)
+        return OnnxStereo(path, _spec_or_generic(spec, path.name), **options)
     torch = sys.modules.get("torch")  # a torch module can only exist if torch is imported
     if torch is not None and isinstance(source, torch.nn.Module):
-        return TorchStereo(source, preset(spec or "generic"), **options)
+        return TorchStereo(source, _spec_or_generic(spec, type(source).__name__), **options)
     raise BackboneError(
         f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
         f"got {type(source).__name__}"
     )
+
+
+def _spec_or_generic(spec: StereoSpec | str | None, what: str) -> StereoSpec:
+    """Return the given spec, or ``"generic"`` with a warning that it was assumed."""
+    if spec is not None:
+        return preset(spec)
+    warnings.warn(
+        f"{what}: no spec or preset given, 'generic' assumed (RGB 0..255, no padding, last "
+        f"output, positive disparity); pass the model family's preset ({', '.join(PRESETS)}) "
+        f"or a StereoSpec",
+        UserWarning, stacklevel=3,
+    )
+    return PRESETS["generic"]
