@@ -328,7 +328,10 @@ class StereoAdapter:
                      "max_pixels or spec.bytes_per_px to bound it)"
             )
         else:
-            self._max_pixels_source = f"max_pixels {max_pixels!r} (given)"
+            self._max_pixels_source = (
+                f"max_pixels {max_pixels:,} (given)" if isinstance(max_pixels, int)
+                else f"max_pixels {max_pixels!r} (given)"
+            )
         self.max_pixels, self.large_images = check_max_pixels(max_pixels, large_images)
 
     def __call__(self, left: Any, right: Any) -> np.ndarray:
@@ -353,6 +356,7 @@ class StereoAdapter:
         """
         left01, right01 = check_pair(left, right)
         max_pixels = self.max_pixels
+        failure: ModelOutOfMemory | None = None
         for _ in range(_OUT_OF_MEMORY_RETRIES + 1):
             plan = plan_large_image(left01.shape[:2], max_pixels, multiple=self.pad_multiple,
                                     strategy=self.large_images,
@@ -360,25 +364,23 @@ class StereoAdapter:
             try:
                 disparity_px = run_plan(plan, left01, right01, self._disparity)
             except ModelOutOfMemory as exc:
-                if plan.strategy != "whole" and plan.run_hw[0] * plan.run_hw[1] <= 1:
-                    raise
                 run_pixels = _padded_pixels(plan.run_hw, self.pad_multiple)
-                if self.model_size is not None:
-                    raise  # a fixed-size model cannot be fed fewer pixels
-                max_pixels = max(1, run_pixels // 2)
-                logger.warning("%s: %s; retrying with max_pixels %s", self.spec.name, exc,
-                               f"{max_pixels:,}")
+                if self.model_size is not None or run_pixels <= self.pad_multiple**2:
+                    raise  # a fixed-size model (or one block) cannot be fed fewer pixels
+                max_pixels = run_pixels // 2
+                logger.warning("%s; retrying with max_pixels %s", exc, f"{max_pixels:,}")
+                failure = exc
                 continue
             if max_pixels != self.max_pixels:
                 plan = replace(plan, reason=f"{plan.reason} (after running out of memory "
-                                            f"with max_pixels {self.max_pixels})")
+                                            f"with more pixels)")
             self.last_plan = plan
             log_plan(plan, self.spec.name)
             return disparity_px
         raise BackboneError(
             f"{self.spec.name} model: expected it to run within memory, got allocation "
-            f"failures down to max_pixels {max_pixels:,}"
-        )
+            f"failures down to max_pixels {max_pixels:,} (last: {failure})"
+        ) from failure
 
     def _disparity(self, left01: np.ndarray, right01: np.ndarray) -> np.ndarray:
         """Run the model on one checked (sub)pair: prepare, run, finish."""
