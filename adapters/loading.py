@@ -120,24 +120,27 @@ def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
                 f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
                 f"got {str(source)!r}"
             )
-        return OnnxStereo(path, _spec_or_generic(spec, path.name), **options)
+        backbone = OnnxStereo(path, preset(spec or "generic"), **options)
+        if spec is None:
+            _warn_generic_assumed(path.name)
+        return backbone
     torch = sys.modules.get("torch")  # a torch module can only exist if torch is imported
     if torch is not None and isinstance(source, torch.nn.Module):
-        return TorchStereo(source, _spec_or_generic(spec, type(source).__name__), **options)
+        backbone = TorchStereo(source, preset(spec or "generic"), **options)
+        if spec is None:
+            _warn_generic_assumed(type(source).__name__)
+        return backbone
     raise BackboneError(
         f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
         f"got {type(source).__name__}"
     )
 
 
-def _spec_or_generic(spec: StereoSpec | str | None, what: str) -> StereoSpec:
-    """Return the given spec, or ``"generic"`` with a warning that it was assumed."""
-    if spec is not None:
-        return preset(spec)
+def _warn_generic_assumed(what: str) -> None:
+    """Say that a model without a spec or preset is read with ``"generic"``."""
     warnings.warn(
         f"{what}: no spec or preset given, 'generic' assumed (RGB 0..255, no padding, last "
         f"output, positive disparity); pass the model family's preset ({', '.join(PRESETS)}) "
         f"or a StereoSpec",
         UserWarning, stacklevel=3,
     )
-    return PRESETS["generic"]
