@@ -200,17 +200,19 @@ def prepare_inputs(left: np.ndarray, right: np.ndarray, spec: StereoSpec,
     """
     geometry = plan_geometry(left.shape[:2], spec, model_size, pad_multiple=pad_multiple,
                              coarse=coarse, coarse_size=coarse_size)
-    left_hwc, right_hwc = _prepare_hwc(left, spec, geometry), _prepare_hwc(right, spec, geometry)
-    coarse_pair = None
-    if geometry.coarse_hw is not None:
-        coarse_pair = (_to_layout(_shrink(left_hwc, geometry.coarse_hw), spec),
-                       _to_layout(_shrink(right_hwc, geometry.coarse_hw), spec))
     if spec.input_mode == "stacked":
         # left then right along the channels: (H, W, C) x 2 -> (H, W, 2C)
-        images = (_to_layout(np.concatenate([left_hwc, right_hwc], axis=2), spec),)
-    else:
-        images = (_to_layout(left_hwc, spec), _to_layout(right_hwc, spec))
-    return ModelInputs(images, coarse_pair, geometry)
+        stacked = np.concatenate([_prepare_hwc(left, spec, geometry),
+                                  _prepare_hwc(right, spec, geometry)], axis=2)
+        return ModelInputs((_to_layout(stacked, spec),), None, geometry)
+    images, coarse = [], []
+    for image in (left, right):  # one at a time: a single full-size temporary alive
+        hwc = _prepare_hwc(image, spec, geometry)
+        if geometry.coarse_hw is not None:
+            coarse.append(_to_layout(_shrink(hwc, geometry.coarse_hw), spec))
+        images.append(_to_layout(hwc, spec))
+    coarse_pair = (coarse[0], coarse[1]) if coarse else None
+    return ModelInputs((images[0], images[1]), coarse_pair, geometry)
 
 
 def prepare_pair(left: np.ndarray, right: np.ndarray, spec: StereoSpec,
