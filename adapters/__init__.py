@@ -1,11 +1,12 @@
-"""Backbone adapters: ONNX and torch stereo models behind one callable contract.
+"""Backbone adapters: ONNX and torch stereo models, and OpenCV SGBM, behind one contract.
 
 Every adapter is ``backbone(left, right) -> (H, W) float32`` disparity in pixels,
 positive, at input resolution, for rectified ``(H, W, 3)`` uint8 RGB images (floats in
 [0, 1] and grey images are accepted). A :class:`StereoSpec` declares a model's
 conventions (channel order, value range, padding, which output, sign, resolution,
 fixed input size); :data:`PRESETS` holds those of IGEV, IGEV++, RAFT-Stereo, CREStereo,
-NMRF and FoundationStereo.
+NMRF and FoundationStereo. :class:`SGBMStereo` runs OpenCV's semi-global block matching
+with the parameters of an :class:`SGBMSpec` (``load_backbone("sgbm")``).
 
 The stand-in network, its procedural training data, its training and its bundled weights
 live in :mod:`.standin`; they and the torch adapter import torch only when used, so
@@ -19,6 +20,7 @@ from typing import Any
 
 from .loading import default_model_info, default_weights_path, load_backbone
 from .onnx_backend import OnnxStereo
+from .sgbm import SGBMSpec, SGBMStereo
 from .spec import PRESETS, StereoSpec, preset
 from .torch_backend import TorchStereo
 
@@ -28,6 +30,8 @@ __all__ = [
     "preset",
     "OnnxStereo",
     "TorchStereo",
+    "SGBMSpec",
+    "SGBMStereo",
     "load_backbone",
     "default_weights_path",
     "default_model_info",

@@ -7,7 +7,8 @@ feed arrays in and hand raw outputs back.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -16,9 +17,22 @@ import numpy as np
 from srde_fusion._checks import check_disparity_sign, check_image
 from srde_fusion.errors import BackboneError, ImageError
 
+from .large_images import (
+    MEMORY_FRACTION,
+    LargeImagePlan,
+    check_max_pixels,
+    default_max_pixels,
+    log_plan,
+    machine_memory_bytes,
+    plan_large_image,
+    run_plan,
+)
 from .spec import StereoSpec
 
-__all__ = ["Geometry", "StereoAdapter", "check_pair", "prepare_pair", "finish_disparity"]
+__all__ = ["Geometry", "ModelInputs", "StereoAdapter", "check_pair", "prepare_inputs",
+           "prepare_pair", "finish_disparity"]
+
+logger = logging.getLogger(__name__)
 
 _UINT8_MAX = 255.0
 
@@ -36,17 +50,39 @@ class Geometry:
         fixed-size), before padding.
     pad_tblr : (int, int, int, int)
         Padding added at top, bottom, left and right, in model pixels.
+    coarse_hw : (int, int), optional
+        Height and width of the coarse pair of a two-stage model (None: one stage).
     """
 
     image_hw: tuple[int, int]
     model_hw: tuple[int, int]
     pad_tblr: tuple[int, int, int, int]
+    coarse_hw: tuple[int, int] | None = None
 
     @property
     def padded_hw(self) -> tuple[int, int]:
         """Height and width of the tensor fed to the model."""
         t, b, left, r = self.pad_tblr
         return self.model_hw[0] + t + b, self.model_hw[1] + left + r
+
+
+@dataclass(frozen=True)
+class ModelInputs:
+    """The image tensors of one call, in the spec's layout, with their geometry.
+
+    Attributes
+    ----------
+    images : tuple of numpy.ndarray
+        ``(left, right)``, each ``(1, C, H, W)`` (NCHW) float32, or ``(stacked,)`` with
+        ``2 C`` channels for ``input_mode="stacked"``.
+    coarse : tuple of numpy.ndarray, optional
+        ``(left, right)`` at ``geometry.coarse_hw`` for a combined two-stage export.
+    geometry : Geometry
+    """
+
+    images: tuple[np.ndarray, ...]
+    coarse: tuple[np.ndarray, np.ndarray] | None
+    geometry: Geometry
 
 
 def check_pair(left: Any, right: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -83,17 +119,37 @@ def _padding(size: int, multiple: int, side: str) -> tuple[int, int]:
 
 
 def plan_geometry(image_hw: tuple[int, int], spec: StereoSpec,
-                  model_size: tuple[int, int] | None) -> Geometry:
-    """Resize/pad plan for one image size (``model_size`` is (width, height) or None)."""
+                  model_size: tuple[int, int] | None, *, pad_multiple: int | None = None,
+                  coarse: bool = False,
+                  coarse_size: tuple[int, int] | None = None) -> Geometry:
+    """Resize/pad plan for one image size.
+
+    ``model_size`` and ``coarse_size`` are ``(width, height)`` of fixed-size inputs or
+    None; ``pad_multiple`` overrides the spec's (a two-stage model pads to a multiple of
+    ``pad_multiple * coarse_factor`` so that its coarse pair is a multiple too).
+    """
     if model_size is not None:
         # Fixed-size models get the image resized to their size; no padding is needed.
-        return Geometry(image_hw, (model_size[1], model_size[0]), (0, 0, 0, 0))
-    top, bottom = _padding(image_hw[0], spec.pad_multiple, spec.pad_side)
-    left, right = _padding(image_hw[1], spec.pad_multiple, spec.pad_side)
-    return Geometry(image_hw, image_hw, (top, bottom, left, right))
+        model_hw = (model_size[1], model_size[0])
+        pad = (0, 0, 0, 0)
+    else:
+        multiple = pad_multiple or spec.pad_multiple
+        top, bottom = _padding(image_hw[0], multiple, spec.pad_side)
+        left, right = _padding(image_hw[1], multiple, spec.pad_side)
+        model_hw, pad = image_hw, (top, bottom, left, right)
+    geometry = Geometry(image_hw, model_hw, pad)
+    if not coarse:
+        return geometry
+    if coarse_size is not None:
+        coarse_hw = (coarse_size[1], coarse_size[0])
+    else:
+        padded_h, padded_w = geometry.padded_hw
+        coarse_hw = (padded_h // spec.coarse_factor, padded_w // spec.coarse_factor)
+    return Geometry(image_hw, model_hw, pad, coarse_hw)
 
 
-def _prepare_one(image: np.ndarray, spec: StereoSpec, geometry: Geometry) -> np.ndarray:
+def _prepare_hwc(image: np.ndarray, spec: StereoSpec, geometry: Geometry) -> np.ndarray:
+    """(H, W, 3) [0, 1] -> (H', W', C) float32 in the model's values, resized and padded."""
     x = image
     if geometry.model_hw != geometry.image_hw:
         x = cv2.resize(x, (geometry.model_hw[1], geometry.model_hw[0]),
@@ -101,27 +157,72 @@ def _prepare_one(image: np.ndarray, spec: StereoSpec, geometry: Geometry) -> np.
     x = x * np.float32(spec.value_scale)
     if spec.channel_order == "BGR":
         x = x[:, :, ::-1]
+    elif spec.channel_order == "grey":
+        # (H, W, 3) -> (H, W, 1), BT.601 luminance as OpenCV's RGB2GRAY computes it
+        x = cv2.cvtColor(np.ascontiguousarray(x), cv2.COLOR_RGB2GRAY)[:, :, None]
+    channels = x.shape[2]
     if spec.mean is not None:
-        x = x - np.asarray(spec.mean, dtype=np.float32)
+        x = x - np.asarray(spec.mean[:channels], dtype=np.float32)
     if spec.std is not None:
-        x = x / np.asarray(spec.std, dtype=np.float32)
+        x = x / np.asarray(spec.std[:channels], dtype=np.float32)
     t, b, left, r = geometry.pad_tblr
     if t or b or left or r:
+        x = np.ascontiguousarray(x)
         if spec.pad_mode == "replicate":
-            x = cv2.copyMakeBorder(np.ascontiguousarray(x), t, b, left, r, cv2.BORDER_REPLICATE)
+            x = cv2.copyMakeBorder(x, t, b, left, r, cv2.BORDER_REPLICATE)
         else:
-            x = cv2.copyMakeBorder(np.ascontiguousarray(x), t, b, left, r, cv2.BORDER_CONSTANT,
-                                   value=(spec.pad_value,) * 3)
+            x = cv2.copyMakeBorder(x, t, b, left, r, cv2.BORDER_CONSTANT,
+                                   value=(spec.pad_value,) * 4)
+        if x.ndim == 2:  # OpenCV drops a single channel axis
+            x = x[:, :, None]
+    return x
+
+
+def _to_layout(x: np.ndarray, spec: StereoSpec) -> np.ndarray:
     if spec.layout == "NCHW":
-        x = x.transpose(2, 0, 1)  # (H, W, 3) -> (3, H, W)
+        x = x.transpose(2, 0, 1)  # (H, W, C) -> (C, H, W)
     return np.ascontiguousarray(x[None], dtype=np.float32)  # add the batch axis
+
+
+def _shrink(x: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    small = cv2.resize(x, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR)
+    return small[:, :, None] if small.ndim == 2 else small
+
+
+def prepare_inputs(left: np.ndarray, right: np.ndarray, spec: StereoSpec,
+                   model_size: tuple[int, int] | None, *, pad_multiple: int | None = None,
+                   coarse: bool = False,
+                   coarse_size: tuple[int, int] | None = None) -> ModelInputs:
+    """Turn a checked (H, W, 3) [0, 1] pair into the model's input tensors.
+
+    The coarse pair of a two-stage model is the prepared full-size pair resized
+    bilinearly to ``coarse_hw``, as the published CREStereo exports are fed.
+    """
+    geometry = plan_geometry(left.shape[:2], spec, model_size, pad_multiple=pad_multiple,
+                             coarse=coarse, coarse_size=coarse_size)
+    if spec.input_mode == "stacked":
+        # left then right along the channels: (H, W, C) x 2 -> (H, W, 2C)
+        stacked = np.concatenate([_prepare_hwc(left, spec, geometry),
+                                  _prepare_hwc(right, spec, geometry)], axis=2)
+        return ModelInputs((_to_layout(stacked, spec),), None, geometry)
+    images, coarse = [], []
+    for image in (left, right):  # one at a time: a single full-size temporary alive
+        hwc = _prepare_hwc(image, spec, geometry)
+        if geometry.coarse_hw is not None:
+            coarse.append(_to_layout(_shrink(hwc, geometry.coarse_hw), spec))
+        images.append(_to_layout(hwc, spec))
+    coarse_pair = (coarse[0], coarse[1]) if coarse else None
+    return ModelInputs((images[0], images[1]), coarse_pair, geometry)
 
 
 def prepare_pair(left: np.ndarray, right: np.ndarray, spec: StereoSpec,
                  model_size: tuple[int, int] | None) -> tuple[np.ndarray, np.ndarray, Geometry]:
     """Turn a checked (H, W, 3) [0, 1] pair into the two model input tensors."""
-    geometry = plan_geometry(left.shape[:2], spec, model_size)
-    return _prepare_one(left, spec, geometry), _prepare_one(right, spec, geometry), geometry
+    inputs = prepare_inputs(left, right, spec, model_size)
+    if len(inputs.images) != 2:
+        raise BackboneError(f"prepare_pair: expected input_mode='pair', got "
+                            f"{spec.input_mode!r}")
+    return inputs.images[0], inputs.images[1], inputs.geometry
 
 
 def _select_channel(raw: np.ndarray, spec: StereoSpec) -> np.ndarray:
@@ -189,15 +290,51 @@ def finish_disparity(raw: Any, spec: StereoSpec, geometry: Geometry) -> np.ndarr
     return np.ascontiguousarray(disp, dtype=np.float32)
 
 
-class StereoAdapter:
-    """Base of the adapters: checks, preprocessing, ``_run``, postprocessing.
+class ModelOutOfMemory(BackboneError):
+    """The runtime could not allocate memory for one model call (retried smaller)."""
 
-    Subclasses set ``spec`` and ``model_size`` and implement ``_run(left, right)``
-    returning the raw output selected by ``spec.output``.
+
+# Retry a call that ran out of memory at half the pixels, at most this many times.
+_OUT_OF_MEMORY_RETRIES = 4
+
+
+class StereoAdapter:
+    """Base of the adapters: checks, large-image plan, preprocessing, ``_run``, postprocessing.
+
+    Subclasses set ``spec``, ``model_size``, ``pad_multiple`` (the multiple actually
+    applied), ``coarse_size`` and ``uses_coarse`` (a combined two-stage model), call
+    ``_init_large_images`` and implement ``_run(inputs)`` returning the raw output selected
+    by ``spec.output``; a runtime allocation failure there raises
+    :class:`ModelOutOfMemory`, and the call is retried on fewer pixels.
     """
 
     spec: StereoSpec
     model_size: tuple[int, int] | None = None
+    pad_multiple: int = 1
+    uses_coarse: bool = False
+    coarse_size: tuple[int, int] | None = None
+    max_pixels: int | None = None
+    large_images: str = "tile"
+    #: How the last call was run (whole, in strips, or downscaled), and why.
+    last_plan: LargeImagePlan | None = None
+
+    def _init_large_images(self, max_pixels: Any, large_images: Any,
+                           memory_bytes: int | None = None) -> None:
+        if isinstance(max_pixels, str) and max_pixels == "auto":
+            max_pixels = default_max_pixels(self.spec.bytes_per_px, memory_bytes)
+            self._max_pixels_source = (
+                f"max_pixels {max_pixels:,} from {self.spec.bytes_per_px:g} B/px and "
+                f"{MEMORY_FRACTION:.0%} of {memory_bytes or machine_memory_bytes() or 0:,} B"
+                if max_pixels is not None
+                else "max_pixels: none (memory per pixel of this model unknown; set "
+                     "max_pixels or spec.bytes_per_px to bound it)"
+            )
+        else:
+            self._max_pixels_source = (
+                f"max_pixels {max_pixels:,} (given)" if isinstance(max_pixels, int)
+                else f"max_pixels {max_pixels!r} (given)"
+            )
+        self.max_pixels, self.large_images = check_max_pixels(max_pixels, large_images)
 
     def __call__(self, left: Any, right: Any) -> np.ndarray:
         """Disparity of a rectified stereo pair.
@@ -217,12 +354,54 @@ class StereoAdapter:
         ImageError
             Wrong image type, dtype, shape or mismatched sizes.
         BackboneError
-            The model's output does not fit the spec.
+            The model's output does not fit the spec, or the model fails.
         """
         left01, right01 = check_pair(left, right)
-        left_in, right_in, geometry = prepare_pair(left01, right01, self.spec, self.model_size)
-        raw = self._run(left_in, right_in)
-        return finish_disparity(raw, self.spec, geometry)
+        max_pixels = self.max_pixels
+        failure: ModelOutOfMemory | None = None
+        for _ in range(_OUT_OF_MEMORY_RETRIES + 1):
+            plan = plan_large_image(left01.shape[:2], max_pixels, multiple=self.pad_multiple,
+                                    strategy=self.large_images,
+                                    fixed_size=self.model_size is not None)
+            try:
+                disparity_px = run_plan(plan, left01, right01, self._disparity)
+            except ModelOutOfMemory as exc:
+                run_pixels = _padded_pixels(plan.run_hw, self.pad_multiple)
+                if self.model_size is not None or run_pixels <= self.pad_multiple**2:
+                    raise  # a fixed-size model (or one block) cannot be fed fewer pixels
+                max_pixels = run_pixels // 2
+                logger.warning("%s; retrying with max_pixels %s", exc, f"{max_pixels:,}")
+                failure = exc
+                continue
+            if max_pixels != self.max_pixels:
+                plan = replace(plan, reason=f"{plan.reason} (after running out of memory "
+                                            f"with more pixels)")
+            self.last_plan = plan
+            log_plan(plan, self.spec.name)
+            return disparity_px
+        raise BackboneError(
+            f"{self.spec.name} model: expected it to run within memory, got allocation "
+            f"failures down to max_pixels {max_pixels:,} (last: {failure})"
+        ) from failure
 
-    def _run(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:  # pragma: no cover
+    def _disparity(self, left01: np.ndarray, right01: np.ndarray) -> np.ndarray:
+        """Run the model on one checked (sub)pair: prepare, run, finish."""
+        inputs = prepare_inputs(left01, right01, self.spec, self.model_size,
+                                pad_multiple=self.pad_multiple, coarse=self.uses_coarse,
+                                coarse_size=self.coarse_size)
+        raw = self._run(inputs)
+        return finish_disparity(raw, self.spec, inputs.geometry)
+
+    def _large_image_lines(self) -> list[str]:
+        if self.model_size is not None:
+            return ["  large images: none (fixed-size model, its input size is the same for "
+                    "every image)"]
+        return [f"  large images: {self._max_pixels_source}; beyond it: "
+                f"{'strips of full width' if self.large_images == 'tile' else 'downscale'}"]
+
+    def _run(self, inputs: ModelInputs) -> np.ndarray:  # pragma: no cover
         raise NotImplementedError
+
+
+def _padded_pixels(hw: tuple[int, int], multiple: int) -> int:
+    return (hw[0] + (-hw[0]) % multiple) * (hw[1] + (-hw[1]) % multiple)

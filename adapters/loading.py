@@ -1,10 +1,11 @@
-"""One entry point that turns a model file, a torch module or ``"default"`` into a backbone."""
+"""One entry point from a model file, a torch module, ``"default"`` or ``"sgbm"`` to a backbone."""
 
 from __future__ import annotations
 
 import json
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -12,16 +13,21 @@ from srde_fusion.errors import BackboneError
 
 from ._pipeline import StereoAdapter
 from .onnx_backend import OnnxStereo
-from .spec import StereoSpec, preset
+from .sgbm import SGBMSpec, SGBMStereo
+from .spec import PRESETS, StereoSpec, preset
 from .torch_backend import TorchStereo
 
-__all__ = ["load_backbone", "default_weights_path", "default_model_info"]
+__all__ = ["load_backbone", "default_weights_path", "default_model_info",
+           "STANDIN_BYTES_PER_PX"]
 
 _WEIGHTS_DIR = Path(__file__).resolve().parent / "standin" / "weights"
 _DEFAULT_MODEL = "standin.onnx"
 _DEFAULT_INFO = "standin.json"
 # The stand-in follows IGEV's conventions (RGB 0..255, pad to 32, positive disparity).
 _DEFAULT_PRESET = "igev"
+#: Peak memory of the bundled stand-in per input pixel on a CPU (onnxruntime): 1.68 GB
+#: more at 1280x960 than at 640x480 (0.92 MP more), about 1.75 GB per megapixel.
+STANDIN_BYTES_PER_PX = 1750.0
 
 
 def default_weights_path() -> Path:
@@ -49,25 +55,29 @@ def default_model_info() -> dict[str, Any]:
     return json.loads(path.read_text(encoding="utf-8"))
 
 
-def load_backbone(source: Any, spec: StereoSpec | str | None = None, **options: Any
-                  ) -> StereoAdapter:
-    """Make a backbone callable from a model file, a torch module, or the bundled default.
+def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
+                  **options: Any) -> StereoAdapter | SGBMStereo:
+    """Make a backbone callable from a model file, a torch module, or a named backbone.
 
     Parameters
     ----------
     source : str, os.PathLike or torch.nn.Module
-        ``"default"`` for the bundled stand-in network, a path to an ``.onnx`` file, or a
-        torch module.
-    spec : StereoSpec or str, optional
-        Conventions of the model or a preset name. ``None``: the stand-in's own preset
-        for ``"default"``, ``"generic"`` otherwise.
+        ``"default"`` for the bundled stand-in network, ``"sgbm"`` for OpenCV's
+        semi-global block matching, a path to an ``.onnx`` file, or a torch module.
+    spec : StereoSpec, SGBMSpec or str, optional
+        Conventions of the model or a preset name; for ``"sgbm"`` an :class:`SGBMSpec`
+        (or None, or ``"sgbm"``). ``None``: the stand-in's own preset for
+        ``"default"``; for a model file or module, ``"generic"`` with a warning.
     **options
         Passed on to :class:`OnnxStereo` (``providers``, ``session_options``) or
-        :class:`TorchStereo` (``device``).
+        :class:`TorchStereo` (``device``), and to both ``max_pixels`` and
+        ``large_images`` (the bundled stand-in's default budget comes from its measured
+        memory per pixel, :data:`STANDIN_BYTES_PER_PX`); for ``"sgbm"``, fields of
+        :class:`SGBMSpec` (``block_size=7``, ``left_right_check=True``, ...).
 
     Returns
     -------
-    OnnxStereo or TorchStereo
+    OnnxStereo, TorchStereo or SGBMStereo
         ``backbone(left, right) -> (H, W) float32`` disparity in pixels.
 
     Raises
@@ -84,22 +94,53 @@ def load_backbone(source: Any, spec: StereoSpec | str | None = None, **options: 
     >>> backbone(left, left).shape
     (40, 60)
     """
+    if isinstance(source, str) and source.strip().lower() == "sgbm":
+        if spec is None or (isinstance(spec, str) and spec.strip().lower() == "sgbm"):
+            spec = SGBMSpec()
+        if not isinstance(spec, SGBMSpec):
+            raise BackboneError(
+                f"spec: expected an SGBMSpec (or None) for the 'sgbm' backbone, got {spec!r}"
+            )
+        return SGBMStereo(spec, **options)
+    if isinstance(spec, SGBMSpec):
+        raise BackboneError(
+            f"spec: expected a StereoSpec or a preset name for source {source!r}, got an "
+            f"SGBMSpec (it goes with source 'sgbm')"
+        )
     if isinstance(source, str) and source == "default":
         info = default_model_info()
         spec = preset(spec or info.get("preset", _DEFAULT_PRESET))
+        if spec.bytes_per_px is None:
+            spec = spec.replace(bytes_per_px=STANDIN_BYTES_PER_PX)
         return OnnxStereo(default_weights_path(), spec, **options)
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         if path.suffix.lower() != ".onnx":
             raise BackboneError(
-                f"source: expected 'default', a .onnx file or a torch.nn.Module, "
+                f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
                 f"got {str(source)!r}"
             )
-        return OnnxStereo(path, preset(spec or "generic"), **options)
+        backbone = OnnxStereo(path, preset(spec or "generic"), **options)
+        if spec is None:
+            _warn_generic_assumed(path.name)
+        return backbone
     torch = sys.modules.get("torch")  # a torch module can only exist if torch is imported
     if torch is not None and isinstance(source, torch.nn.Module):
-        return TorchStereo(source, preset(spec or "generic"), **options)
+        backbone = TorchStereo(source, preset(spec or "generic"), **options)
+        if spec is None:
+            _warn_generic_assumed(type(source).__name__)
+        return backbone
     raise BackboneError(
-        f"source: expected 'default', a .onnx file or a torch.nn.Module, "
+        f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
         f"got {type(source).__name__}"
+    )
+
+
+def _warn_generic_assumed(what: str) -> None:
+    """Say that a model without a spec or preset is read with ``"generic"``."""
+    warnings.warn(
+        f"{what}: no spec or preset given, 'generic' assumed (RGB 0..255, no padding, last "
+        f"output, positive disparity); pass the model family's preset ({', '.join(PRESETS)}) "
+        f"or a StereoSpec",
+        UserWarning, stacklevel=3,
     )

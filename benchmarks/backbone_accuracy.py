@@ -1,4 +1,4 @@
-"""Accuracy of the bundled stand-in backbone beside OpenCV's StereoSGBM.
+"""Accuracy of the bundled stand-in backbone beside OpenCV's StereoSGBM (``load_backbone("sgbm")``).
 
 Two data sets:
 
@@ -12,9 +12,11 @@ Two data sets:
   unknown; ``evaluate`` skips non-finite ground truth. It is run at full size and
   downscaled by 2 (ground truth halved with it).
 
-StereoSGBM leaves pixels empty (failed uniqueness or left-right checks); ``evaluate``
-leaves them out of EPE and counts them as wrong for bad-2 and D1, and the ``invalid``
-column gives their share.
+SGBM is the library's backbone with its documented defaults (``SGBMSpec()``: block 5,
+colour, width / 8 disparities rounded up to 16, P1/P2 = 8/32 * 3 * 25, 3-way). It leaves
+pixels empty (failed uniqueness or left-right checks); ``evaluate`` leaves them out of EPE
+and counts them as wrong for bad-2 and D1, and the ``invalid`` column gives their share.
+Times are the median of three runs per pair after one warm-up.
 
     python benchmarks/backbone_accuracy.py [--scenes 6] [--model default]
 """
@@ -30,31 +32,26 @@ from pathlib import Path
 import cv2
 import numpy as np
 from skimage import data as skdata
-from srde_fusion.adapters import default_model_info, load_backbone
+from srde_fusion.adapters import SGBMSpec, default_model_info, load_backbone
 
 from srde_fusion.evaluation import evaluate, summarize
 from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 KEYS = ("epe", "bad1", "bad2", "d1", "invalid")
-SGBM_BLOCK = 5
-SGBM_NUM_DISPARITIES = 128  # covers the scenes (25..70 px) and Motorcycle (7..60 px)
-SGBM_FIXED_POINT = 16.0  # StereoSGBM returns disparity * 16 as int16
+SGBM = SGBMSpec()
+TIMING_RUNS = 3
 
 
-def sgbm(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """OpenCV semi-global block matching, empty pixels as NaN."""
-    matcher = cv2.StereoSGBM_create(
-        minDisparity=0, numDisparities=SGBM_NUM_DISPARITIES, blockSize=SGBM_BLOCK,
-        P1=8 * 3 * SGBM_BLOCK**2, P2=32 * 3 * SGBM_BLOCK**2, disp12MaxDiff=1,
-        uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
-        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY,
-    )
-    raw = matcher.compute(cv2.cvtColor(left, cv2.COLOR_RGB2GRAY),
-                          cv2.cvtColor(right, cv2.COLOR_RGB2GRAY))
-    disp = raw.astype(np.float32) / SGBM_FIXED_POINT
-    disp[raw < 0] = np.nan
-    return disp
+def timed(run, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, float]:
+    """Prediction and median seconds of TIMING_RUNS calls after a warm-up call."""
+    pred = run(left, right)
+    seconds = []
+    for _ in range(TIMING_RUNS):
+        t0 = time.perf_counter()
+        run(left, right)
+        seconds.append(time.perf_counter() - t0)
+    return pred, float(np.median(seconds))
 
 
 def score(pred: np.ndarray, gt: np.ndarray, region: np.ndarray | None = None) -> dict:
@@ -83,7 +80,7 @@ def table(rows: list[tuple[str, str, dict]], first: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def rendered_scenes(backbone, n_scenes: int) -> tuple[list, dict]:
+def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict]:
     rig = default_rig()
     pair_rig = rig.subset(list(rig.stereo_pair))
     per = {(region, method): [] for region in ("all", "textured", "glossy")
@@ -106,7 +103,7 @@ def rendered_scenes(backbone, n_scenes: int) -> tuple[list, dict]:
     return rows, {m: float(np.mean(s)) for m, s in seconds.items()}
 
 
-def motorcycle(backbone) -> tuple[list, dict]:
+def motorcycle(backbone, sgbm) -> tuple[list, dict]:
     left, right, gt = skdata.stereo_motorcycle()
     gt = gt.astype(np.float32)
     rows, seconds = [], {}
@@ -120,9 +117,7 @@ def motorcycle(backbone) -> tuple[list, dict]:
             # nearest keeps inf (unknown) pixels unknown; disparity scales with width
             g = cv2.resize(gt, size, interpolation=cv2.INTER_NEAREST) / factor
         for method, run in (("stand-in", backbone), ("SGBM", sgbm)):
-            t0 = time.perf_counter()
-            pred = run(l_img, r_img)
-            seconds[f"{method} {label}"] = time.perf_counter() - t0
+            pred, seconds[f"{method} {label}"] = timed(run, l_img, r_img)
             rows.append((label, method, score(pred, g)))
     return rows, seconds
 
@@ -134,8 +129,11 @@ def main() -> None:
                         help="'default' or a stand-in .onnx file (igev preset)")
     args = parser.parse_args()
     backbone = load_backbone(args.model, "igev")
-    scene_rows, scene_seconds = rendered_scenes(backbone, args.scenes)
-    moto_rows, moto_seconds = motorcycle(backbone)
+    sgbm = load_backbone("sgbm", SGBM)
+    scene_rows, scene_seconds = rendered_scenes(backbone, sgbm, args.scenes)
+    moto_rows, moto_seconds = motorcycle(backbone, sgbm)
+    full = "741x500 (full)"
+    ratio = moto_seconds[f"stand-in {full}"] / moto_seconds[f"SGBM {full}"]
 
     info = default_model_info() if args.model == "default" else {}
     name = "bundled stand-in" if args.model == "default" else f"`{Path(args.model).name}`"
@@ -143,7 +141,9 @@ def main() -> None:
         "# Stand-in backbone accuracy\n\n"
         f"The {name} (trained {info.get('training', {}).get('steps', '?')} steps on "
         "procedural pairs, igev preset) beside "
-        f"OpenCV StereoSGBM (block {SGBM_BLOCK}, {SGBM_NUM_DISPARITIES} disparities, 3-way). "
+        f"OpenCV StereoSGBM as `load_backbone(\"sgbm\")` (block {SGBM.block_size}, "
+        f"{'colour' if SGBM.colour else 'luminance'}, width / 8 disparities rounded up to 16, "
+        f"{SGBM.mode}). "
         "SGBM's EPE covers only the pixels it filled (see `invalid`); bad-1, bad-2 and D1 "
         "count its empty pixels as wrong. The stand-in fills every pixel.\n\n"
         f"## Rendered scenes ({args.scenes} scenes, 640x480, textured background, one glossy "
@@ -153,7 +153,9 @@ def main() -> None:
         + ", ".join(f"{m} {s:.2f} s" for m, s in scene_seconds.items())
         + "\n\n## Middlebury 2014 Motorcycle (scikit-image copy)\n\n"
         + table(moto_rows, "size")
-        + "\nTime: " + ", ".join(f"{m} {s:.2f} s" for m, s in moto_seconds.items()) + "\n"
+        + "\nTime per pair (median of 3 after a warm-up): "
+        + ", ".join(f"{m} {s:.3f} s" for m, s in moto_seconds.items())
+        + f"; stand-in / SGBM at full size: {ratio:.1f}x\n"
     )
     print(text)
     RESULTS.mkdir(exist_ok=True)
@@ -163,6 +165,8 @@ def main() -> None:
                    for r, m, v in scene_rows],
         "motorcycle": [{"size": s, "method": m, **v} for s, m, v in moto_rows],
         "seconds": {**scene_seconds, **moto_seconds},
+        "standin_over_sgbm_time_full": ratio,
+        "sgbm_spec": {f: getattr(SGBM, f) for f in SGBM.__dataclass_fields__},
         "model": info.get("validation"),
         "platform": platform.platform(),
     }

@@ -30,8 +30,9 @@ def backbone_from(source: Any, preset: str | None = None, *, threads: int | None
     Parameters
     ----------
     source : str, path, torch module or callable
-        ``"default"`` (the bundled stand-in), a model file, a torch module, or a ready
-        ``backbone(left, right)`` callable (returned as it is).
+        ``"default"`` (the bundled stand-in), ``"sgbm"`` (OpenCV's semi-global block
+        matching), a model file, a torch module, or a ready ``backbone(left, right)``
+        callable (returned as it is).
     preset : str, optional
         The model family's conventions (``"igev"``, ``"raft-stereo"``, ...).
     threads : int, optional
@@ -53,6 +54,8 @@ def backbone_from(source: Any, preset: str | None = None, *, threads: int | None
         return source
     if is_module:
         return load_backbone(source, preset, device=device)
+    if isinstance(source, str) and source.strip().lower() == "sgbm":
+        return load_backbone(source, preset)  # OpenCV on the CPU: no session, no device
     providers = providers_for(device)
     if threads is None:
         return load_backbone(source, preset, providers=providers)

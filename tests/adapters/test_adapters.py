@@ -286,12 +286,18 @@ def test_describe_lists_inferred_and_unknown(probe_path):
 
 def test_presets_follow_published_conventions():
     assert set(PRESETS) == {"generic", "igev", "igev++", "raft-stereo", "crestereo", "nmrf",
-                            "foundationstereo"}
+                            "foundationstereo", "hitnet"}
     assert preset("IGEV").pad_multiple == 32 and preset("foundationstereo").pad_multiple == 32
     assert preset("crestereo").pad_multiple == 8 and preset("nmrf").pad_multiple == 8
     assert preset("raft-stereo").output_sign == -1.0 and preset("raft-stereo").output == -1
     assert preset("crestereo").channel_order == "BGR" and preset("nmrf").output == "disp"
-    assert all(p.value_scale == 255.0 and p.mean is None for p in PRESETS.values())
+    assert all(p.value_scale == 255.0 and p.mean is None for p in PRESETS.values()
+               if p.name != "hitnet")
+    assert preset("hitnet").value_scale == 1.0 and preset("hitnet").input_mode == "stacked"
+    # the demos' iteration counts, in test mode
+    for name in ("igev", "igev++", "raft-stereo", "foundationstereo"):
+        assert dict(preset(name).forward_kwargs) == {"iters": 32, "test_mode": True}
+    assert dict(preset("crestereo").forward_kwargs) == {"iters": 20, "test_mode": True}
     spec = StereoSpec(pad_multiple=8)
     assert preset(spec) is spec
 
@@ -319,7 +325,7 @@ def test_file_that_is_not_a_model(tmp_path):
         OnnxStereo(bogus)
     with pytest.raises(BackboneError, match="existing .onnx file"):
         OnnxStereo(tmp_path / "missing.onnx")
-    with pytest.raises(BackboneError, match="expected 'default', a .onnx file"):
+    with pytest.raises(BackboneError, match="expected 'default', 'sgbm', a .onnx file"):
         load_backbone(tmp_path / "weights.pth")
     with pytest.raises(BackboneError, match="got int"):
         load_backbone(42)
