@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import SRDEError
 from ..evaluation import format_markdown_table
 from ..fusion import FusionResult
+from ..io import is_kitti_folder
 from ..workflows import (
     DEMO_OBJECTS,
     DEMO_SEED,
@@ -61,8 +62,10 @@ def _cli_demo(args: argparse.Namespace) -> int:
 
 
 def _is_dataset(folder: str) -> bool:
-    """Say whether the folder holds scene folders rather than being one scene."""
+    """Say whether the folder holds scenes (or KITTI frames) rather than being one scene."""
     path = Path(folder)
+    if is_kitti_folder(path):
+        return True
     return (path.is_dir() and not (path / "rig.json").is_file()
             and not (path / "calib.txt").is_file()
             and any((p / "rig.json").is_file() or (p / "calib.txt").is_file()
@@ -74,8 +77,8 @@ def _cli_fuse(args: argparse.Namespace) -> int:
                 else backbone_from(args.backbone, args.preset, device=args.device))
     if _is_dataset(args.scene_dir):
         if backbone is None:
-            raise SRDEError(f"{args.scene_dir}: expected --backbone for a folder of scenes "
-                            f"(one --disparity map cannot serve several scenes), got --disparity")
+            raise SRDEError(f"{args.scene_dir}: expected --backbone for a folder of scenes or "
+                            f"frames (one --disparity map cannot serve several), got --disparity")
         dataset = fuse_dataset(args.scene_dir, args.out, backbone=backbone, mask=args.mask,
                                auto_mask=args.auto_mask, light=args.light,
                                progress=not args.quiet)
@@ -174,7 +177,9 @@ def register(subparsers: Any) -> None:
         "fused disparity, source map, report and figure.")
     p.add_argument("scene_dir", help="scene folder: rig.json (with the light), cam*.png, "
                    "optional mask.png and gt_disparity.pfm; or a Middlebury folder; or a folder "
-                   "of scene folders, each fused into OUT/<scene>")
+                   "of scene folders, each fused into OUT/<scene>; or a KITTI folder "
+                   "(image_2/, image_3/), each frame fused into OUT/<frame> (one frame: "
+                   "KITTI_DIR/<frame>)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--backbone",
                         help="'default' (bundled stand-in network) or a stereo model .onnx")
