@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import functools
 import os
 import sys
@@ -14,9 +15,14 @@ from .._atomic import folder_lock
 from ..errors import SRDEError
 from ..evaluation import BackboneLoader, evaluate_dataset
 from ..io import list_scenes
-from .backbones import backbone_from
+from .backbones import add_spec_options, backbone_from, spec_from_args
 
 __all__ = ["register"]
+
+
+def _spec_record(spec: Any) -> Any:
+    """Return the spec as ``eval.json`` records it: every field of a --spec file, else None."""
+    return None if spec is None or isinstance(spec, str) else dataclasses.asdict(spec)
 
 
 def _cli_eval(args: argparse.Namespace) -> int:
@@ -24,13 +30,14 @@ def _cli_eval(args: argparse.Namespace) -> int:
     if jobs < 1:
         raise SRDEError(f"--jobs: expected a positive number of worker processes, got {jobs}")
     jobs = min(jobs, len(list_scenes(args.dataset_dir)))  # a missing dataset is reported first
+    spec = spec_from_args(args)
     if jobs > 1:
         threads = max(1, (os.cpu_count() or 1) // jobs)
-        backbone = BackboneLoader(functools.partial(backbone_from, args.backbone, args.preset,
+        backbone = BackboneLoader(functools.partial(backbone_from, args.backbone, spec,
                                                     threads=threads, device=args.device))
-        backbone_from(args.backbone, args.preset, device=args.device)  # fail here, not in workers
+        backbone_from(args.backbone, spec, device=args.device)  # fail here, not in workers
     else:
-        backbone = backbone_from(args.backbone, args.preset, device=args.device)
+        backbone = backbone_from(args.backbone, spec, device=args.device)
     with contextlib.ExitStack() as stack:
         if args.out is not None:  # checked and held before any scene is computed
             stack.enter_context(folder_lock(args.out))
@@ -46,7 +53,8 @@ def _cli_eval(args: argparse.Namespace) -> int:
                 args.out, f"{Path(args.dataset_dir).name}: backbone {args.backbone}, masks "
                 f"{args.masks}", settings={
                     "dataset": str(args.dataset_dir), "backbone": args.backbone,
-                    "preset": args.preset, "masks": args.masks, "srde_method": args.method,
+                    "preset": args.preset, "spec": _spec_record(spec),
+                    "masks": args.masks, "srde_method": args.method,
                     "device": args.device, "jobs": evaluation.jobs})
             print(f"wrote {Path(args.out)}/: {', '.join(f.name for f in files)}")
     if evaluation.failures:
@@ -67,7 +75,7 @@ def register(subparsers: Any) -> None:
                    "`srde-fusion render`)")
     p.add_argument("--backbone", required=True,
                    help="'default' (bundled stand-in network) or a stereo model .onnx")
-    p.add_argument("--preset", default=None, help="conventions of the .onnx model")
+    add_spec_options(p)
     p.add_argument("--masks", choices=("user", "auto"), default="user",
                    help="'user': each scene's mask.png; 'auto': the built-in segmenter")
     p.add_argument("--method", choices=("default", "paper"), default="default",

@@ -114,8 +114,8 @@ def test_eval_command(dataset, tmp_path, capsys):
     assert md.startswith("## ")
     # how the folder was made, and every stereo-benchmark threshold, are in it
     assert data["settings"] == {"dataset": str(dataset), "backbone": "default", "preset": None,
-                                "masks": "user", "srde_method": "default", "device": "cpu",
-                                "jobs": data["run"]["jobs"]}
+                                "spec": None, "masks": "user", "srde_method": "default",
+                                "device": "cpu", "jobs": data["run"]["jobs"]}
     assert "- masks: user" in md and "| fused |" in md and "| hybrid |" not in md
     assert all(f"| {k} " in md for k in ("bad0.5", "bad1", "bad2", "bad3", "bad4", "d1"))
 
