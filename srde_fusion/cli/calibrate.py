@@ -90,14 +90,14 @@ def _calibrate_light_command(args) -> int:
         max_residual_m=args.max_residual_mm / 1000.0,
     )
     print(calibration.estimate.summary())
-    if args.figure is not None:
-        files = write_calibration_figures(args.figure, args.captures, calibration.estimate,
-                                          calibration.rig, Board.from_json(args.board))
-        print(f"wrote {args.figure}/: {', '.join(f.name for f in files)}")
     if args.dry_run:
         print(f"{args.rig} left unchanged (--dry-run)")
     else:
         print(f"wrote the light into {args.rig} (previous file kept as {calibration.backup})")
+    if args.figure is not None:
+        files = write_calibration_figures(args.figure, args.captures, calibration.estimate,
+                                          calibration.rig, Board.from_json(args.board))
+        print(f"wrote {args.figure}/: {', '.join(f.name for f in files)}")
     return 0
 
 
