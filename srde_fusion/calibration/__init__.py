@@ -1,6 +1,7 @@
 """Light calibration: an ArUco plate's pose and the light from its highlight.
 
-Imports ``geometry``, ``srde`` (the highlight detector) and ``io``.
+Imports ``geometry``, ``srde`` (the highlight detector), ``io`` and, for its figures,
+``evaluation``'s figure writer.
 """
 
 from __future__ import annotations
@@ -17,6 +18,12 @@ from .captures import (
     calibrate_light_files,
     estimate_light,
     read_capture,
+)
+from .figures import (
+    capture_figure,
+    highlight_residuals_px,
+    light_figure,
+    write_calibration_figures,
 )
 from .light import (
     DEFAULT_MAX_INCIDENCE_DEG,
@@ -65,4 +72,8 @@ __all__ = [
     "PlatePose",
     "estimate_plate_pose",
     "pose_from_detections",
+    "capture_figure",
+    "light_figure",
+    "write_calibration_figures",
+    "highlight_residuals_px",
 ]

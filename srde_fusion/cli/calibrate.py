@@ -9,6 +9,7 @@ from ..calibration import (
     Board,
     calibrate_light_files,
     write_board,
+    write_calibration_figures,
 )
 
 __all__ = ["register"]
@@ -93,6 +94,10 @@ def _calibrate_light_command(args) -> int:
         print(f"{args.rig} left unchanged (--dry-run)")
     else:
         print(f"wrote the light into {args.rig} (previous file kept as {calibration.backup})")
+    if args.figure is not None:
+        files = write_calibration_figures(args.figure, args.captures, calibration.estimate,
+                                          calibration.rig, Board.from_json(args.board))
+        print(f"wrote {args.figure}/: {', '.join(f.name for f in files)}")
     return 0
 
 
@@ -148,4 +153,8 @@ def _register_calibrate_light(subparsers) -> None:
         help="keep the ray intersection (the paper's estimate), skip the joint refinement",
     )
     p.add_argument("--dry-run", action="store_true", help="print the light, do not write rig.json")
+    p.add_argument("--figure", default=None, metavar="DIR",
+                   help="write capture_<c>.png per capture (each view: markers found and "
+                   "reprojected, highlight centre and its residual) and light_3d.png (plate "
+                   "poses, rays, the light) into DIR")
     p.set_defaults(func=_calibrate_light_command)

@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import SRDEError
 from ..evaluation import format_markdown_table
 from ..fusion import FusionResult
+from ..io import is_kitti_folder
 from ..workflows import (
     DEMO_OBJECTS,
     DEMO_SEED,
@@ -24,7 +25,7 @@ from ..workflows import (
     run_demo,
     srde_scene,
 )
-from .backbones import backbone_from
+from .backbones import add_spec_options, backbone_from, spec_from_args
 
 __all__ = ["register"]
 
@@ -51,7 +52,8 @@ def _print_files(run: SceneRun) -> None:
 
 def _cli_demo(args: argparse.Namespace) -> int:
     run = run_demo(args.out, seed=args.seed, n_objects=args.objects, scale=args.scale,
-                   backbone=backbone_from(args.backbone, device=args.device))
+                   backbone=backbone_from(args.backbone, spec_from_args(args),
+                                          device=args.device))
     _print_objects(run.fusion)
     _print_masks(run)
     print()
@@ -61,8 +63,10 @@ def _cli_demo(args: argparse.Namespace) -> int:
 
 
 def _is_dataset(folder: str) -> bool:
-    """Say whether the folder holds scene folders rather than being one scene."""
+    """Say whether the folder holds scenes (or KITTI frames) rather than being one scene."""
     path = Path(folder)
+    if is_kitti_folder(path):
+        return True
     return (path.is_dir() and not (path / "rig.json").is_file()
             and not (path / "calib.txt").is_file()
             and any((p / "rig.json").is_file() or (p / "calib.txt").is_file()
@@ -70,12 +74,15 @@ def _is_dataset(folder: str) -> bool:
 
 
 def _cli_fuse(args: argparse.Namespace) -> int:
+    if args.backbone is None and (args.preset or args.spec) is not None:
+        raise SRDEError("--preset/--spec: expected with --backbone (the conventions of a model "
+                        "to run), got --disparity")
     backbone = (None if args.backbone is None
-                else backbone_from(args.backbone, args.preset, device=args.device))
+                else backbone_from(args.backbone, spec_from_args(args), device=args.device))
     if _is_dataset(args.scene_dir):
         if backbone is None:
-            raise SRDEError(f"{args.scene_dir}: expected --backbone for a folder of scenes "
-                            f"(one --disparity map cannot serve several scenes), got --disparity")
+            raise SRDEError(f"{args.scene_dir}: expected --backbone for a folder of scenes or "
+                            f"frames (one --disparity map cannot serve several), got --disparity")
         dataset = fuse_dataset(args.scene_dir, args.out, backbone=backbone, mask=args.mask,
                                auto_mask=args.auto_mask, light=args.light,
                                progress=not args.quiet)
@@ -162,6 +169,7 @@ def register(subparsers: Any) -> None:
                    help="image scale relative to 640x480 (default 1; 0.5 is quicker)")
     p.add_argument("--backbone", default="default",
                    help="'default' (bundled stand-in network) or a stereo model .onnx")
+    add_spec_options(p)
     _add_device_option(p)
     p.set_defaults(func=_cli_demo)
 
@@ -174,7 +182,9 @@ def register(subparsers: Any) -> None:
         "fused disparity, source map, report and figure.")
     p.add_argument("scene_dir", help="scene folder: rig.json (with the light), cam*.png, "
                    "optional mask.png and gt_disparity.pfm; or a Middlebury folder; or a folder "
-                   "of scene folders, each fused into OUT/<scene>")
+                   "of scene folders, each fused into OUT/<scene>; or a KITTI folder "
+                   "(image_2/, image_3/), each frame fused into OUT/<frame> (one frame: "
+                   "KITTI_DIR/<frame>)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--backbone",
                         help="'default' (bundled stand-in network) or a stereo model .onnx")
@@ -183,9 +193,7 @@ def register(subparsers: Any) -> None:
                         "view (.pfm, KITTI 16-bit .png or .npy), instead of running a model")
     p.add_argument("--disparity-scale", type=float, default=1.0, metavar="S",
                    help="multiply --disparity's values by S to get pixels (default 1)")
-    p.add_argument("--preset", default=None,
-                   help="conventions of the .onnx model: igev, igev++, raft-stereo, crestereo, "
-                   "nmrf, foundationstereo or generic")
+    add_spec_options(p)
     _add_mask_options(p)
     p.add_argument("--out", required=True, help="output folder")
     _add_device_option(p)

@@ -14,10 +14,12 @@ import math
 import multiprocessing
 import os
 import pickle
+import socket
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -193,17 +195,23 @@ class DatasetEvaluation:
     scenes : tuple of SceneEvaluation
         The scenes evaluated, in dataset order.
     jobs : int
-        Processes that evaluated the scenes (1: in the calling process).
+        Processes that evaluated the scenes: 1 in the calling process, the pool's size
+        with ``jobs > 1``, and with an executor the distinct worker processes (host and
+        process id) that returned scenes.
     wall_s : float
         Wall-clock time of the whole evaluation, seconds (NaN if not measured).
     failures : tuple of SceneFailure
         Scenes that could not be evaluated (bad files, no mask, no light, ...).
+    runner : str
+        Where the scenes ran: ``"this process"``, ``"N processes"`` or the executor's
+        type (``"ThreadPoolExecutor"``, ``"ClientExecutor"`` for Dask, ...).
     """
 
     scenes: tuple[SceneEvaluation, ...]
     jobs: int = 1
     wall_s: float = math.nan
     failures: tuple[SceneFailure, ...] = ()
+    runner: str = "this process"
 
     @property
     def scenes_per_second(self) -> float:
@@ -258,7 +266,7 @@ class DatasetEvaluation:
         summary = {m: {r: {k: {"mean": v[0], "std": v[1]} for k, v in keys.items()}
                        for r, keys in regions.items()}
                    for m, regions in self.summary().items()} if self.scenes else {}
-        run = {"jobs": self.jobs, "wall_s": self.wall_s,
+        run = {"jobs": self.jobs, "runner": self.runner, "wall_s": self.wall_s,
                "scenes_per_second": self.scenes_per_second}
         return json_safe({"counts": self.counts(), "mask_iou_mean": self.mean_mask_iou(),
                            "summary": summary, "run": run,
@@ -304,7 +312,8 @@ class BackboneLoader:
     """A backbone that each worker process of :func:`evaluate_dataset` loads for itself.
 
     Model sessions usually cannot be pickled, so parallel evaluation sends this recipe
-    to the workers instead; ``load()`` runs once in each.
+    to the workers instead; ``load()`` runs once in each worker process (the first time
+    one of its scenes needs it) and the backbone is kept there for its next scenes.
 
     Attributes
     ----------
@@ -316,29 +325,42 @@ class BackboneLoader:
     load: Callable[[], Backbone]
 
 
-# The backbone, masks and options of an evaluation worker process, set by _start_worker.
-_WORKER: dict[str, Any] = {}
+# Backbones loaded in this process, by their loader's pickle (a worker process of a pool
+# or a cluster loads each model once and keeps it for its next scenes), with the loader.
+_LOADED: dict[Any, tuple[BackboneLoader, Backbone]] = {}
+_LOADING = threading.Lock()
 
 
-def _start_worker(backbone: Any, masks: Any, options: dict[str, Any], threads: int,
-                  strict: bool) -> None:
+def _limit_threads(threads: int) -> None:
     # Each worker gets its share of the cores; OpenCV (and torch, if loaded) would
     # otherwise start a thread per core in every process.
     cv2.setNumThreads(threads)
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(threads)
+
+
+def _worker_backbone(backbone: Backbone | BackboneLoader) -> Backbone:
+    """Return the backbone itself, or the one its loader made in this process (loaded once)."""
+    if not isinstance(backbone, BackboneLoader):
+        return backbone
     try:
-        _WORKER["backbone"] = backbone.load() if isinstance(backbone, BackboneLoader) else backbone
-    except Exception as exc:  # raised again with the first scene, where the caller sees it
-        _WORKER["error"] = exc
-    _WORKER["masks"], _WORKER["options"], _WORKER["strict"] = masks, options, strict
+        key: Any = pickle.dumps(backbone)
+    except Exception:  # pickling raises several types; only threads here can share it
+        key = id(backbone)
+    with _LOADING:  # threads of one process share the model, loaded by the first
+        entry = _LOADED.get(key)
+        if entry is None or (isinstance(key, int) and entry[0] is not backbone):
+            entry = _LOADED[key] = (backbone, backbone.load())
+        return entry[1]
 
 
-def _evaluate_in_worker(folder: str) -> SceneEvaluation | SceneFailure:
-    if "error" in _WORKER:
-        raise _WORKER["error"]
-    return _evaluate_or_fail(Path(folder), _WORKER["backbone"], _WORKER["masks"],
-                             _WORKER["strict"], _WORKER["options"])
+def _evaluate_task(folder: str, backbone: Backbone | BackboneLoader, masks: Any, strict: bool,
+                   options: dict[str, Any]) -> tuple[SceneEvaluation | SceneFailure, str]:
+    """Evaluate one scene wherever an executor runs it; also say which process did."""
+    # A backbone that cannot be loaded is raised, not recorded as a failure of the scene.
+    model = _worker_backbone(backbone)
+    result = _evaluate_or_fail(Path(folder), model, masks, strict, options)
+    return result, f"{socket.gethostname()}:{os.getpid()}"
 
 
 def _evaluate_or_fail(folder: Path, backbone: Backbone, masks: Any, strict: bool,
@@ -423,28 +445,37 @@ def evaluate_scene(scene: SceneData | str | os.PathLike, backbone: Backbone, *,
 
 def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | BackboneLoader, *,
                      masks: Any = "user", progress: bool = True, jobs: int = 1,
-                     strict: bool = False, **options: Any) -> DatasetEvaluation:
-    """Evaluate every scene folder of a dataset, in one process or several.
+                     executor: Executor | None = None, strict: bool = False,
+                     **options: Any) -> DatasetEvaluation:
+    """Evaluate every scene folder of a dataset: in this process, in several, or on a cluster.
 
-    Scenes are independent, so with ``jobs > 1`` a pool of worker processes evaluates
-    them side by side; each worker gets the backbone once, when it starts, and the
-    scores are the same as in one process (scenes stay in dataset order).
+    Scenes are independent, so they can be evaluated side by side: ``jobs > 1`` starts a
+    pool of worker processes on this machine, and ``executor`` hands the scenes to any
+    :class:`concurrent.futures.Executor` -- a thread pool, a process pool, or a Dask
+    ``distributed`` client's ``client.get_executor()`` that spreads them over a cluster.
+    Each worker process loads a :class:`BackboneLoader`'s model once; the scores are the
+    same as in one process, and scenes stay in dataset order.
 
     Parameters
     ----------
     dataset_dir : path
-        A folder of scene folders (see :func:`~srde_fusion.io.files.list_scenes`).
+        A folder of scene folders (see :func:`~srde_fusion.io.files.list_scenes`). With
+        an executor whose workers run on other machines, the path must name the same
+        folder there (a shared file system).
     backbone : callable or BackboneLoader
         ``backbone(left, right) -> (H, W)`` disparity in pixels, or a loader that makes
-        one. With ``jobs > 1`` a backbone is pickled to every worker; one that holds a
-        model session cannot be, so pass a :class:`BackboneLoader` instead.
+        one. Where scenes run in other processes (``jobs > 1``, a process pool, Dask) it
+        is pickled to them; one that holds a model session cannot be, so pass a
+        :class:`BackboneLoader` instead. A thread pool shares the callable itself.
     masks : {"user", "auto"} or masker
         See :func:`evaluate_scene`.
     progress : bool
         Show a progress bar on stderr.
     jobs : int
-        Worker processes (at most one per scene); 1 evaluates in this process.
-        ``os.cpu_count()`` uses every core.
+        Worker processes on this machine (at most one per scene); 1 evaluates in this
+        process. ``os.cpu_count()`` uses every core. Only 1 with an ``executor``.
+    executor : concurrent.futures.Executor, optional
+        Where to run the scenes, one task per scene; it is used, not shut down.
     strict : bool
         Stop at the first scene that cannot be evaluated (raise its error). By default
         such a scene is recorded in ``failures`` and the others are still evaluated.
@@ -454,18 +485,31 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
     Returns
     -------
     DatasetEvaluation
-        With ``jobs`` (the processes used) and ``wall_s``, hence ``scenes_per_second``.
+        With ``jobs`` (the processes used), ``runner`` and ``wall_s``, hence
+        ``scenes_per_second``.
 
     Raises
     ------
     SRDEError
-        ``jobs`` is not a positive integer, or a backbone that cannot be pickled is
-        given with ``jobs > 1``; with ``strict``, whatever :func:`evaluate_scene` raises.
+        ``jobs`` is not a positive integer, ``executor`` is not an Executor or comes with
+        ``jobs > 1``, or a backbone that cannot be pickled is given with ``jobs > 1``;
+        with ``strict``, whatever :func:`evaluate_scene` raises.
     """
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise SRDEError(f"jobs: expected a positive integer (worker processes), got {jobs!r}")
+    if executor is not None and not isinstance(executor, Executor):
+        raise SRDEError(f"executor: expected a concurrent.futures.Executor, got "
+                        f"{type(executor).__name__}")
+    if executor is not None and jobs != 1:
+        raise SRDEError(f"jobs, executor: expected one way to run the scenes in parallel, got "
+                        f"jobs={jobs} and an executor")
     start = time.perf_counter()
     folders = list_scenes(dataset_dir)
+    if executor is not None:
+        results, workers = _run_on(executor, folders, backbone, masks, strict, options,
+                                   progress, f"evaluating ({type(executor).__name__})")
+        return _collect(results, len(workers), time.perf_counter() - start,
+                        type(executor).__name__)
     jobs = min(jobs, len(folders))
     if jobs <= 1:
         if isinstance(backbone, BackboneLoader):
@@ -489,17 +533,38 @@ def evaluate_dataset(dataset_dir: str | os.PathLike, backbone: Backbone | Backbo
     # Fresh interpreters: forking a process that runs model sessions or OpenMP pools
     # can deadlock the child.
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(jobs, mp_context=context, initializer=_start_worker,
-                             initargs=(backbone, masks, options, threads, strict)) as pool:
-        results = pool.map(_evaluate_in_worker, [str(f) for f in folders])
-        if progress:
-            results = tqdm(results, total=len(folders), desc=f"evaluating ({jobs} processes)",
-                           unit="scene")
-        results = list(results)
-    return _collect(results, jobs, time.perf_counter() - start)
+    with ProcessPoolExecutor(jobs, mp_context=context, initializer=_limit_threads,
+                             initargs=(threads,)) as pool:
+        results, _ = _run_on(pool, folders, backbone, masks, strict, options, progress,
+                             f"evaluating ({jobs} processes)")
+    return _collect(results, jobs, time.perf_counter() - start, f"{jobs} processes")
 
 
-def _collect(results: list[SceneEvaluation | SceneFailure], jobs: int, wall_s: float
-             ) -> DatasetEvaluation:
+def _run_on(executor: Executor, folders: Sequence[Path], backbone: Any, masks: Any,
+            strict: bool, options: dict[str, Any], progress: bool, label: str
+            ) -> tuple[list[SceneEvaluation | SceneFailure], set[str]]:
+    """Submit one task per scene; collect the results in dataset order, and the workers."""
+    futures: list[Future] = [executor.submit(_evaluate_task, str(f), backbone, masks, strict,
+                                             options) for f in folders]
+    results, workers = [], set()
+    bar = tqdm(total=len(futures), desc=label, unit="scene", disable=not progress)
+    try:
+        for future in futures:
+            result, worker = future.result()
+            results.append(result)
+            workers.add(worker)
+            bar.update()
+    except BaseException:
+        for future in futures:  # stop what has not started (strict, an interrupt)
+            future.cancel()
+        raise
+    finally:
+        bar.close()
+    return results, workers
+
+
+def _collect(results: list[SceneEvaluation | SceneFailure], jobs: int, wall_s: float,
+             runner: str = "this process") -> DatasetEvaluation:
     return DatasetEvaluation(tuple(r for r in results if isinstance(r, SceneEvaluation)), jobs,
-                             wall_s, tuple(r for r in results if isinstance(r, SceneFailure)))
+                             wall_s, tuple(r for r in results if isinstance(r, SceneFailure)),
+                             runner)

@@ -29,6 +29,11 @@ from .report import (
     FusionResult,
     ObjectReport,
 )
+from .stream import (
+    FrameTiming,
+    FusionStream,
+    StreamStats,
+)
 
 __all__ = [
     "border_band",
@@ -44,4 +49,7 @@ __all__ = [
     "ObjectReport",
     "FusionResult",
     "SOURCE_BACKBONE",
+    "FusionStream",
+    "StreamStats",
+    "FrameTiming",
 ]

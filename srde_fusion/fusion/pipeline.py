@@ -8,7 +8,8 @@ run SRDE and :func:`~srde_fusion.fusion.fuse` on them.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import time
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ from ..srde import SRDE
 from .checks import DEFAULT_BORDER_CHECK, BorderCheck
 from .fuse import as_mask_list, fuse
 from .report import FusionResult
+from .stream import FrameTiming, FusionStream
 
 __all__ = [
     "postprocess",
@@ -145,11 +147,61 @@ class HybridStereo:
         -------
         FusionResult
         """
+        return self._run(views)[0]
+
+    def stream(self, frames: Iterable[Sequence[np.ndarray]]) -> FusionStream:
+        """Fuse a sequence of frames from this rig, one result per frame, with their rate.
+
+        What depends only on the rig is done once for the whole stream: the rig and
+        light are checked, SRDE's search geometry and highlight detector are built
+        before the first frame, and the mask stage is kept. Frames are read from
+        ``frames`` one at a time, as results are asked for, so a camera generator or a
+        folder reader can feed it without holding the sequence in memory.
+
+        Parameters
+        ----------
+        frames : iterable of sequences of numpy.ndarray, (H, W, 3) uint8
+            Each item is one frame: one image per rig camera, in the rig's order.
+
+        Returns
+        -------
+        FusionStream
+            An iterator of :class:`FusionResult`, one per frame; its ``stats``
+            (:class:`~srde_fusion.fusion.stream.StreamStats`) give the frames per second
+            and the time per stage, its ``last_timing`` the last frame's stages.
+
+        Raises
+        ------
+        ImageError
+            When a frame is reached whose views do not fit the rig.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from srde_fusion import CameraRig
+        >>> rig = CameraRig.stereo(0.1, fx=100.0, image_size=(32, 24),
+        ...                        light_position_m=(0, -0.3, 0))
+        >>> model = HybridStereo(lambda l, r: np.full((24, 32), 5.0, np.float32), rig,
+        ...                      masker=lambda views, rig: [])
+        >>> frames = ([np.zeros((24, 32, 3), np.uint8)] * 2 for _ in range(3))
+        >>> stream = model.stream(frames)
+        >>> [float(result.disparity[0, 0]) for result in stream], stream.stats.frames
+        ([5.0, 5.0, 5.0], 3)
+        """
+        _ = self.srde  # built now, so the first frame costs what every other one does
+        return FusionStream(self._run, frames)
+
+    def _run(self, views: Sequence[np.ndarray]) -> tuple[FusionResult, FrameTiming]:
+        """Fuse one frame; return the result and the time of each stage."""
         rig = self.rig
+        t0 = time.perf_counter()
         views = check_views(views, rig.n_cameras, rig.image_size)
         left, right = (views[i] for i in rig.stereo_pair)
         disparity = self.backbone(left, right)
+        t1 = time.perf_counter()
         # Checked here so that a masker returning None or a generator is a MaskError.
         masks = as_mask_list(self.masker(views, rig), (rig.height, rig.width))
+        t2 = time.perf_counter()
         srde = self.srde if masks else None
-        return fuse(disparity, views, rig, masks, srde, border_check=self.border_check)
+        result = fuse(disparity, views, rig, masks, srde, border_check=self.border_check)
+        return result, FrameTiming(t1 - t0, t2 - t1, time.perf_counter() - t2)

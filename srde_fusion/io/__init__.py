@@ -8,6 +8,7 @@ from __future__ import annotations
 from ._files import load_npy
 from .calibration_files import (
     MiddleburyCalib,
+    read_kitti_calib,
     read_middlebury_calib,
     read_opencv_stereo_yaml,
 )
@@ -41,6 +42,8 @@ from .scene import (
     METADATA_FILE,
     RIG_FILE,
     SceneData,
+    is_kitti_folder,
+    kitti_frames,
     list_scenes,
     read_scene,
     write_scene,
@@ -50,6 +53,7 @@ __all__ = [
     "load_npy",
     "MiddleburyCalib",
     "read_middlebury_calib",
+    "read_kitti_calib",
     "read_opencv_stereo_yaml",
     "KITTI_DISPARITY_SCALE",
     "KITTI_DISPARITY_MAX_PX",
@@ -77,4 +81,6 @@ __all__ = [
     "write_scene",
     "read_scene",
     "list_scenes",
+    "is_kitti_folder",
+    "kitti_frames",
 ]

@@ -1,7 +1,8 @@
 """Two-camera rigs from other tools' calibration files.
 
-Middlebury ``calib.txt`` (cam0/cam1 matrices, baseline in mm, doffs) and OpenCV stereo
-calibration YAML (K1, D1, K2, D2, R, T; rectified input assumed, said so on load).
+Middlebury ``calib.txt`` (cam0/cam1 matrices, baseline in mm, doffs), KITTI calibration
+files (the rectified projections of cameras 2 and 3) and OpenCV stereo calibration YAML
+(K1, D1, K2, D2, R, T; rectified input assumed, said so on load).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from ._files import existing_file, read_bytes
 __all__ = [
     "MiddleburyCalib",
     "read_middlebury_calib",
+    "read_kitti_calib",
     "read_opencv_stereo_yaml",
 ]
 
@@ -204,6 +206,101 @@ def read_middlebury_calib(
         vmax=number("vmax"),
         extras={k: v for k, v in entries.items() if k not in known},
     )
+
+
+# ---------------------------------------------------------------------- KITTI
+#: Keys of the rectified projections of the left and right colour cameras: the raw and
+#: scene-flow releases' ``calib_cam_to_cam`` files use the first, the object and
+#: odometry releases' ``calib/`` files the second.
+KITTI_PROJECTION_KEYS = (("P_rect_02", "P_rect_03"), ("P2", "P3"))
+
+
+def read_kitti_calib(path: str | os.PathLike, *, image_size: tuple[int, int]) -> CameraRig:
+    r"""Read the rig of KITTI's colour cameras 2 and 3 from a KITTI calibration file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Lines ``KEY: v1 v2 ...``. The rectified 3x4 projections of camera 2 (left,
+        ``image_2``) and camera 3 (right, ``image_3``) are read from ``P_rect_02`` and
+        ``P_rect_03`` (``calib_cam_to_cam.txt``) or from ``P2`` and ``P3`` (the object
+        and odometry releases' ``calib/NNNNNN.txt``); other lines are ignored.
+    image_size : (int, int)
+        ``(width, height)`` of the rectified images (KITTI's sizes differ between
+        drives, and the projections do not say).
+
+    Returns
+    -------
+    CameraRig
+        ``image_2`` (reference, at the origin) and ``image_3`` at ``(B, 0, 0)`` with
+        ``B = (P2[0, 3] - P3[0, 3]) / fx`` metres; intrinsics of camera 2. The
+        projections place both cameras relative to KITTI's camera 0, with vertical and
+        depth offsets of a few millimetres left by its rectification; they are dropped,
+        as the rectified images have no vertical disparity. No light.
+
+    Raises
+    ------
+    FileFormatError
+        Missing file, no pair of projections, malformed numbers, projections that do not
+        share one camera matrix, or a camera 3 that is not to the right of camera 2.
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> text = ("P_rect_02: 721.5 0 609.6 44.86 0 721.5 172.9 0.2164 0 0 1 0.002746\n"
+    ...         "P_rect_03: 721.5 0 609.6 -339.5 0 721.5 172.9 2.2 0 0 1 0.00273\n")
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "calib_cam_to_cam.txt"
+    >>> _ = path.write_text(text)
+    >>> rig = read_kitti_calib(path, image_size=(1242, 375))
+    >>> round(rig.baseline_m, 4), rig.camera_names
+    (0.5327, ['image_2', 'image_3'])
+    """
+    p = existing_file(path, "KITTI calibration")
+    text = read_bytes(p, "KITTI calibration").decode("utf-8", errors="replace")
+    entries: dict[str, str] = {}
+    for line in text.splitlines():
+        key, sep, value = line.partition(":")
+        if sep:
+            entries[key.strip()] = value.strip()
+    keys = next((pair for pair in KITTI_PROJECTION_KEYS if all(k in entries for k in pair)),
+                None)
+    if keys is None:
+        wanted = " or ".join(" and ".join(pair) for pair in KITTI_PROJECTION_KEYS)
+        raise FileFormatError(f"{p}: expected the rectified projections {wanted}, got keys "
+                              f"{sorted(entries)[:12]}")
+    left, right = (_kitti_projection(entries[k], k, p) for k in keys)
+    if not np.allclose(left[:, :3], right[:, :3], atol=_RECTIFIED_TOL_PX):
+        raise FileFormatError(
+            f"{p}: expected {keys[0]} and {keys[1]} to share one camera matrix (rectified "
+            f"cameras), got {left[:, :3].round(2).tolist()} and {right[:, :3].round(2).tolist()}")
+    fx, fy, cx, cy = left[0, 0], left[1, 1], left[0, 2], left[1, 2]
+    # P = K [I | t]: camera j sits at x = -t_x = -P[0, 3] / fx in KITTI's camera-0 frame.
+    baseline_m = float(left[0, 3] - right[0, 3]) / fx
+    if not baseline_m > 0:
+        raise FileFormatError(
+            f"{p}: expected camera 3 to the right of camera 2 ({keys[1]}[0, 3] < "
+            f"{keys[0]}[0, 3]), got {right[0, 3]:g} and {left[0, 3]:g}")
+    try:
+        return CameraRig(tuple(image_size), Intrinsics(fx, fy, cx, cy),
+                         (Camera("image_2", (0.0, 0.0, 0.0)),
+                          Camera("image_3", (baseline_m, 0.0, 0.0))))
+    except RigError as exc:
+        raise FileFormatError(f"{p}: {exc}") from None
+
+
+def _kitti_projection(text: str, key: str, path: Path) -> np.ndarray:
+    try:
+        values = np.array([float(v) for v in text.split()], dtype=np.float64)
+    except ValueError:
+        values = np.empty(0)
+    if values.size != 12 or not np.all(np.isfinite(values)):
+        raise FileFormatError(f"{path}: {key}: expected 12 numbers (a 3x4 projection "
+                              f"matrix, row by row), got {text[:80]!r}")
+    projection = values.reshape(3, 4)
+    if not (projection[0, 0] > 0 and projection[1, 1] > 0):
+        raise FileFormatError(f"{path}: {key}: expected positive focal lengths, got fx "
+                              f"{projection[0, 0]:g}, fy {projection[1, 1]:g}")
+    return projection
 
 
 # ---------------------------------------------------------------------- OpenCV YAML

@@ -2,7 +2,10 @@
 
 A scene folder holds ``rig.json``, one image per camera named after it (``cam0.png``),
 optional ``mask.png``, ``gt_disparity.pfm`` (or ``.npy``) and ``scene.json`` metadata; a
-dataset is a folder of scene folders (DESIGN §5). Every problem with a file raises
+dataset is a folder of scene folders (DESIGN §5). Two layouts of public stereo datasets
+are read as scenes too: a Middlebury 2014/2021 folder is one scene, a KITTI folder
+(``image_2/``, ``image_3/``) is a dataset whose frames are addressed as
+``KITTI_DIR/<frame>``. Every problem with a file raises
 :class:`~srde_fusion.errors.FileFormatError` naming the file and what was expected.
 """
 
@@ -23,7 +26,7 @@ from .._checks import check_disparity, check_views
 from ..errors import FileFormatError, MaskError, RigError
 from ..geometry import CameraRig
 from ._files import path_exists, read_bytes, write_bytes
-from .calibration_files import read_middlebury_calib
+from .calibration_files import read_kitti_calib, read_middlebury_calib
 from .disparity import read_disparity, write_disparity
 from .images import (
     IMAGE_EXTENSIONS,
@@ -45,6 +48,8 @@ __all__ = [
     "write_scene",
     "read_scene",
     "list_scenes",
+    "is_kitti_folder",
+    "kitti_frames",
 ]
 
 RIG_FILE = "rig.json"
@@ -53,6 +58,18 @@ GT_DISPARITY_STEM = "gt_disparity"
 METADATA_FILE = "scene.json"
 #: A Middlebury 2014/2021 scene folder is recognised by this file (with im0 and im1).
 MIDDLEBURY_CALIB_FILE = "calib.txt"
+#: A KITTI stereo folder is recognised by these two folders (left and right colour views).
+KITTI_LEFT_DIR, KITTI_RIGHT_DIR = "image_2", "image_3"
+#: The KITTI stereo benchmarks' frames with ground truth end in this (``_11`` is the next
+#: frame in time, without it).
+KITTI_FRAME_SUFFIX = "_10"
+#: Where a KITTI frame's rig comes from, first found wins: a ``rig.json`` beside
+#: ``image_2`` (the whole rig, light included), a per-frame calibration file in one of
+#: these folders (``NNNNNN.txt``), or one calibration file for every frame.
+KITTI_FRAME_CALIB_DIRS = ("calib_cam_to_cam", "calib")
+KITTI_CALIB_FILE = "calib_cam_to_cam.txt"
+#: Ground truth of a frame, first found wins (KITTI 2015, then 2012 names).
+KITTI_GT_DIRS = ("disp_occ_0", "disp_occ")
 
 
 # ---------------------------------------------------------------------- scene folders
@@ -203,6 +220,12 @@ def read_scene(folder: str | os.PathLike) -> SceneData:
         its rig has no light (give one, e.g. ``--light``), ``im1`` is shifted by the
         file's ``doffs`` so both views share one principal point as the rig does, and
         ``disp0.pfm`` becomes the ground truth in the rig's convention (``d + doffs``).
+        A frame of a KITTI folder is read as ``KITTI_DIR/<frame>`` (e.g.
+        ``training/000000_10``): views ``image_2/<frame>.png`` and ``image_3/<frame>.png``,
+        the rig from ``KITTI_DIR/rig.json`` (with its light), else from a calibration file
+        (``calib_cam_to_cam/NNNNNN.txt``, ``calib/NNNNNN.txt`` or ``calib_cam_to_cam.txt``,
+        no light: give one, e.g. ``--light``), ground truth from ``disp_occ_0/`` or
+        ``disp_occ/`` (KITTI 16-bit PNG).
 
     Returns
     -------
@@ -218,6 +241,13 @@ def read_scene(folder: str | os.PathLike) -> SceneData:
         An invalid ``rig.json`` (the message names the file).
     """
     path = Path(folder)
+    if is_kitti_folder(path.parent) and not path.is_dir():
+        return _read_kitti_frame(path.parent, path.name)
+    if is_kitti_folder(path):
+        frames = kitti_frames(path)
+        raise FileFormatError(f"{path}: expected one scene, got a KITTI folder of "
+                              f"{len(frames)} frames: read one as {path / frames[0]}, or "
+                              f"list them with list_scenes")
     if not path_exists(path, "dir"):
         raise FileFormatError(f"{path}: expected a scene folder, got no such directory")
     rig_path = path / RIG_FILE
@@ -316,7 +346,11 @@ def read_scene(folder: str | os.PathLike) -> SceneData:
 
 
 def list_scenes(dataset_dir: str | os.PathLike) -> list[Path]:
-    """Scene folders of a dataset: its sub-folders that hold a ``rig.json``, sorted by name.
+    """Scenes of a dataset: its sub-folders that hold a ``rig.json``, sorted by name.
+
+    Sub-folders in the Middlebury layout count too. A KITTI folder's scenes are its
+    frames, ``dataset_dir/<frame>`` (see :func:`kitti_frames`), which :func:`read_scene`
+    reads.
 
     Raises
     ------
@@ -326,6 +360,8 @@ def list_scenes(dataset_dir: str | os.PathLike) -> list[Path]:
     root = Path(dataset_dir)
     if not path_exists(root, "dir"):
         raise FileFormatError(f"{root}: expected a dataset folder, got no such directory")
+    if is_kitti_folder(root):
+        return [root / frame for frame in kitti_frames(root)]
     scenes = sorted(p for p in root.iterdir() if p.is_dir() and (
         (p / RIG_FILE).is_file() or (p / MIDDLEBURY_CALIB_FILE).is_file()))
     if not scenes:
@@ -370,3 +406,104 @@ def _read_middlebury_scene(path: Path) -> SceneData:
 def _size_text(rig: CameraRig) -> str:
     """Say the calibration's image size, for messages."""
     return f"the calibration's size {rig.width}x{rig.height}"
+
+
+# ---------------------------------------------------------------------- KITTI
+def is_kitti_folder(path: str | os.PathLike) -> bool:
+    """Say whether ``path`` is a KITTI stereo folder (it holds ``image_2/`` and ``image_3/``)."""
+    root = Path(path)
+    return path_exists(root / KITTI_LEFT_DIR, "dir") and path_exists(root / KITTI_RIGHT_DIR, "dir")
+
+
+def _image_files(folder: Path) -> dict[str, Path]:
+    return {f.stem: f for f in sorted(folder.iterdir())
+            if f.is_file() and f.suffix.lower() in IMAGE_EXTENSIONS}
+
+
+def kitti_frames(kitti_dir: str | os.PathLike) -> list[str]:
+    """Names of the frames of a KITTI folder, sorted: ``image_2`` images with an ``image_3`` twin.
+
+    When some names end in ``_10`` (the stereo benchmarks' frames with ground truth),
+    only those are listed; their ``_11`` neighbours in time are not stereo frames to score.
+
+    Raises
+    ------
+    FileFormatError
+        Not a KITTI folder, or no image in ``image_2`` has a twin in ``image_3``.
+    """
+    root = Path(kitti_dir)
+    if not is_kitti_folder(root):
+        raise FileFormatError(f"{root}: expected a KITTI folder with {KITTI_LEFT_DIR}/ and "
+                              f"{KITTI_RIGHT_DIR}/, got none")
+    left, right = _image_files(root / KITTI_LEFT_DIR), _image_files(root / KITTI_RIGHT_DIR)
+    frames = sorted(set(left) & set(right))
+    benchmark = [f for f in frames if f.endswith(KITTI_FRAME_SUFFIX)]
+    frames = benchmark or frames
+    if not frames:
+        raise FileFormatError(f"{root}: expected images of the same names in "
+                              f"{KITTI_LEFT_DIR}/ and {KITTI_RIGHT_DIR}/, got "
+                              f"{len(left)} and {len(right)} images with none in common")
+    return frames
+
+
+def _kitti_view(root: Path, folder: str, frame: str) -> Path:
+    found = _find_one(root / folder, frame, IMAGE_EXTENSIONS, f"KITTI view {folder}/{frame}")
+    if found is None:
+        raise FileFormatError(f"{root}: expected {folder}/{frame}.png, got no such image "
+                              f"(frames are named after the images in {KITTI_LEFT_DIR}/)")
+    return found
+
+
+def _kitti_rig(root: Path, frame: str, image_size: tuple[int, int]) -> tuple[CameraRig, Path]:
+    """Return the frame's rig and the file it came from (see :data:`KITTI_FRAME_CALIB_DIRS`)."""
+    rig_path = root / RIG_FILE
+    if rig_path.is_file():
+        try:
+            rig = CameraRig.from_json(rig_path)
+        except RigError as exc:
+            message = str(exc)
+            raise RigError(message if message.startswith(str(rig_path))
+                           else f"{rig_path}: {message}") from None
+        if rig.n_cameras != 2 or rig.stereo_pair != (0, 1):
+            raise FileFormatError(f"{rig_path}: expected a two-camera rig with stereo_pair "
+                                  f"[0, 1] ({KITTI_LEFT_DIR}, {KITTI_RIGHT_DIR}), got "
+                                  f"{rig.n_cameras} cameras, stereo_pair "
+                                  f"{list(rig.stereo_pair)}")
+        return rig, rig_path
+    # Per-frame files are named after the frame's number: 000000_10 -> 000000.txt.
+    number = frame[: -len(KITTI_FRAME_SUFFIX)] if frame.endswith(KITTI_FRAME_SUFFIX) else frame
+    candidates = [root / d / f"{number}.txt" for d in KITTI_FRAME_CALIB_DIRS]
+    candidates.append(root / KITTI_CALIB_FILE)
+    for path in candidates:
+        if path.is_file():
+            return read_kitti_calib(path, image_size=image_size), path
+    raise FileFormatError(
+        f"{root}: expected the rig of frame {frame} in {RIG_FILE} or a KITTI calibration "
+        f"file, got none of {', '.join(str(p.relative_to(root)) for p in [rig_path, *candidates])}")
+
+
+def _read_kitti_frame(root: Path, frame: str) -> SceneData:
+    """Read one frame of a KITTI folder as a two-camera scene (see :func:`read_scene`)."""
+    files = [_kitti_view(root, folder, frame) for folder in (KITTI_LEFT_DIR, KITTI_RIGHT_DIR)]
+    views = [read_image(f) for f in files]
+    h, w = views[0].shape[:2]
+    if views[1].shape[:2] != (h, w):
+        raise FileFormatError(f"{files[1]}: expected the size of {files[0].name}, {w}x{h}, "
+                              f"got {views[1].shape[1]}x{views[1].shape[0]}")
+    rig, source = _kitti_rig(root, frame, (w, h))
+    if (rig.width, rig.height) != (w, h):
+        raise FileFormatError(f"{files[0]}: expected the image size of {source}, "
+                              f"{rig.width}x{rig.height}, got {w}x{h}")
+    gt = None
+    for folder in KITTI_GT_DIRS:
+        if (root / folder).is_dir():
+            found = _find_one(root / folder, frame, (".png",), "KITTI ground truth")
+            if found is not None:
+                gt = read_disparity(found)
+                if gt.shape != (h, w):
+                    raise FileFormatError(f"{found}: expected the views' size {w}x{h}, got "
+                                          f"{gt.shape[1]}x{gt.shape[0]}")
+                break
+    return SceneData(path=root / frame, name=frame, rig=rig, views=tuple(views),
+                     gt_disparity=gt, metadata={"format": "kitti", "frame": frame,
+                                                "rig_from": source.name})

@@ -114,8 +114,8 @@ def test_eval_command(dataset, tmp_path, capsys):
     assert md.startswith("## ")
     # how the folder was made, and every stereo-benchmark threshold, are in it
     assert data["settings"] == {"dataset": str(dataset), "backbone": "default", "preset": None,
-                                "masks": "user", "srde_method": "default", "device": "cpu",
-                                "jobs": data["run"]["jobs"]}
+                                "spec": None, "masks": "user", "srde_method": "default",
+                                "device": "cpu", "jobs": data["run"]["jobs"]}
     assert "- masks: user" in md and "| fused |" in md and "| hybrid |" not in md
     assert all(f"| {k} " in md for k in ("bad0.5", "bad1", "bad2", "bad3", "bad4", "d1"))
 
@@ -281,3 +281,46 @@ def test_fuse_a_folder_of_scenes_in_one_call(dataset, flat_backbone, tmp_path, c
     code, out, err = run_cli(capsys, "fuse", ds, "--disparity", ds / "x.pfm", "--out",
                              tmp_path / "o2")
     assert_one_line_error(code, out, err, "fuse", "expected --backbone for a folder of scenes")
+
+
+def test_fuse_a_kitti_folder_frame_by_frame(flat_backbone, tmp_path, capsys):
+    from srde_fusion.geometry import CameraRig
+    from srde_fusion.io import write_disparity, write_image
+    from srde_fusion.synthetic import random_scene, render
+
+    # A fixed rig and light (a sorting line): one glossy object, two frames of sensor noise.
+    rig = CameraRig.stereo(0.3, fx=320.0, image_size=(320, 240), names=("image_2", "image_3"))
+    scene = random_scene(2, rig, n_objects=1, background="textured")
+    light = scene.light.position_m
+    root = tmp_path / "kitti"
+    fx, cx, cy = rig.intrinsics.fx, rig.intrinsics.cx, rig.intrinsics.cy
+    for k, frame in enumerate(("000000_10", "000001_10")):
+        rendering = render(scene, rig.with_light(light), noise_seed=k)
+        for folder, view in zip(("image_2", "image_3"), rendering.views, strict=True):
+            (root / folder).mkdir(parents=True, exist_ok=True)
+            write_image(root / folder / f"{frame}.png", view)
+        (root / "disp_occ_0").mkdir(exist_ok=True)
+        write_disparity(root / "disp_occ_0" / f"{frame}.png", rendering.disparity_px)
+    (root / "calib_cam_to_cam.txt").write_text("".join(
+        f"{key}: {fx} 0 {cx} {-fx * x} 0 {fx} {cy} 0 0 0 1 0\n"
+        for key, x in (("P_rect_02", 0.0), ("P_rect_03", 0.3))))
+    # --light=X,Y,Z: a negative X would otherwise read as an option
+    light_arg = "--light=" + ",".join(f"{v:.9f}" for v in light)
+    code, out, err = run_cli(capsys, "fuse", root, "--backbone", "default", light_arg, "--out",
+                             tmp_path / "o")
+    assert code == 0, err
+    assert "2 scene(s) fused, 2 object(s): SRDE used on 2, backbone kept on 0" in out
+    assert "fusing" in err  # the progress bar
+    for frame in ("000000_10", "000001_10"):
+        report = json.loads((tmp_path / "o" / frame / "report.json").read_text())
+        assert report["fusion"]["n_srde"] == 1
+        # SRDE's plane on the object, from the KITTI calibration's rig and the given light
+        assert report["scores"]["fused"]["masked"]["epe"] < 0.1
+    # one frame on its own, as KITTI_DIR/<frame>
+    code, out, err = run_cli(capsys, "fuse", root / "000001_10", "--backbone", "default",
+                             light_arg, "--out", tmp_path / "one", "--quiet")
+    assert code == 0 and "object 1: srde" in out, out
+    # without a light (the calibration file has none) every frame fails, and says why
+    code, out, err = run_cli(capsys, "fuse", root, "--backbone", flat_backbone, "--out",
+                             tmp_path / "o3", "--quiet")
+    assert code == 1 and "000000_10: failed - LightError: light: expected a light" in out
