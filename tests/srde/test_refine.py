@@ -102,7 +102,8 @@ def test_fitted_lobe_matches_the_rendered_ggx(rough_ggx):
 
 
 def test_fitted_lobe_matches_the_rendered_blinn_phong(rough_blinn_phong):
-    fit = _refine(rough_blinn_phong).params
+    # The renderer's own physics uses Schlick's Fresnel: the model matched to it.
+    fit = _refine(rough_blinn_phong, fresnel="schlick").params
     # cos^e ~ exp(-sin^2 / alpha^2): tail 0 and width sqrt(2) alpha; the renderer's
     # Blinn-Phong BRDF has no 1 / (4 cos cos), hence k = 1
     assert fit.tail == pytest.approx(0.0, abs=TAIL_TOL)
@@ -181,12 +182,13 @@ def test_result_is_frozen_and_reports_itself(rough_ggx):
     ("gtr", 0.3), ("gtr", 0.0), ("gtr", 2e-4), ("gtr", -0.2), ("ggx", 0.5),
     ("blinn_phong", 0.0),
 ])
-def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail):
+@pytest.mark.parametrize("fresnel", ["exact", "schlick"])
+def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail, fresnel):
     case = rough_ggx
     samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
                               case["centers"])
     model = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
-                       lobe, DEFAULT_F0, None)
+                       lobe, DEFAULT_F0, None, fresnel=fresnel)
     theta = model.start_theta()
     # off the initial plane, a tail where both of the "gtr" derivative's branches apply
     theta[:N_PLANE] = [0.01, -0.02, 0.003]

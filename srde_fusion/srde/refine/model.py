@@ -10,7 +10,7 @@ The shading model, for a sample whose ray meets the plane at X (array frame, met
 ``g_d`` and ``g_s`` are normalised to a median of 1 over the samples at the initial plane,
 so ``specular`` and ``diffuse`` read as luminances at the highlight and
 ``level = ambient + diffuse``. ``r`` is the distance from X to the light, ``h`` the half
-vector between the directions to the light and to the camera, ``F`` Schlick's Fresnel
+vector between the directions to the light and to the camera, ``F`` the Fresnel
 term and ``S`` the lobe scaled to a peak of 1. The foreshortening exponent ``k`` spans the
 conventions in use: ``k = 0`` is the Cook-Torrance microfacet BRDF
 ``D F G / (4 cos(theta_i) cos(theta_o))`` (its radiance under a point light is
@@ -50,8 +50,12 @@ __all__ = [
     "LobeModel",
 ]
 
-#: Fresnel reflectance at normal incidence assumed for the Schlick term (dielectrics).
+#: Fresnel reflectance at normal incidence assumed (a dielectric of refractive index 1.5).
 DEFAULT_F0 = 0.04
+
+
+#: The Fresnel terms the model can use (see :class:`~.reflection.PlaneReflection`).
+FRESNEL_TERMS = ("exact", "schlick")
 
 
 #: Gauss-Legendre points per axis over which the model is averaged on each sample's block.
@@ -140,9 +144,11 @@ class LobeModel:
         The plane ``theta``'s plane parameters are relative to.
     lobe : {"gtr", "ggx", "blinn_phong"}
     f0 : float
-        Normal-incidence reflectance of Schlick's Fresnel term.
+        Normal-incidence reflectance of the surface.
     foreshortening : float or None
         The exponent ``k``, held; fitted if None.
+    fresnel : {"exact", "schlick"}
+        The Fresnel term (see :class:`PlaneReflection`).
     support : int
         Points per axis at which the model is averaged over each sample's block (1: at
         block centres).
@@ -150,11 +156,11 @@ class LobeModel:
 
     def __init__(self, samples: HighlightSamples, rig: CameraRig, box, light: np.ndarray,
                  plane0: Plane, lobe: str, f0: float, foreshortening: float | None,
-                 support: int = SUPPORT_POINTS) -> None:
+                 support: int = SUPPORT_POINTS, fresnel: str = "exact") -> None:
         self.lobe = lobe
         points, self.support_weights = support_points(samples, rig, support)
         self.n_support = len(self.support_weights)
-        self.reflection = PlaneReflection(points, rig, box, light, plane0, f0)
+        self.reflection = PlaneReflection(points, rig, box, light, plane0, f0, fresnel)
         self.valid = self.reflection.valid
         self.foreshortening0 = (_FORESHORTENING_START if foreshortening is None
                                 else float(foreshortening))

@@ -37,7 +37,14 @@ from ...errors import ImageError, SRDEError
 from ...geometry import CameraRig, Plane, plane_from_lights
 from .layout import I_FORE, I_SPEC, N_PLANE
 from .lobes import DEFAULT_LOBE, LOBES
-from .model import DEFAULT_F0, FORESHORTENING_BOUNDS, WIDTH_GRID, LobeFit, LobeModel
+from .model import (
+    DEFAULT_F0,
+    FORESHORTENING_BOUNDS,
+    FRESNEL_TERMS,
+    WIDTH_GRID,
+    LobeFit,
+    LobeModel,
+)
 from .samples import (
     MASK_MARGIN_PX,
     HighlightSamples,
@@ -146,6 +153,7 @@ def refine_plane(
     lobe: str = DEFAULT_LOBE,
     foreshortening: float | None = None,
     f0: float = DEFAULT_F0,
+    fresnel: str = "exact",
     max_iterations: int = 20,
 ) -> PlaneRefinement:
     """Refine a plane so that a specular lobe model explains the highlight in every view.
@@ -173,7 +181,12 @@ def refine_plane(
         Exponent ``k`` of the specular term's ``(cos(theta_i) cos(theta_o))^k``; fitted
         if None (default), else held (0 for a microfacet BRDF, 1 for Phong-style).
     f0 : float
-        Fresnel reflectance at normal incidence of the Schlick term, in (0, 1].
+        Fresnel reflectance at normal incidence, in (0, 1]: 0.04 for plastics and glass
+        (refractive index 1.5); ``((n - 1) / (n + 1))^2`` for a known index ``n``.
+    fresnel : {"exact", "schlick"}
+        The Fresnel equations of the dielectric with that reflectance (default), or
+        Schlick's approximation of them (which real surfaces do not follow at grazing
+        angles).
     max_iterations : int
         Cap on the steps of each Levenberg-Marquardt stage.
 
@@ -235,6 +248,8 @@ def refine_plane(
                         f"{list(FORESHORTENING_BOUNDS)}, got {foreshortening!r}")
     if not _is_number_in(f0, 0.0, 1.0) or f0 == 0.0:
         raise SRDEError(f"f0: expected a number in (0, 1], got {f0!r}")
+    if fresnel not in FRESNEL_TERMS:
+        raise SRDEError(f"fresnel: expected one of {list(FRESNEL_TERMS)}, got {fresnel!r}")
     if (isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer))
             or max_iterations < 1):
         raise SRDEError(f"max_iterations: expected a positive integer, got {max_iterations!r}")
@@ -253,7 +268,7 @@ def refine_plane(
         virtual = initial_plane.mirror(light)
         centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
     setup = _Setup(views, rig, mask, mask_bbox(mask), light, initial_plane, centers, lobe, f0,
-                   foreshortening, max_iterations)
+                   fresnel, foreshortening, max_iterations)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
         return kept(attempt)
@@ -295,12 +310,13 @@ class _Setup:
     centers: np.ndarray
     lobe: str
     f0: float
+    fresnel: str
     foreshortening: float | None
     max_iterations: int
 
     def model(self, samples: HighlightSamples, plane: Plane) -> LobeModel:
         return LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
-                          self.foreshortening)
+                          self.foreshortening, fresnel=self.fresnel)
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...geometry import CameraRig, Plane
+from ...optics import fresnel_exact, ior_from_f0
 from .layout import N_PLANE
 from .samples import HighlightSamples
 
@@ -63,7 +64,10 @@ class PlaneReflection:
     plane0 : Plane
         The initial plane.
     f0 : float
-        Normal-incidence reflectance of Schlick's Fresnel term.
+        Normal-incidence reflectance of the surface.
+    fresnel : {"exact", "schlick"}
+        The Fresnel equations for the dielectric of that reflectance (refractive index
+        ``(1 + sqrt(f0)) / (1 - sqrt(f0))``), or Schlick's approximation of them.
 
     Attributes
     ----------
@@ -73,8 +77,10 @@ class PlaneReflection:
     """
 
     def __init__(self, samples: HighlightSamples, rig: CameraRig, box, light: np.ndarray,
-                 plane0: Plane, f0: float) -> None:
+                 plane0: Plane, f0: float, fresnel: str = "exact") -> None:
         self.f0 = f0
+        self.fresnel = fresnel
+        self.ior = ior_from_f0(f0)
         self.light = light
         self.n0 = plane0.n
         self.c0 = plane0.offset_m
@@ -163,12 +169,15 @@ class PlaneReflection:
         grazing = cos_io + 1.0  # 1 - omega_i . h
         grazing /= half_norm
         np.subtract(1.0, grazing, out=grazing)
-        # Schlick; powers by multiplication (numpy's ** 5 is a slow generic pow)
-        fresnel = grazing * grazing
-        fresnel *= fresnel
-        fresnel *= grazing
-        fresnel *= 1.0 - self.f0
-        fresnel += self.f0
+        if self.fresnel == "exact":
+            fresnel = fresnel_exact(1.0 - grazing, self.ior)
+        else:
+            # Schlick; powers by multiplication (numpy's ** 5 is a slow generic pow)
+            fresnel = grazing * grazing
+            fresnel *= fresnel
+            fresnel *= grazing
+            fresnel *= 1.0 - self.f0
+            fresnel += self.f0
         sin2_h = cos_h * cos_h
         np.subtract(1.0, sin2_h, out=sin2_h)
         log_foreshortening = cos_i * cos_o
