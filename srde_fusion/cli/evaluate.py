@@ -100,7 +100,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("dataset_dir", help="folder of scene folders (as written by "
                    "`srde-fusion render`)")
     p.add_argument("--backbone", required=True,
-                   help="'default' (bundled stand-in network) or a stereo model .onnx")
+                   help="'default' (bundled stand-in network), 'sgbm' (OpenCV "
+                   "semi-global matching) or a stereo model .onnx")
     add_spec_options(p)
     p.add_argument("--masks", choices=("user", "auto"), default="user",
                    help="'user': each scene's mask.png; 'auto': the built-in segmenter")

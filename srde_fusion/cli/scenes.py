@@ -168,7 +168,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--scale", type=float, default=1.0,
                    help="image scale relative to 640x480 (default 1; 0.5 is quicker)")
     p.add_argument("--backbone", default="default",
-                   help="'default' (bundled stand-in network) or a stereo model .onnx")
+                   help="'default' (bundled stand-in network), 'sgbm' (OpenCV "
+                   "semi-global matching) or a stereo model .onnx")
     add_spec_options(p)
     _add_device_option(p)
     p.set_defaults(func=_cli_demo)
@@ -187,7 +188,8 @@ def register(subparsers: Any) -> None:
                    "KITTI_DIR/<frame>)")
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--backbone",
-                        help="'default' (bundled stand-in network) or a stereo model .onnx")
+                        help="'default' (bundled stand-in network), 'sgbm' (OpenCV "
+                        "semi-global matching) or a stereo model .onnx")
     source.add_argument("--disparity", metavar="FILE",
                         help="a disparity map your pipeline already made for the reference "
                         "view (.pfm, KITTI 16-bit .png or .npy), instead of running a model")
