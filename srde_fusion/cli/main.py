@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
         module.register(sub)
     for p in sub.choices.values():
         p.add_argument("-v", "--verbose", action="count", default=0,
-                       help="say what is being done (-vv: and every decision)")
+                       help="also say every decision (each object's, each check's)")
         if not any("--quiet" in a.option_strings for a in p._actions):
             p.add_argument("--quiet", action="store_true", help="errors only")
     for p in (parser, *sub.choices.values()):
@@ -45,12 +45,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _configure_logging(verbose: int, quiet: bool) -> None:
     """Send the library's log records to stderr at the level the flags ask for."""
+    # The library's INFO records are its stage messages (rendering, running the
+    # backbone, fusing N objects, writing): the command's progress, shown by default on
+    # a terminal. Piped or redirected, stderr stays for warnings and the one-line error.
     if quiet:
         level = logging.ERROR
-    elif verbose >= 2:
+    elif verbose >= 1:
         level = logging.DEBUG
     else:
-        level = logging.INFO if verbose == 1 else logging.WARNING
+        level = logging.INFO if sys.stderr.isatty() else logging.WARNING
     logger = logging.getLogger("srde_fusion")
     logger.setLevel(level)
     if not any(isinstance(h, _StderrHandler) for h in logger.handlers):

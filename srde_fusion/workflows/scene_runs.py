@@ -275,6 +275,7 @@ def run_demo(out_dir: str | os.PathLike = "demo_out", *, seed: int = DEMO_SEED,
     rig = (rig or default_rig())
     if scale != 1.0:
         rig = rig.scaled(scale)
+    _log.info("rendering the demo scene (%d cameras, %dx%d)", rig.n_cameras, *rig.image_size)
     scene = random_scene(seed, rig, n_objects=n_objects, background="textured")
     rig = rig.with_light(scene.light.position_m)
     rendering = render(scene, rig, noise_seed=seed)

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import sys
 import warnings
 
 import numpy as np
@@ -262,6 +263,20 @@ def test_verbose_says_what_is_done_and_quiet_keeps_stderr_for_errors(dataset, tm
     code, out, err = run_cli(capsys, "fuse", "--quiet", dataset / "scene_0000", "--disparity",
                              dataset / "scene_0000" / "gt_disparity.pfm", "--out", tmp_path / "o")
     assert code == 0 and err == ""
+
+
+def test_on_a_terminal_commands_say_what_they_do_by_default(dataset, tmp_path, capsys,
+                                                           monkeypatch):
+    args = ("fuse", dataset / "scene_0000", "--disparity",
+            dataset / "scene_0000" / "gt_disparity.pfm", "--out", tmp_path / "o")
+    code, _, err = run_cli(capsys, *args)
+    assert code == 0 and err == ""  # redirected: stderr only for warnings and errors
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    code, _, err = run_cli(capsys, *args)
+    assert code == 0
+    assert "srde-fusion: fusing 1 object(s)" in err
+    assert "srde-fusion: writing the results into" in err
+    assert "object 1: srde" not in err  # each object's decision only with -v
 
 
 def test_fuse_a_folder_of_scenes_in_one_call(dataset, flat_backbone, tmp_path, capsys):
