@@ -111,26 +111,6 @@ class HighlightDetection:
                                   self.score, "", self.level)
 
 
-#: Quantile of the search region taken as its background when a clipped highlight covers
-#: more than half of it (the median then lies inside the blob).
-LARGE_BLOB_BACKGROUND_QUANTILE = 0.1
-
-
-def blob_background(median: float, peak: float, min_contrast: float, low_quantile) -> float:
-    """Return the background level of a search region, linear intensity.
-
-    The region's median, unless the highlight covers more than half of the region (a
-    large clipped blob on a rough coating): the median is then within ``min_contrast``
-    of the peak, and the region's :data:`LARGE_BLOB_BACKGROUND_QUANTILE` quantile, taken
-    from outside the blob, is the background if it leaves that much contrast.
-    ``low_quantile`` is a callable computing that quantile (only called then).
-    """
-    if peak - median >= min_contrast:
-        return median
-    low = float(low_quantile())
-    return low if peak - low >= min_contrast else median
-
-
 def blob_rejection(config: DetectorConfig, *, background: float, peak: float, level: float,
                    any_above: bool, area_px: int) -> str:
     """Why a blob-detector crop shows no highlight, or ``""`` if it shows one.
@@ -139,8 +119,7 @@ def blob_rejection(config: DetectorConfig, *, background: float, peak: float, le
     ----------
     config : DetectorConfig
     background, peak : float
-        The region's background (:func:`blob_background`) and its smoothed maximum,
-        linear intensity.
+        The region's median and its smoothed maximum, linear intensity.
     level : float
         The level that delimits the blob, linear intensity.
     any_above : bool
@@ -151,9 +130,8 @@ def blob_rejection(config: DetectorConfig, *, background: float, peak: float, le
     contrast = peak - background
     if contrast < config.min_contrast:
         return (f"no bright blob: peak {peak:.4f} is only {contrast:.4f} above the region's "
-                f"background {background:.4f} (its median, or its "
-                f"{LARGE_BLOB_BACKGROUND_QUANTILE:g} quantile if the median is in the blob; "
-                f"min_contrast {config.min_contrast:g}, linear intensity)")
+                f"median {background:.4f} (min_contrast {config.min_contrast:g}, linear "
+                f"intensity)")
     if not any_above:  # smoothing can lift a lone spike's surroundings above every raw pixel
         return f"no pixel above the level {level:.4f} in the search region"
     if area_px < config.min_area_px:
@@ -387,10 +365,8 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
     """Half-maximum blob on linear intensity and its sub-pixel centre, on a crop."""
     smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
     inside = lum[region]
+    background = float(np.median(inside))
     peak = float(smooth[region].max())
-    background = blob_background(
-        float(np.median(inside)), peak, config.min_contrast,
-        lambda: np.quantile(inside.astype(np.float64), LARGE_BLOB_BACKGROUND_QUANTILE))
     contrast = peak - background
     if level is None:
         level = background + BLOB_LEVEL * contrast

@@ -46,9 +46,7 @@ from .config import (
     DetectorConfig,
 )
 from .highlight import (
-    LARGE_BLOB_BACKGROUND_QUANTILE,
     HighlightDetection,
-    blob_background,
     blob_rejection,
     lobe_center,
     paper_rejection,
@@ -303,14 +301,8 @@ class TorchBackend:
         b, h, w = lum.shape
         dev = self.device
         smooth = self.smooth(lum, crops.sizes, self.blob_kernel)
+        background = median_of(lum, region)
         peak = torch.where(region, smooth, -torch.inf).flatten(1).amax(dim=1).double()
-        median = median_of(lum, region)
-        background = torch.tensor([
-            blob_background(float(m), float(p), config.min_contrast,
-                            lambda i=i: np.quantile(lum[i][region[i]].double().cpu().numpy(),
-                                                    LARGE_BLOB_BACKGROUND_QUANTILE))
-            for i, (m, p) in enumerate(zip(median.tolist(), peak.tolist(), strict=True))],
-            dtype=torch.float64, device=dev)
         contrast = peak - background
         given = torch.tensor([math.nan if lv is None else lv for lv in levels],
                              dtype=torch.float64, device=dev)

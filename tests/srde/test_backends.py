@@ -58,21 +58,3 @@ def test_large_clipped_highlights_are_found_by_both_backends_alike():
     u0, v0, u1, v1 = a.detections[rig.reference].bbox
     assert 0.25 * np.hypot(u1 - u0, v1 - v0) >= REDUCED_SMOOTHING_SIGMA_PX
     np.testing.assert_allclose(b.highlight_centers, a.highlight_centers, atol=1e-3)
-
-
-def test_a_clipped_highlight_over_most_of_the_region_is_found_at_its_centre():
-    # A rough coating under a bright light: the blob is clipped over 70 % of the object,
-    # so the region's median is the clipping level; its low quantile is the background.
-    from srde_fusion.srde import detect_highlight
-
-    yy, xx = np.mgrid[:120, :160]
-    image = np.minimum(4.0 * np.exp(-((xx - 84.0) ** 2 + (yy - 58.0) ** 2) / (2 * 30.0**2)), 1.0)
-    region = (np.abs(xx - 80) < 60) & (np.abs(yy - 60) < 45)
-    image = np.where(region, image, 0.05)
-    assert np.median(image[region]) == 1.0
-    det = detect_highlight(image.astype(np.float32), region, encoding="linear")
-    assert det.found, det.reason
-    np.testing.assert_allclose(det.center_uv, [84.0, 58.0], atol=1.5)
-    # A region that is clipped everywhere still has no highlight, with its reason.
-    flat = detect_highlight(np.ones((120, 160), np.float32), region, encoding="linear")
-    assert not flat.found and "no bright blob" in flat.reason
