@@ -10,7 +10,11 @@ Rendered captures of the ArUco plate (``srde_fusion.synthetic.plate_scene``), th
    highlights found by the detector (the full ``estimate_light`` pipeline);
 3. SRDE plane-angle error and masked EPE on random rendered scenes when the light comes
    from the calibration, against the true light and against a light 5 cm off (the
-   paper's manual accuracy, quoted as 2.49 deg at 1.15 m).
+   paper's manual accuracy, quoted as 2.49 deg at 1.15 m);
+4. whether the reported uncertainty is honest: over the calibrations of experiments 1
+   and 2, the ratio |error| / sigma (sigma = sqrt(trace C), the 3D RMS radius of the
+   covariance C) and how often the true light lies within the 1/2/3-sigma ellipsoids
+   (the regions a 3D Gaussian falls in with probability 68.3 / 95.4 / 99.7 %).
 
 Run: ``python benchmarks/light_calibration.py [--trials 6] [--scenes 8] [--quick]``.
 Writes ``benchmarks/results/light_calibration.md`` and ``.json``.
@@ -24,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.stats import chi2
 
 from srde_fusion.calibration import (
     Board,
@@ -43,6 +48,9 @@ NOISE_LEVELS_PX = (0.0, 0.1, 0.3, 1.0)
 CAPTURE_COUNTS = (1, 3, 5)
 PAPER_LIGHT_ERROR_M = 0.05
 SUPERSAMPLE = 2
+# Squared Mahalanobis radii of the 3D regions holding 68.3 / 95.4 / 99.7 % of a Gaussian.
+SIGMA_LEVELS = (1, 2, 3)
+SIGMA_RADII = tuple(float(np.sqrt(chi2.ppf(p, 3))) for p in (0.6827, 0.9545, 0.9973))
 
 
 def rigs() -> dict[str, CameraRig]:
@@ -83,6 +91,23 @@ def mean_std(values, scale=1.0, digits=1) -> str:
     return f"{v.mean():.{digits}f} ± {v.std():.{digits}f}"
 
 
+def honesty(est, truth) -> dict:
+    """How the reported uncertainty compares with the true error of one calibration."""
+    error = float(np.linalg.norm(est.position_m - truth))
+    sigma = float(np.sqrt(np.trace(est.position_cov_m2)))
+    return dict(error_m=error, sigma_m=sigma, ratio=error / sigma,
+                mahalanobis=est.sigma_distance(truth))
+
+
+def coverage(records) -> dict:
+    """Median |error| / sigma and the fraction within the 1/2/3-sigma ellipsoids."""
+    m = np.array([r["mahalanobis"] for r in records])
+    return dict(n=int(m.size), median_ratio=float(np.median([r["ratio"] for r in records])),
+                max_ratio=float(np.max([r["ratio"] for r in records])),
+                **{f"within_{k}sigma": float(np.mean(m <= radius))
+                   for k, radius in zip(SIGMA_LEVELS, SIGMA_RADII, strict=True)})
+
+
 def experiment_noise(board, rig, trials, seeds, log):
     """Closed form vs refinement, exact centres plus noise, 3x3 rig."""
     sets = []
@@ -94,7 +119,7 @@ def experiment_noise(board, rig, trials, seeds, log):
     rows = []
     for sigma in NOISE_LEVELS_PX:
         for m in CAPTURE_COUNTS:
-            closed, refined = [], []
+            closed, refined, honest = [], [], []
             for caps, poses in sets:
                 for s in range(seeds if sigma > 0 else 1):
                     rng = np.random.default_rng(s)
@@ -102,7 +127,9 @@ def experiment_noise(board, rig, trials, seeds, log):
                     est = light_from_reflections(poses[:m], centers, rig, max_residual_m=1.0)
                     closed.append(np.linalg.norm(est.closed_form_position_m - LIGHT_M))
                     refined.append(np.linalg.norm(est.position_m - LIGHT_M))
-            rows.append(dict(noise_px=sigma, captures=m, closed_m=closed, refined_m=refined))
+                    honest.append(honesty(est, LIGHT_M))
+            rows.append(dict(noise_px=sigma, captures=m, closed_m=closed, refined_m=refined,
+                             honesty=honest))
             log(f"noise {sigma} px, {m} captures: closed {np.mean(closed) * 1e3:.1f} mm, "
                 f"refined {np.mean(refined) * 1e3:.1f} mm")
     return rows, sets, float(distance)
@@ -118,7 +145,7 @@ def experiment_rigs(board, trials, sets3x3, log):
             captures = [render_captures(board, rig, LIGHT_M, 1000 + t, max(CAPTURE_COUNTS))
                         for t in range(trials)]
         for m in CAPTURE_COUNTS:
-            closed, refined, rays, failures = [], [], [], []
+            closed, refined, rays, failures, honest = [], [], [], [], []
             for caps in captures:
                 try:
                     est = estimate_light([v for v, _ in caps[:m]], rig, board)
@@ -128,8 +155,9 @@ def experiment_rigs(board, trials, sets3x3, log):
                 closed.append(np.linalg.norm(est.closed_form_position_m - LIGHT_M))
                 refined.append(np.linalg.norm(est.position_m - LIGHT_M))
                 rays.append(est.n_rays)
+                honest.append(honesty(est, LIGHT_M))
             rows.append(dict(rig=name, views=rig.n_cameras, captures=m, closed_m=closed,
-                             refined_m=refined, rays=rays, failures=failures))
+                             refined_m=refined, rays=rays, failures=failures, honesty=honest))
             log(f"{name}, {m} captures: refined {mean_std(refined, 1e3)} mm, "
                 f"{len(failures)} failed")
     return rows
@@ -216,12 +244,43 @@ def to_markdown(noise_rows, rig_rows, srde_cases, distance_m, trials, seeds) -> 
         lines.append(f"| {key} | {mean_std([r['light_error_m'] for r in rows], 1e3)} | "
                      f"{mean_std([r['angle_deg'] for r in rows], digits=3)} | "
                      f"{mean_std([r['epe_px'] for r in rows], digits=3)} | {ok}/{len(rows)} |")
+    lines += ["", "## 4. Is the reported uncertainty honest?", "",
+              "Every calibration of experiments 1 (exact centres plus noise) and 2 (detected "
+              "highlights): sigma = sqrt(trace C) of the reported covariance C, and the "
+              "fraction of calibrations whose true light lies inside the 1/2/3-sigma "
+              "ellipsoids of C (a calibrated C puts 68 / 95 / 99.7 % there).", "",
+              "| calibrations | n | median \\|error\\| / sigma | max \\|error\\| / sigma | "
+              "within 1 sigma | within 2 sigma | within 3 sigma |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for label, cov in honesty_table(noise_rows, rig_rows):
+        lines.append(f"| {label} | {cov['n']} | {cov['median_ratio']:.2f} | "
+                     f"{cov['max_ratio']:.2f} | {cov['within_1sigma']:.0%} | "
+                     f"{cov['within_2sigma']:.0%} | {cov['within_3sigma']:.0%} |")
     return "\n".join(lines) + "\n"
+
+
+def honesty_table(noise_rows, rig_rows) -> list[tuple[str, dict]]:
+    """Coverage of the reported uncertainty, by experiment, rig and noise level."""
+    table = []
+    for sigma in NOISE_LEVELS_PX:
+        recs = [h for r in noise_rows if r["noise_px"] == sigma for h in r["honesty"]]
+        table.append((f"exact centres + {sigma:g} px noise, 3x3", coverage(recs)))
+    for name in rigs():
+        recs = [h for r in rig_rows if r["rig"] == name for h in r["honesty"]]
+        if recs:
+            table.append((f"detected highlights, {name}", coverage(recs)))
+    for m in CAPTURE_COUNTS:
+        recs = [h for r in rig_rows if r["captures"] == m for h in r["honesty"]]
+        if recs:
+            table.append((f"detected highlights, {m} plate pose(s), all rigs", coverage(recs)))
+    table.append(("detected highlights, all",
+                  coverage([h for r in rig_rows for h in r["honesty"]])))
+    return table
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--trials", type=int, default=6, help="sets of plate poses per rig")
+    parser.add_argument("--trials", type=int, default=10, help="sets of plate poses per rig")
     parser.add_argument("--seeds", type=int, default=3, help="noise draws per set")
     parser.add_argument("--scenes", type=int, default=8, help="random scenes for SRDE")
     parser.add_argument("--quick", action="store_true", help="2 trials, 1 seed, 3 scenes")
@@ -245,7 +304,8 @@ def main() -> None:
     (args.out / "light_calibration.md").write_text(text)
     payload = dict(light_m=LIGHT_M.tolist(), mean_plate_light_distance_m=distance,
                    trials=args.trials, seeds=args.seeds, noise=noise_rows, rigs=rig_rows,
-                   srde=srde_cases)
+                   srde=srde_cases,
+                   uncertainty={label: cov for label, cov in honesty_table(noise_rows, rig_rows)})
     (args.out / "light_calibration.json").write_text(
         json.dumps(payload, indent=1, default=float) + "\n")
 

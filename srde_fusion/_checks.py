@@ -16,6 +16,7 @@ import numpy as np
 from .errors import DisparityError, ImageError, LightError, MaskError, SRDEError
 
 __all__ = [
+    "MAX_IMAGE_PIXELS",
     "check_number",
     "check_keys",
     "check_image",
@@ -26,6 +27,12 @@ __all__ = [
     "check_disparity_sign",
     "check_point3",
 ]
+
+
+#: Largest image, pixels, that a file may declare or a rig may describe (a 200-megapixel
+#: frame is about 600 MB as uint8 RGB): a small file can declare a huge size and exhaust
+#: memory when decoded, and a rig's image size sizes every per-pixel array.
+MAX_IMAGE_PIXELS = 200_000_000
 
 
 def _describe(array: Any) -> str:

@@ -22,7 +22,7 @@ from srde_fusion.evaluation import BackboneLoader, evaluate_dataset
 from srde_fusion.geometry import Plane, incidence_angle_deg, plane_depth, plane_disparity
 from srde_fusion.imaging import SATURATION_LEVEL_U8, saturation_mask
 from srde_fusion.srde import shifted_window
-from srde_fusion.srde.estimator import _mask_box, _paste
+from srde_fusion.srde.estimator import _in_box, _mask_box
 
 # Grid rays and per-pixel rays differ only in the order of float64 operations; arccos
 # near a head-on ray (0 deg) turns that into a few 1e-12 deg absolute.
@@ -89,15 +89,17 @@ def test_shifted_window_matches_a_per_pixel_gather(seed, du, dv, u0, v0, bw, bh)
                                   _shifted_by_gather(mask, (du, dv), box))
 
 
-def test_mask_box_and_paste_round_trip():
+def test_mask_box_and_box_map_round_trip():
     mask = np.zeros((30, 40), dtype=bool)
     mask[4:9, 10:13] = True
     mask[12, 20] = True
     box, inside = _mask_box(mask)
     assert box == (10, 4, 21, 13)
     values = np.arange(int(inside.sum()), dtype=np.float32)
-    out = _paste(values, box, inside, mask.shape)
-    assert out.dtype == np.float32
+    in_box = _in_box(values, box, inside)
+    assert in_box.dtype == np.float32 and in_box.shape == (9, 11)
+    out = np.full(mask.shape, np.nan, np.float32)
+    out[4:13, 10:21] = in_box
     np.testing.assert_array_equal(np.isfinite(out), mask)
     np.testing.assert_array_equal(out[mask], values)  # row-major order, like mask indexing
 

@@ -52,6 +52,10 @@ METRES_PER_INCH = 0.0254
 # Corners of a marker must describe a square of the declared size to this tolerance.
 _SQUARE_TOL_M = 1e-6
 
+#: Largest plate side and marker coordinate, metres: a board is held in front of the
+#: cameras; anything larger is a unit mix-up (millimetres for metres).
+MAX_BOARD_EXTENT_M = 10.0
+
 
 # White quiet zone around each marker in the default layout, as a fraction of its side;
 # ArUco needs a light border to find the black marker outline.
@@ -149,6 +153,9 @@ class Board:
             _number(plate[0], "plate_size_m[0]", positive=True),
             _number(plate[1], "plate_size_m[1]", positive=True),
         )
+        if max(plate) > MAX_BOARD_EXTENT_M:
+            raise BoardError(f"plate_size_m: expected a plate at most {MAX_BOARD_EXTENT_M:g} m "
+                             f"wide and high (metres, not millimetres), got {list(plate)}")
         object.__setattr__(self, "plate_size_m", plate)
         markers = tuple(self.markers)
         if not markers:
@@ -337,6 +344,11 @@ def _marker_corners(corners: Any, where: str) -> np.ndarray:
     if arr.shape != (4, 2) or not np.all(np.isfinite(arr)):
         raise BoardError(
             f"{where}.corners_m: expected 4 finite corners [x, y] in metres, got {corners!r}"
+        )
+    if np.any(np.abs(arr) > MAX_BOARD_EXTENT_M):
+        raise BoardError(
+            f"{where}.corners_m: expected corners within {MAX_BOARD_EXTENT_M:g} m of the "
+            f"plate centre, got {arr.tolist()}"
         )
     return arr
 

@@ -41,6 +41,8 @@ __all__ = [
     "DEFAULT_MAX_INCIDENCE_DEG",
     "DEFAULT_MAX_RESIDUAL_M",
     "DEFAULT_MIN_VIEWS",
+    "HIGHLIGHT_ACCURACY_PX",
+    "CORNER_ACCURACY_PX",
     "LightEstimate",
     "closest_point_to_rays",
     "reflect_highlights",
@@ -69,6 +71,18 @@ _MIN_RAY_SPREAD = 1e-6
 # times, and never taken below this (exact synthetic centres would get infinite weight).
 _REWEIGHT_ROUNDS = 2
 _MIN_SIGMA_PX = 0.01
+
+
+#: Smallest one-sigma error (pixels) the uncertainty assumes for a detected highlight
+#: centre and for a marker corner, whatever the residuals say. Residuals cannot show
+#: errors the model absorbs: on rendered captures the detected centres are off by
+#: 0.01-0.05 px in a pattern that varies smoothly across the array, which the fit takes
+#: for a slightly different virtual-light depth, leaving residuals of 0.003 px and a
+#: light about 1 mm off. That error is shared by the captures, so the highlight floor
+#: counts once, not once per capture. ``benchmarks/light_calibration.py`` measures how
+#: often the true light falls within 1, 2 and 3 sigma.
+HIGHLIGHT_ACCURACY_PX = 0.02
+CORNER_ACCURACY_PX = 0.05
 
 
 # ---------------------------------------------------------------------- the solve
@@ -198,9 +212,8 @@ class LightEstimate:
         RMS distance between the highlight centres and the projections of the virtual
         lights (``L`` mirrored across each plate), pixels.
     position_std_m : numpy.ndarray, (3,), float64
-        One-sigma uncertainty of ``L`` per axis, propagated from the residuals (of the
-        joint refinement when ``refined``, else of the rays). It is only as good as the
-        noise model: systematic errors of the board or the camera do not show.
+        One-sigma uncertainty of ``L`` per axis, metres: the square root of the diagonal
+        of ``position_cov_m2``.
     closed_form_position_m : numpy.ndarray, (3,), float64
         The least-squares intersection of the reflected rays from the marker-only plate
         poses (the paper's estimate), before any joint refinement.
@@ -220,6 +233,16 @@ class LightEstimate:
         Per capture and view, why the view gave no ray (``""`` when it did).
     plate_poses : tuple of PlatePose
         The plate pose of each capture (after the joint refinement, if any).
+    position_cov_m2 : numpy.ndarray, (3, 3), float64
+        Covariance of ``L``, square metres: the residual-scaled covariance of the solve
+        (each residual kind taken at its RMS, but never below
+        :data:`HIGHLIGHT_ACCURACY_PX` / :data:`CORNER_ACCURACY_PX`, so an exact-looking
+        fit does not claim sub-millimetre certainty), plus, with three captures or more,
+        the leave-one-capture-out (jackknife) covariance, which shows captures that
+        disagree. Systematic errors of the board print or the camera model still do not
+        show.
+    uncertainty : str
+        How ``position_cov_m2`` was formed, in words.
     """
 
     position_m: np.ndarray
@@ -236,6 +259,8 @@ class LightEstimate:
     highlight_centers_px: tuple[np.ndarray, ...]
     view_reasons: tuple[tuple[str, ...], ...]
     plate_poses: tuple[PlatePose, ...]
+    position_cov_m2: np.ndarray
+    uncertainty: str
 
     @property
     def n_rays(self) -> int:
@@ -255,6 +280,18 @@ class LightEstimate:
             for c in range(self.n_captures)
         )
 
+    def sigma_distance(self, point_m: Any) -> float:
+        """Mahalanobis distance of a point from the estimate, in sigmas (3D).
+
+        Returns
+        -------
+        float
+            ``sqrt((p - L)^T C^-1 (p - L))`` with ``C = position_cov_m2``; a point on the
+            one-sigma ellipsoid gives 1.
+        """
+        e = np.asarray(point_m, dtype=np.float64).reshape(3) - self.position_m
+        return float(np.sqrt(e @ np.linalg.pinv(self.position_cov_m2) @ e))
+
     @property
     def reprojection_errors_px(self) -> tuple[float, ...]:
         """RMS marker reprojection error of each capture's plate pose, pixels."""
@@ -268,6 +305,7 @@ class LightEstimate:
         lines = [
             f"light position: ({x:+.4f}, {y:+.4f}, {z:+.4f}) m, "
             f"± ({sx:.1f}, {sy:.1f}, {sz:.1f}) mm (1 sigma, {how})",
+            f"uncertainty: {self.uncertainty}",
             f"residual: {self.residual_m * 1000:.2f} mm mean distance to {self.n_rays} rays, "
             f"{self.highlight_residual_px:.2f} px RMS at the highlights, "
             f"{self.n_captures} plate pose(s)",
@@ -324,6 +362,8 @@ def _refine_jointly(
     centres against the projected virtual light, each kind divided by its own RMS
     (re-estimated once after a first fit), so noisy highlight centres do not bend
     well-measured plates. Poses given without corners stay fixed.
+
+    Returns the light, the refined poses and the light's ``(3, 3)`` covariance.
     """
     free = [c for c, p in enumerate(poses) if p.has_corners]
     marker_data = []
@@ -377,11 +417,40 @@ def _refine_jointly(
         p.moved(r, t, rig) if c in free else p
         for c, (p, (r, t)) in enumerate(zip(poses, rt, strict=True))
     )
-    # Gauss-Newton covariance s^2 (J^T J)^-1 of the light block.
-    dof = max(fit.fun.size - fit.x.size, 1)
-    s2 = 2.0 * fit.cost / dof
-    cov = np.linalg.pinv(fit.jac.T @ fit.jac)[:3, :3] * s2
-    return x[:3], refined, np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    # Covariance of the light block, marginalised over the poses: (J^T W J)^-1 with each
+    # residual kind weighted by its RMS, floored at the accuracy a detector can promise.
+    n_corner = sum(d[2].size for d in marker_data)
+    sigmas = np.r_[
+        np.full(n_corner, sigma_corner), np.full(fit.fun.size - n_corner, sigma_highlight)
+    ]
+    # The centre error of a detector is largely shared by the captures (one lobe shape,
+    # one array) and does not average out over them: its floor counts as one capture's.
+    n_lit = sum(1 for vv in views if vv.size)
+    honest = np.r_[
+        np.full(n_corner, max(sigma_corner, CORNER_ACCURACY_PX)),
+        np.full(
+            fit.fun.size - n_corner,
+            max(sigma_highlight, HIGHLIGHT_ACCURACY_PX * math.sqrt(max(n_lit, 1))),
+        ),
+    ]
+    jac = fit.jac * (sigmas / honest)[:, None]
+    cov = np.linalg.pinv(jac.T @ jac)[:3, :3]
+    return x[:3], refined, 0.5 * (cov + cov.T)
+
+
+def _ray_covariance(position_m, origins_m, directions, rig: CameraRig) -> np.ndarray:
+    """Covariance of the ray intersection, from the distances of the light to the rays.
+
+    Each ray constrains the 2 directions across it: ``C = s^2 A^-1`` with
+    ``A = sum(I - d d^T)`` and ``s`` the RMS distance per constrained direction, never
+    below what :data:`HIGHLIGHT_ACCURACY_PX` turns into at the ray's length.
+    """
+    dist = np.linalg.norm(np.cross(position_m - origins_m, directions), axis=1)
+    a = np.einsum("rij->ij", np.eye(3) - directions[:, :, None] * directions[:, None, :])
+    var = float(np.sum(dist**2)) / max(2 * origins_m.shape[0] - 3, 1)
+    length = float(np.mean(np.linalg.norm(position_m - origins_m, axis=1)))
+    floor = HIGHLIGHT_ACCURACY_PX / rig.intrinsics.fx * length
+    return np.linalg.inv(a) * max(var, floor**2)
 
 
 def light_from_reflections(
@@ -461,12 +530,20 @@ def light_from_reflections(
         if used.size:
             incidence_check(pose, rig, used.tolist(), max_incidence_deg, f"capture {c}")
         centers_all.append(centers)
+    position, closed_form, refined_poses, cov = _solve(poses, centers_all, rig, refine)
+    how = (
+        f"residual-scaled covariance (highlight centres >= {HIGHLIGHT_ACCURACY_PX:g} px, "
+        f"marker corners >= {CORNER_ACCURACY_PX:g} px, 1 sigma)"
+        if refine
+        else f"residual-scaled covariance of the ray intersection (highlight centres >= "
+        f"{HIGHLIGHT_ACCURACY_PX:g} px, 1 sigma)"
+    )
+    jackknife = _jackknife(poses, centers_all, rig, refine)
+    if jackknife is not None:
+        cov = cov + jackknife
+        how += f" + leave-one-capture-out spread over {len(poses)} captures"
+    poses = refined_poses
     o, d, cap, view = _rays(poses, centers_all, rig)
-    closed_form, _ = closest_point_to_rays(o, d)
-    position = closed_form
-    if refine:
-        position, poses, std = _refine_jointly(closed_form, poses, centers_all, rig)
-        o, d, cap, view = _rays(poses, centers_all, rig)
     dist = np.linalg.norm(np.cross(position - o, d), axis=1)
     # The light shines onto the plate's printed side, from where the rays point.
     along = np.einsum("ri,ri->r", position - o, d)
@@ -486,11 +563,6 @@ def light_from_reflections(
             f"{cap[r]}, {rig.camera_names[view[r]]}, {dist[r] * 1000:.1f} mm); check the "
             "highlight centres and the board description"
         )
-    if not refine:
-        a = np.einsum("rij->ij", np.eye(3) - d[:, :, None] * d[:, None, :])
-        # Each ray constrains 2 directions of the 3 unknowns: covariance s^2 A^-1.
-        var = float(np.sum(dist**2)) / max(2 * o.shape[0] - 3, 1)
-        std = np.sqrt(np.clip(np.diag(np.linalg.inv(a)) * var, 0.0, None))
     hl = _highlight_residuals(position, poses, centers_all, rig)
     hl_rms = float(np.sqrt(np.mean(np.sum(hl**2, axis=1))))
     if view_reasons is None:
@@ -504,7 +576,7 @@ def light_from_reflections(
         position,
         residual,
         hl_rms,
-        std,
+        np.sqrt(np.clip(np.diag(cov), 0.0, None)),
         closed_form,
         bool(refine),
         o,
@@ -515,7 +587,47 @@ def light_from_reflections(
         tuple(centers_all),
         reasons,
         poses,
+        cov,
+        how,
     )
+
+
+def _solve(poses, centers, rig, refine):
+    """Solve for the light: ``(position, closed form, poses, covariance)``."""
+    o, d, _, _ = _rays(poses, centers, rig)
+    closed_form, _ = closest_point_to_rays(o, d)
+    if not refine:
+        return closed_form, closed_form, tuple(poses), _ray_covariance(closed_form, o, d, rig)
+    position, refined, cov = _refine_jointly(closed_form, tuple(poses), centers, rig)
+    return position, closed_form, refined, cov
+
+
+#: Fewest captures for the leave-one-capture-out spread (with two, each half is one capture).
+_JACKKNIFE_MIN_CAPTURES = 3
+
+
+def _jackknife(poses, centers, rig, refine) -> np.ndarray | None:
+    """Leave-one-capture-out covariance of the light, or None with too few captures.
+
+    ``(m - 1) / m * sum_c (L_-c - mean)(L_-c - mean)^T`` over the m solves that each
+    leave one capture out: captures that disagree (a plate that bent, a pose that is
+    off) spread these solves apart, which the residuals of one joint fit can hide.
+    """
+    m = len(poses)
+    if m < _JACKKNIFE_MIN_CAPTURES:
+        return None
+    points = []
+    for c in range(m):
+        keep = [i for i in range(m) if i != c]
+        try:
+            points.append(_solve([poses[i] for i in keep], [centers[i] for i in keep], rig,
+                                 refine)[0])
+        except LightError:  # the others alone do not fix a point: no spread to measure
+            continue
+    if len(points) < _JACKKNIFE_MIN_CAPTURES:
+        return None
+    dev = np.asarray(points) - np.mean(points, axis=0)
+    return (len(points) - 1) / len(points) * dev.T @ dev
 
 
 def _rays(poses, centers, rig):

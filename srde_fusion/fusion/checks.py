@@ -172,13 +172,20 @@ class BorderStats:
 
 
 def border_stats(plane: Plane | None, rig: CameraRig, backbone: np.ndarray, mask: np.ndarray,
-                  textured: np.ndarray, check: BorderCheck) -> BorderStats:
+                  textured: np.ndarray, check: BorderCheck, origin: tuple[int, int] = (0, 0)
+                  ) -> BorderStats:
+    """Compare SRDE's plane with the backbone on the textured band around the outline.
+
+    The maps may be a window of the image whose top-left pixel is ``origin = (u0, v0)``,
+    holding the band whole.
+    """
     if plane is None:
         return BorderStats()
     band = border_band(mask, check.width_px) & textured & np.isfinite(backbone)
     vs, us = np.nonzero(band)
     # SRDE's plane, extended beyond the mask onto the outer half of the band.
-    srde_px = plane_disparity(plane, rig, np.stack([us, vs], axis=-1).astype(np.float64))
+    uv = np.stack([us + origin[0], vs + origin[1]], axis=-1).astype(np.float64)
+    srde_px = plane_disparity(plane, rig, uv)
     keep = np.isfinite(srde_px) & (srde_px > 0)
     if not keep.any():
         return BorderStats()
@@ -244,15 +251,17 @@ def _inner_ring(mask: np.ndarray, width_px: int) -> np.ndarray:
 
 
 def _cost_map(grays: list[np.ndarray], rig: CameraRig, mask: np.ndarray,
-              disparity_px: np.ndarray, radius_px: int) -> np.ndarray:
-    """Return the photometric cost averaged over a window within the mask, (H, W) float32.
+              disparity_px: np.ndarray, radius_px: int, origin: tuple[int, int] = (0, 0)
+              ) -> np.ndarray:
+    """Return the photometric cost averaged over a window within the mask, (h, w) float32.
 
-    NaN outside the mask and where no pixel of the window could be compared.
+    NaN outside the mask and where no pixel of the window could be compared. ``mask``
+    and ``disparity_px`` may be a part of the image starting at ``origin = (u0, v0)``.
     """
     vs, us = np.nonzero(mask & np.isfinite(disparity_px))
     cost = np.zeros(mask.shape, np.float32)
     valid = np.zeros(mask.shape, np.float32)
-    per_pixel = _photo_cost(grays, rig, us, vs, disparity_px[vs, us])
+    per_pixel = _photo_cost(grays, rig, us + origin[0], vs + origin[1], disparity_px[vs, us])
     ok = np.isfinite(per_pixel)
     cost[vs[ok], us[ok]] = per_pixel[ok]
     valid[vs[ok], us[ok]] = 1.0
@@ -266,8 +275,11 @@ def _cost_map(grays: list[np.ndarray], rig: CameraRig, mask: np.ndarray,
 
 def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
           textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
-          check: BorderCheck) -> np.ndarray:
-    """Return the mask pixels that are not the object, (H, W) bool.
+          check: BorderCheck, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """Return the mask pixels that are not the object, (h, w) bool.
+
+    The maps (not ``grays``, whole views) may be a window of the image starting at
+    ``origin = (u0, v0)`` that holds the mask and a margin of a pixel.
 
     A glossy textureless object offers no texture except along its outline, so textured
     mask pixels where the backbone contradicts SRDE's plane and matches the other views
@@ -288,8 +300,8 @@ def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
         return candidates
     # One pixel's cost is at the mercy of image noise (which also makes a textureless
     # object look textured): compare window means over the mask instead.
-    cost_srde = _cost_map(grays, rig, mask, srde_disp, check.width_px)
-    cost_backbone = _cost_map(grays, rig, mask, backbone, check.width_px)
+    cost_srde = _cost_map(grays, rig, mask, srde_disp, check.width_px, origin)
+    cost_backbone = _cost_map(grays, rig, mask, backbone, check.width_px, origin)
     candidates &= cost_srde > check.max_photo_ratio * cost_backbone + check.photo_margin
     _, labels = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
     touching = np.unique(labels[_inner_ring(mask, 1) & candidates])
@@ -309,8 +321,11 @@ class PhotoStats:
 
 def photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
                  textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
-                 check: BorderCheck) -> PhotoStats:
-    """Return the photometric cost of SRDE and the backbone on the mask's inner ring."""
+                 check: BorderCheck, origin: tuple[int, int] = (0, 0)) -> PhotoStats:
+    """Return the photometric cost of SRDE and the backbone on the mask's inner ring.
+
+    The maps may be a window of the image starting at ``origin = (u0, v0)``.
+    """
     # Only ring pixels next to texture (the silhouette edge): inside a glossy object the
     # shading follows the reflection, whose depth is the virtual light's, not the
     # surface's, so a uniform interior would favour whichever hypothesis is nearer it.
@@ -322,8 +337,9 @@ def photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, ba
         size = 4 * check.width_px + 1
         ring &= cv2.dilate(trimmed.astype(np.uint8), np.ones((size, size), np.uint8)) == 0
     vs, us = np.nonzero(ring)
-    cost_srde = _photo_cost(grays, rig, us, vs, srde_disp[vs, us])
-    cost_backbone = _photo_cost(grays, rig, us, vs, backbone[vs, us])
+    u, v = us + origin[0], vs + origin[1]
+    cost_srde = _photo_cost(grays, rig, u, v, srde_disp[vs, us])
+    cost_backbone = _photo_cost(grays, rig, u, v, backbone[vs, us])
     both = np.isfinite(cost_srde) & np.isfinite(cost_backbone)
     if not both.any():
         return PhotoStats()

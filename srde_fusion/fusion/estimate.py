@@ -41,8 +41,14 @@ class ObjectEstimate:
         Whether the estimator succeeded (``status == "ok"``).
     status, reason : str
         The estimator's outcome and why.
-    disparity : numpy.ndarray, (H, W) float32 or None
-        The object's disparity, pixels; None when the estimator gave none.
+    disparity_box : numpy.ndarray, (v1 - v0, u1 - u0) float32 or None
+        The object's disparity inside ``box``, pixels (NaN where it has none); None when
+        the estimator gave none.
+    box : (int, int, int, int)
+        ``(u0, v0, u1, v1)`` of ``disparity_box``: the mask's box for SRDE, the box of the
+        finite values for another estimator.
+    image_shape : tuple of int
+        Shape of the map the estimator returned (``(H, W)`` unless it is broken).
     plane : Plane or None
         The object's plane, if the estimator reports one.
     kept_initial_plane : bool
@@ -57,11 +63,37 @@ class ObjectEstimate:
     ok: bool
     status: str
     reason: str
-    disparity: np.ndarray | None
+    disparity_box: np.ndarray | None
+    box: tuple[int, int, int, int]
+    image_shape: tuple[int, ...]
     plane: Plane | None
     kept_initial_plane: bool
     record: dict = field(repr=False)
     result: Any = field(repr=False)
+
+    @property
+    def disparity(self) -> np.ndarray | None:
+        """The full ``(H, W)`` float32 map (NaN outside ``box``), built on access; or None."""
+        if self.disparity_box is None:
+            return None
+        out = np.full(self.image_shape, np.nan, dtype=np.float32)
+        u0, v0, u1, v1 = self.box
+        out[v0:v1, u0:u1] = self.disparity_box
+        return out
+
+    def window(self, box: tuple[int, int, int, int]) -> np.ndarray:
+        """Return the disparity over ``box = (u0, v0, u1, v1)``, float32, NaN elsewhere."""
+        u0, v0, u1, v1 = box
+        out = np.full((v1 - v0, u1 - u0), np.nan, dtype=np.float32)
+        if self.disparity_box is None:
+            return out
+        a0, b0, a1, b1 = self.box
+        # The overlap of the two boxes, in image coordinates.
+        c0, d0, c1, d1 = max(a0, u0), max(b0, v0), min(a1, u1), min(b1, v1)
+        if c1 > c0 and d1 > d0:
+            out[d0 - v0:d1 - v0, c0 - u0:c1 - u0] = self.disparity_box[d0 - b0:d1 - b0,
+                                                                       c0 - a0:c1 - a0]
+        return out
 
 
 def read_estimate(result: Any) -> ObjectEstimate:
@@ -79,9 +111,9 @@ def read_estimate(result: Any) -> ObjectEstimate:
         refinement = result.refinement
         return ObjectEstimate(
             result.ok, result.status, result.reason,
-            None if result.disparity is None else np.asarray(result.disparity, np.float32),
-            result.plane, refinement is not None and not refinement.ok, result.to_dict(),
-            result)
+            np.asarray(result.disparity_box, np.float32), tuple(result.box),
+            tuple(result.image_shape), result.plane,
+            refinement is not None and not refinement.ok, result.to_dict(), result)
     status = str(getattr(result, "status", "unknown"))
     reason = str(getattr(result, "reason", ""))
     disparity = getattr(result, "disparity", None)
@@ -98,7 +130,26 @@ def read_estimate(result: Any) -> ObjectEstimate:
         "used_views": None,
         "residual_px": None,
     })
+    crop, box, shape = None, (0, 0, 0, 0), ()
+    if disparity is not None:
+        full = np.asarray(disparity, dtype=np.float32)
+        shape = full.shape
+        # A map of the wrong shape is refused by fuse, which knows the image's.
+        if full.ndim == 2:
+            box, crop = _finite_box(full)
+        else:
+            crop = np.zeros((0, 0), np.float32)
     return ObjectEstimate(
-        status == "ok", status, reason,
-        None if disparity is None else np.asarray(disparity, dtype=np.float32), plane,
+        status == "ok", status, reason, crop, box, shape, plane,
         refinement is not None and not refinement.ok, record, result)
+
+
+def _finite_box(full: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
+    """Crop a map to the box of its finite values (a copy; empty box if none)."""
+    finite = np.isfinite(full)
+    rows = np.flatnonzero(finite.any(axis=1))
+    cols = np.flatnonzero(finite.any(axis=0))
+    if rows.size == 0:
+        return (0, 0, 0, 0), np.zeros((0, 0), np.float32)
+    v0, v1, u0, u1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    return (u0, v0, u1, v1), full[v0:v1, u0:u1].copy()

@@ -35,6 +35,7 @@ import numpy as np
 from .._checks import check_disparity, check_mask, check_views
 from ..errors import MaskError, RigError, SRDEError
 from ..geometry import CameraRig
+from ..masks import BoxedMasks, BoxMask
 from ..srde import SRDE
 from .checks import (
     DEFAULT_BORDER_CHECK,
@@ -60,15 +61,26 @@ __all__ = [
 Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
 
 
-def as_mask_list(masks: Any, shape: tuple[int, int]) -> list[np.ndarray]:
-    """Validate ``masks`` (list of bool masks, (K, H, W) stack or (H, W) labels)."""
+def as_mask_list(masks: Any, shape: tuple[int, int]) -> BoxedMasks:
+    """Validate ``masks`` (list of bool masks, (K, H, W) stack or (H, W) labels).
+
+    Returns
+    -------
+    BoxedMasks
+        The sequence of ``(H, W)`` bool masks, held as the objects' boxes (a
+        ``BoxedMasks`` of the right shape passes through).
+    """
+    if isinstance(masks, BoxedMasks):
+        if masks.shape != tuple(shape):
+            raise MaskError(f"masks: expected masks of shape {tuple(shape)}, got {masks.shape}")
+        return masks
     if isinstance(masks, np.ndarray):
         if masks.ndim == 2:
             if not np.issubdtype(masks.dtype, np.integer):
                 masks = [masks]
             else:  # instance labels: 0 = background, k = object k
-                values = np.unique(masks)
-                masks = [masks == v for v in values[values > 0]]
+                check_mask(masks, shape, "masks", allow_empty=True)
+                return BoxedMasks.from_labels(np.maximum(masks, 0))
         elif masks.ndim == 3:
             masks = list(masks)
         else:
@@ -76,7 +88,7 @@ def as_mask_list(masks: Any, shape: tuple[int, int]) -> list[np.ndarray]:
                             f"labels, got an array of shape {masks.shape}")
     if not isinstance(masks, Sequence) or isinstance(masks, (str, bytes)):
         raise MaskError(f"masks: expected a list of (H, W) bool masks, got {type(masks).__name__}")
-    return [check_mask(m, shape, f"masks[{i}]") for i, m in enumerate(masks)]
+    return BoxedMasks.from_masks(masks, shape)
 
 
 def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
@@ -151,26 +163,41 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
 
     reports = []
     _log.info("fusing %d object(s)", len(mask_list))
-    for k, mask in enumerate(mask_list, start=1):
-        estimate = read_estimate(srde.estimate(views, mask))
-        n_mask = int(np.count_nonzero(mask))
+    for k, box_mask in enumerate(mask_list.boxes, start=1):
+        # The estimator takes a full-image mask; it lives only while it estimates.
+        estimate = read_estimate(srde.estimate(views, box_mask.full()))
+        n_mask = box_mask.pixel_count
         if not estimate.ok:
             reports.append(ObjectReport(
                 k, "fallback", f"SRDE failed ({estimate.status}): {estimate.reason}", estimate,
                 n_mask, 0))
             continue
-        shape = () if estimate.disparity is None else estimate.disparity.shape
-        if shape != (h, w):
+        if estimate.image_shape != (h, w):
             raise SRDEError(f"srde: expected estimate() to return an ({h}, {w}) disparity map, "
-                            f"got shape {shape}")
-        decision = _decide(k, estimate, mask, source == SOURCE_BACKBONE, context)
+                            f"got shape {estimate.image_shape}")
+        # Everything an object's decision reads lies within a few pixels of its mask.
+        window = _window(box_mask, context, (h, w))
+        u0, v0, u1, v1 = window
+        free = source[v0:v1, u0:u1] == SOURCE_BACKBONE
+        decision = _decide(k, estimate, box_mask, window, free, context)
         if decision.take is not None:
-            fused[decision.take] = estimate.disparity[decision.take]
-            source[decision.take] = k
+            fused[v0:v1, u0:u1][decision.take] = estimate.window(window)[decision.take]
+            source[v0:v1, u0:u1][decision.take] = k
         reports.append(decision.report)
         _log.debug("object %d: %s - %s", k, decision.report.status, decision.report.reason)
 
     return FusionResult(fused, source, tuple(reports), backbone)
+
+
+def _window(box_mask: BoxMask, context: _Context, shape: tuple[int, int]
+            ) -> tuple[int, int, int, int]:
+    """Return the mask's box grown by what the checks read beyond it, within the image."""
+    # The outline band reaches width_px outside the mask; one more pixel keeps the
+    # morphology at the window's edge as it is on the whole image.
+    margin = (context.check.width_px if context.check is not None else 0) + 2
+    u0, v0, u1, v1 = box_mask.box
+    h, w = shape
+    return max(u0 - margin, 0), max(v0 - margin, 0), min(u1 + margin, w), min(v1 + margin, h)
 
 
 @dataclass(frozen=True)
@@ -189,30 +216,40 @@ class _Decision:
     """One object's outcome: its report, and the pixels that take SRDE's disparity."""
 
     report: ObjectReport
-    take: np.ndarray | None = None         # (H, W) bool; None when the object falls back
+    take: np.ndarray | None = None         # (h, w) bool over the window; None on fallback
 
 
-def _decide(k: int, estimate: ObjectEstimate, mask: np.ndarray, free: np.ndarray,
-            context: _Context) -> _Decision:
+def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
+            window: tuple[int, int, int, int], free: np.ndarray, context: _Context
+            ) -> _Decision:
     """Check one successful estimate against the backbone; say which pixels take it.
 
-    ``free`` marks the pixels no earlier object has taken.
+    Every map is read over ``window = (u0, v0, u1, v1)``, the mask's box and the margin
+    the checks need, so an object costs memory in proportion to its size. ``free``
+    marks the window's pixels no earlier object has taken.
     """
-    srde_disp = estimate.disparity
-    n_mask = int(np.count_nonzero(mask))
-    backbone, rig, check = context.backbone, context.rig, context.check
-    textured, grays = context.textured, context.grays
+    u0, v0, u1, v1 = window
+    origin = (u0, v0)
+    mask = box_mask.window(window)
+    srde_disp = estimate.window(window)
+    n_mask = box_mask.pixel_count
+    rig, check = context.rig, context.check
+    backbone = context.backbone[v0:v1, u0:u1]
+    textured = None if context.textured is None else context.textured[v0:v1, u0:u1]
+    grays = context.grays
     trimmed = np.zeros_like(mask)
     if check is not None and check.trim_disagreement > 0:
-        trimmed = spill_trim(mask, srde_disp, backbone, textured, grays, rig, check)
+        trimmed = spill_trim(mask, srde_disp, backbone, textured, grays, rig, check, origin)
     n_trimmed = int(np.count_nonzero(trimmed))
     object_mask = mask & ~trimmed
     stats = BorderStats()
     if check is not None:
-        stats = border_stats(estimate.plane, rig, backbone, object_mask, textured, check)
+        stats = border_stats(estimate.plane, rig, backbone, object_mask, textured, check,
+                             origin)
     photo = PhotoStats()
     if check is not None and check.photo_ring_px > 0:
-        photo = photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check)
+        photo = photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check,
+                            origin)
     common = dict(border_px=stats.n_px, border_ratio_low=stats.ratio_low,
                   border_ratio_high=stats.ratio_high,
                   border_median_diff_px=stats.median_diff_px, trimmed_px=n_trimmed,

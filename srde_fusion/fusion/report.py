@@ -140,11 +140,13 @@ class FusionResult:
         """
         out = np.full(self.disparity.shape, np.nan, dtype=np.float32)
         for obj in self.objects:
-            srde_disp = obj.estimate.disparity
-            if srde_disp is None:
+            srde_disp = obj.estimate.disparity_box
+            if srde_disp is None or obj.estimate.image_shape != out.shape:
                 continue
-            fill = np.isfinite(srde_disp) & np.isnan(out)
-            out[fill] = srde_disp[fill]
+            u0, v0, u1, v1 = obj.estimate.box
+            part = out[v0:v1, u0:u1]
+            fill = np.isfinite(srde_disp) & np.isnan(part)
+            part[fill] = srde_disp[fill]
         return out
 
     def report(self) -> dict[str, Any]:

@@ -9,36 +9,68 @@ Disparity is for the stereo pair (reference = left, partner to its right):
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from .._checks import check_keys, check_number
+from .._checks import MAX_IMAGE_PIXELS, check_keys, check_number
 from .._json import dump_json, load_json_source
-from ..errors import RigError
+from ..errors import LightError, RigError, SRDEError
 from ..imaging import IMAGE_ENCODINGS
 
-__all__ = ["Intrinsics", "Camera", "CameraRig", "RIG_FORMAT", "project_points"]
+__all__ = [
+    "Intrinsics",
+    "Camera",
+    "CameraRig",
+    "RIG_FORMAT",
+    "project_points",
+    "MAX_FOCAL_PX",
+    "MAX_PRINCIPAL_OFFSET",
+    "MAX_POSITION_M",
+    "MIN_BASELINE_M",
+]
 
 RIG_FORMAT = "srde-rig/1"
 # Centres must be coplanar to this tolerance for the array to count as rectified.
 _COPLANAR_TOL_M = 1e-6
+
+# Generous physical ranges of a rig's numbers. A value outside is a typo or a unit
+# mix-up (millimetres for metres, a focal length in metres), never a camera: the search
+# geometry and every per-pixel array scale with these numbers, so they are refused early.
+#: Largest focal length, pixels (a 1 m telephoto lens on 1 um pixels).
+MAX_FOCAL_PX = 1e6
+#: The principal point may lie this many image widths (heights) outside the image.
+MAX_PRINCIPAL_OFFSET = 10.0
+#: Largest distance of a camera centre or the light from the array's origin, metres.
+MAX_POSITION_M = 1e3
+#: Shortest stereo baseline, metres.
+MIN_BASELINE_M = 1e-6
 
 
 def _number(value: Any, field_name: str, *, positive: bool = False) -> float:
     return check_number(value, field_name, RigError, positive=positive)
 
 
-def _vector3(value: Any, field_name: str) -> tuple[float, float, float]:
+def _vector3(value: Any, field_name: str, error: type[SRDEError] = RigError
+             ) -> tuple[float, float, float]:
     if isinstance(value, np.ndarray):
         value = value.tolist()
     if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise RigError(
             f"{field_name}: expected a list of 3 numbers [x, y, z] in metres, got {value!r}"
         )
-    return tuple(_number(v, f"{field_name}[{i}]") for i, v in enumerate(value))  # type: ignore[return-value]
+    out = tuple(_number(v, f"{field_name}[{i}]") for i, v in enumerate(value))
+    # Each coordinate first: squaring 1e300 would overflow.
+    norm = math.inf if max(map(abs, out)) >= MAX_POSITION_M else math.hypot(*out)
+    if norm >= MAX_POSITION_M:
+        raise error(
+            f"{field_name}: expected a position within {MAX_POSITION_M:g} m of the array's "
+            f"origin (metres, not millimetres), got {list(out)}"
+        )
+    return out  # type: ignore[return-value]
 
 
 def _check_keys(data: Any, allowed: set[str], required: set[str], where: str) -> None:
@@ -66,6 +98,11 @@ class Intrinsics:
         # Stored as Python floats so that the rig serialises to JSON whatever the input type.
         for name in ("fx", "fy"):
             value = _number(getattr(self, name), f"intrinsics.{name}", positive=True)
+            if value >= MAX_FOCAL_PX:
+                raise RigError(
+                    f"intrinsics.{name}: expected a focal length in pixels below "
+                    f"{MAX_FOCAL_PX:g}, got {value:g}"
+                )
             object.__setattr__(self, name, value)
         for name in ("cx", "cy"):
             object.__setattr__(self, name, _number(getattr(self, name), f"intrinsics.{name}"))
@@ -147,10 +184,25 @@ class CameraRig:
                 f"image_size: expected [width, height] as two positive integers, got {size!r}"
             )
         object.__setattr__(self, "image_size", (int(size[0]), int(size[1])))
+        width, height = self.image_size
+        if width * height > MAX_IMAGE_PIXELS:
+            raise RigError(
+                f"image_size: expected at most {MAX_IMAGE_PIXELS} pixels (the image pixel "
+                f"limit), got {width}x{height} = {width * height}"
+            )
         if not isinstance(self.intrinsics, Intrinsics):
             raise RigError(
                 f"intrinsics: expected an Intrinsics, got {type(self.intrinsics).__name__}"
             )
+        for name, extent in (("cx", width), ("cy", height)):
+            value = getattr(self.intrinsics, name)
+            lo, hi = -MAX_PRINCIPAL_OFFSET * extent, (1.0 + MAX_PRINCIPAL_OFFSET) * extent
+            if not lo <= value <= hi:
+                raise RigError(
+                    f"intrinsics.{name}: expected a principal point within "
+                    f"{MAX_PRINCIPAL_OFFSET:g} image sizes of the {width}x{height} image "
+                    f"([{lo:g}, {hi:g}] px), got {value:g}"
+                )
         cams = tuple(self.cameras)
         if len(cams) < 2:
             raise RigError(f"cameras: expected at least 2 cameras, got {len(cams)}")
@@ -212,6 +264,11 @@ class CameraRig:
                 f"stereo_pair: expected the partner camera {pair[1]} to lie to the right of the "
                 f"reference along x (dx > 0, dy = 0), got dx = {d[0]:g} m, dy = {d[1]:g} m"
             )
+        if d[0] < MIN_BASELINE_M:
+            raise RigError(
+                f"stereo_pair: expected a baseline of at least {MIN_BASELINE_M:g} m, got "
+                f"{d[0]:g} m"
+            )
         if self.image_encoding not in IMAGE_ENCODINGS:
             raise RigError(
                 f"image_encoding: expected one of {list(IMAGE_ENCODINGS)}, "
@@ -219,7 +276,9 @@ class CameraRig:
             )
         if self.light_position_m is not None:
             object.__setattr__(
-                self, "light_position_m", _vector3(self.light_position_m, "light.position")
+                self,
+                "light_position_m",
+                _vector3(self.light_position_m, "light.position", LightError),
             )
         centers.setflags(write=False)
         object.__setattr__(self, "_centers", centers)
@@ -404,7 +463,7 @@ class CameraRig:
             self,
             light_position_m=None
             if light_position_m is None
-            else _vector3(light_position_m, "light_position_m"),
+            else _vector3(light_position_m, "light_position_m", LightError),
         )
 
     def scaled(self, factor: float) -> CameraRig:

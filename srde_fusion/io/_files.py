@@ -17,6 +17,7 @@ import numpy as np
 import PIL.Image
 
 from .._atomic import write_atomic
+from .._checks import MAX_IMAGE_PIXELS
 from ..errors import FileFormatError
 
 
@@ -60,11 +61,6 @@ def load_npy(path: Path, what: str) -> np.ndarray:
             f"{path}: expected a numpy .npy array, got an unreadable file: "
             f"{type(exc).__name__}: {exc}"
         ) from None
-
-
-#: Largest image decoded by default, pixels (a 200-megapixel frame is about 600 MB as
-#: uint8 RGB): a small file can declare a huge size and exhaust memory when decoded.
-MAX_IMAGE_PIXELS = 200_000_000
 
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

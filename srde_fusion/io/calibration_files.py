@@ -19,7 +19,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .._checks import check_disparity
+from .._checks import MAX_IMAGE_PIXELS, check_disparity
 from ..errors import FileFormatError, RigError
 from ..geometry import Camera, CameraRig, Intrinsics
 from ._files import existing_file, read_bytes
@@ -377,12 +377,21 @@ def _fs_image_size(fs: Any, path: Path) -> tuple[int, int] | None:
         values = node.mat() if node.isMap() else [node.at(i).real() for i in range(node.size())]
         values = np.asarray(values, dtype=np.float64).ravel()
         if values.size == 2:
-            return int(values[0]), int(values[1])
+            return _image_size(values, name, path)
         raise FileFormatError(f"{path}: {name}: expected [width, height], got {values.tolist()}")
     w, h = fs.getNode("image_width"), fs.getNode("image_height")
     if not w.empty() and not h.empty():
-        return int(w.real()), int(h.real())
+        return _image_size(np.array([w.real(), h.real()]), "image_width/image_height", path)
     return None
+
+
+def _image_size(values: np.ndarray, name: str, path: Path) -> tuple[int, int]:
+    """Check a ``[width, height]`` read from a file: two positive whole numbers."""
+    if not (np.all(np.isfinite(values)) and np.all(values == np.round(values))
+            and np.all(values > 0) and np.all(values <= MAX_IMAGE_PIXELS)):
+        raise FileFormatError(f"{path}: {name}: expected [width, height] as two positive "
+                              f"integers, got {values.tolist()}")
+    return int(values[0]), int(values[1])
 
 
 def read_opencv_stereo_yaml(
@@ -466,10 +475,14 @@ def read_opencv_stereo_yaml(
         raise FileFormatError(
             f"{p}: expected an image size in the file or image_size=(W, H), got neither"
         )
-    if proj1 is not None and proj2 is not None:
-        intrinsics, baseline_m = _rectified_projections(proj1, proj2, p, units_per_m)
-    else:
-        intrinsics, baseline_m = _from_calibration(k1, k2, d1, d2, rot, trans, p, units_per_m)
+    try:
+        if proj1 is not None and proj2 is not None:
+            intrinsics, baseline_m = _rectified_projections(proj1, proj2, p, units_per_m)
+        else:
+            intrinsics, baseline_m = _from_calibration(k1, k2, d1, d2, rot, trans, p,
+                                                       units_per_m)
+    except RigError as exc:
+        raise FileFormatError(f"{p}: {exc}") from None
     if baseline_m > _PLAUSIBLE_BASELINE_M:
         warnings.warn(
             f"{p}: baseline of {baseline_m:g} m with units_per_m={units_per_m:g}; if T is in "

@@ -6,6 +6,10 @@ Imports ``srde`` (the blob primitives), ``geometry`` (triangulation) and ``io``.
 
 from __future__ import annotations
 
+from .boxed import (
+    BoxedMasks,
+    BoxMask,
+)
 from .onnx import (
     OnnxMasker,
 )
@@ -24,6 +28,8 @@ from .user import (
 )
 
 __all__ = [
+    "BoxedMasks",
+    "BoxMask",
     "OnnxMasker",
     "MASK_SOURCES",
     "MaskerChoice",

@@ -13,6 +13,7 @@ from .._checks import check_views
 from ..errors import BackboneError, FileFormatError, SRDEError
 from ..geometry import CameraRig
 from ..imaging import to_float
+from .boxed import BoxedMasks
 from .user import connected_components
 
 __all__ = [
@@ -148,13 +149,15 @@ class OnnxMasker:
         if probs.shape[1:] != (h, w):
             probs = np.stack([cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR) for p in probs])
         if n_channels == 1:
-            return connected_components(probs[0] > self.threshold, self.min_area_px)
+            return BoxedMasks(connected_components(probs[0] > self.threshold, self.min_area_px),
+                              (h, w))
         if self.layout == "instances":
             return [m for m in (p > self.threshold for p in probs)
                     if np.count_nonzero(m) >= self.min_area_px]
         winner = np.argmax(probs, axis=0)
-        return [c for cls in range(1, n_channels)
-                for c in connected_components(winner == cls, self.min_area_px)]
+        return BoxedMasks([c for cls in range(1, n_channels)
+                           for c in connected_components(winner == cls, self.min_area_px)],
+                          (h, w))
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:

@@ -16,7 +16,8 @@ import numpy as np
 
 from ..errors import FileFormatError, MaskError
 from ..geometry import CameraRig
-from ..io import load_npy, masks_from_labels, read_mask
+from ..io import load_npy, read_mask
+from .boxed import BoxedMasks, BoxMask
 
 __all__ = [
     "MAX_OBJECTS",
@@ -27,8 +28,8 @@ __all__ = [
 
 Masker = Callable[[Sequence[np.ndarray], CameraRig], list]
 
-#: Most objects a mask source may hold by default: each object takes a full-image mask
-#: (12 MB at 4000x3000), so thousands of labels would exhaust memory.
+#: Most objects a mask source may hold by default. Each object is kept as its box, but
+#: every object costs an SRDE estimate and a full-image mask while it is estimated.
 MAX_OBJECTS = 64
 
 #: A binary mask split automatically ignores components smaller than this, pixels (edge
@@ -43,11 +44,11 @@ def _describe(value: Any) -> str:
 
 
 def _labels_to_masks(labels: np.ndarray, name: str, max_objects: int = 10**9
-                     ) -> list[np.ndarray]:
+                     ) -> list[BoxMask]:
     """Split labels into masks, also accepting float arrays holding whole numbers.
 
-    The labels are counted before any mask is built: each object costs a full-image
-    mask, so a label image with thousands of labels is refused, not allocated.
+    The labels are counted before any mask is built, so a label image with thousands of
+    labels is refused, not split.
     """
     if np.issubdtype(labels.dtype, np.floating):
         if not np.all(np.isfinite(labels)) or np.any(labels != np.round(labels)):
@@ -66,17 +67,35 @@ def _labels_to_masks(labels: np.ndarray, name: str, max_objects: int = 10**9
     n_objects = int(np.count_nonzero(values))
     if n_objects > max_objects:
         raise MaskError(f"{name}: expected at most {max_objects} objects (max_objects), got "
-                        f"{n_objects} labels; each object takes a full-image mask")
-    return masks_from_labels(labels)
+                        f"{n_objects} labels")
+    if labels.dtype == bool:
+        labels = labels.view(np.uint8)
+    return list(BoxedMasks.from_labels(labels).boxes)
 
 
-def connected_components(mask: np.ndarray, min_area_px: int) -> list[np.ndarray]:
-    """Split into 8-connected components of at least ``min_area_px``, raster order."""
-    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
-    return [comp == i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area_px]
+def connected_components(mask: BoxMask | np.ndarray, min_area_px: int) -> list[BoxMask]:
+    """Split into 8-connected components of at least ``min_area_px``, raster order.
+
+    ``mask`` is a :class:`BoxMask` or a full ``(H, W)`` bool mask; each component is
+    returned as its own box.
+    """
+    if isinstance(mask, np.ndarray):
+        mask = BoxMask.from_crop((0, 0, mask.shape[1], mask.shape[0]), mask, mask.shape)
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(mask.crop.astype(np.uint8),
+                                                         connectivity=8)
+    u0, v0 = mask.box[:2]
+    out = []
+    for i in range(1, n):
+        if stats[i, cv2.CC_STAT_AREA] < min_area_px:
+            continue
+        x, y = stats[i, cv2.CC_STAT_LEFT], stats[i, cv2.CC_STAT_TOP]
+        w, h = stats[i, cv2.CC_STAT_WIDTH], stats[i, cv2.CC_STAT_HEIGHT]
+        out.append(BoxMask.from_crop((u0 + x, v0 + y, u0 + x + w, v0 + y + h),
+                                 comp[y:y + h, x:x + w] == i, mask.shape))
+    return out
 
 
-def _check_rig_shape(masks: list[np.ndarray], rig: CameraRig, name: str) -> None:
+def _check_rig_shape(masks: list[BoxMask], rig: CameraRig, name: str) -> None:
     expected = (rig.height, rig.width)
     for i, m in enumerate(masks):
         if m.shape != expected:
@@ -167,7 +186,7 @@ class UserMasks:
         return repr(str(source)) if isinstance(source, (str, os.PathLike)) else _describe(source)
 
     @staticmethod
-    def _load(source: Any, max_objects: int) -> list[np.ndarray]:
+    def _load(source: Any, max_objects: int) -> list[BoxMask]:
         if isinstance(source, (str, os.PathLike)):
             path = Path(source)
             if not path.is_file():
@@ -197,21 +216,23 @@ class UserMasks:
                     raise MaskError(f"masks[{i}]: expected at least one pixel inside the mask, "
                                     f"got an empty mask")
                 # A list entry is one object, whatever label values it uses.
-                out.append(np.logical_or.reduce(found))
+                out.append(found[0] if len(found) == 1 else BoxMask.from_mask(
+                    np.logical_or.reduce([f.full() for f in found])))
             return out
         raise MaskError(f"masks: expected a mask file path, a label array or a list of masks, "
                         f"got {_describe(source)}")
 
-    def __call__(self, views: Any, rig: CameraRig) -> list[np.ndarray]:
+    def __call__(self, views: Any, rig: CameraRig) -> BoxedMasks:
         """Return the masks, checked against the rig's image size (``views`` is unused).
 
         Returns
         -------
-        list of numpy.ndarray, (H, W), bool
-            Fresh copies, one per object.
+        BoxedMasks
+            A sequence of ``(H, W)`` bool masks, one per object, each a fresh array when
+            read; held as the objects' boxes.
         """
         _check_rig_shape(self._masks, rig, "masks")
-        return [m.copy() for m in self._masks]
+        return BoxedMasks(self._masks, (rig.height, rig.width))
 
     def __repr__(self) -> str:
         return f"UserMasks({self._where(self.source)}, {len(self._masks)} object(s))"

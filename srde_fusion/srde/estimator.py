@@ -411,9 +411,10 @@ class SRDE:
         with warnings.catch_warnings():  # pixels every pair's plane misses stay NaN
             warnings.simplefilter("ignore", RuntimeWarning)
             median = np.nanmedian(stack, axis=0)
-        disparity = _paste(median, box, inside, mask.shape)
-        return SRDEResult("ok", "", disparity, result.plane, result.virtual_light_m, centers,
-                          used, result.residual_px, self.method, result.notes, detections)
+        disparity = _in_box(median, box, inside)
+        return SRDEResult("ok", "", disparity, box, mask.shape, result.plane,
+                          result.virtual_light_m, centers, used, result.residual_px,
+                          self.method, result.notes, detections)
 
     def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None
                 ) -> SRDEResult:
@@ -471,9 +472,9 @@ class SRDE:
                 f"than {self.max_incidence_deg:g} deg incidence (worst {angle[worst]:.1f} deg at "
                 f"pixel ({uv[worst, 0]:.0f}, {uv[worst, 1]:.0f}))", plane=plane, point=point,
                 **fail)
-        disparity = _paste(plane_disparity(plane, rig, window=box)[inside], box, inside,
-                           mask.shape)
-        return SRDEResult("ok", "", disparity, plane, np.asarray(point, dtype=np.float64),
+        disparity = _in_box(plane_disparity(plane, rig, window=box)[inside], box, inside)
+        return SRDEResult("ok", "", disparity, box, mask.shape, plane,
+                          np.asarray(point, dtype=np.float64),
                           centers, used, residual, self.method, tuple(notes), detections,
                           refinement)
 
@@ -485,7 +486,8 @@ class SRDE:
         if centers is not None and used is not None and point is not None:
             residual = _rms_residual(rig, point, centers, used)
         return SRDEResult(
-            status, reason, np.full((rig.height, rig.width), np.nan, dtype=np.float32), plane,
+            status, reason, np.zeros((0, 0), dtype=np.float32), (0, 0, 0, 0),
+            (rig.height, rig.width), plane,
             None if point is None else np.asarray(point, dtype=np.float64),
             np.full((n, 2), np.nan) if centers is None else centers,
             np.zeros(n, dtype=bool) if used is None else used, residual, self.method, (),
@@ -500,11 +502,11 @@ def _mask_box(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
     return (u0, v0, u1, v1), mask[v0:v1, u0:u1]
 
 
-def _paste(values: np.ndarray, box, inside: np.ndarray, shape) -> np.ndarray:
-    """Return an ``(H, W)`` float32 map, NaN except ``values`` at the box's ``inside`` pixels."""
+def _in_box(values: np.ndarray, box, inside: np.ndarray) -> np.ndarray:
+    """Return the box's float32 map, NaN except ``values`` at its ``inside`` pixels."""
     u0, v0, u1, v1 = box
-    out = np.full(shape, np.nan, dtype=np.float32)
-    out[v0:v1, u0:u1][inside] = values
+    out = np.full((v1 - v0, u1 - u0), np.nan, dtype=np.float32)
+    out[inside] = values
     return out
 
 

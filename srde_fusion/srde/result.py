@@ -47,9 +47,15 @@ class SRDEResult:
         ``"ok"`` or a failure code from :data:`SRDE_STATUSES`.
     reason : str
         ``""`` if ok; else the failed step, the view(s) and the numbers.
-    disparity : (H, W) float32
-        Reference-camera disparity of the stereo pair, pixels; NaN outside the mask
-        (all NaN if the estimate failed).
+    disparity_box : (v1 - v0, u1 - u0) float32
+        Reference-camera disparity of the stereo pair inside ``box``, pixels; NaN outside
+        the mask. Kept to the object's box so that many objects of a large image do not
+        each hold a full-image map; :attr:`disparity` is the full map.
+    box : (int, int, int, int)
+        ``(u0, v0, u1, v1)`` of ``disparity_box`` in the image, inclusive-exclusive (the
+        mask's bounding box; empty if the estimate failed).
+    image_shape : (int, int)
+        ``(H, W)`` of the image.
     plane : Plane or None
         The object's plane in the array frame.
     virtual_light_m : (3,) float64 or None
@@ -76,7 +82,9 @@ class SRDEResult:
 
     status: str
     reason: str
-    disparity: np.ndarray
+    disparity_box: np.ndarray
+    box: tuple[int, int, int, int]
+    image_shape: tuple[int, int]
     plane: Plane | None
     virtual_light_m: np.ndarray | None
     highlight_centers: np.ndarray
@@ -91,6 +99,17 @@ class SRDEResult:
     def ok(self) -> bool:
         """Whether the estimate succeeded."""
         return self.status == "ok"
+
+    @property
+    def disparity(self) -> np.ndarray:
+        """The disparity as a full map, ``(H, W)`` float32, pixels; NaN outside the mask.
+
+        Built from ``disparity_box`` on every access (all NaN if the estimate failed).
+        """
+        out = np.full(self.image_shape, np.nan, dtype=np.float32)
+        u0, v0, u1, v1 = self.box
+        out[v0:v1, u0:u1] = self.disparity_box
+        return out
 
     def to_dict(self) -> dict:
         """JSON-ready summary (no pixel maps): status, reason, plane, virtual light, centres.

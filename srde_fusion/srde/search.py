@@ -32,6 +32,9 @@ CAPSULE_SCALE = 2.0
 CAPSULE_MARGIN_PX = 6.0
 # Spacing of the candidate virtual-light positions along a baseline, pixels.
 REGION_SAMPLE_PX = 0.5
+# Longest segment along a baseline that is sampled, pixels: beyond every legal rig (fx
+# below 1e6 px, cameras within 1 km) and short enough for exact float sample indices.
+_MAX_SEGMENT_PX = 1e13
 
 
 @dataclass(frozen=True)
@@ -83,13 +86,31 @@ class BaselineSearch:
         k = rig.intrinsics
         h, w = rig.height, rig.width
         offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
-        step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
         c = ref_det.center_uv
-        w_lo, w_hi = self.inverse_depth_range(c)
-        n = int(math.ceil(float(np.hypot(*step)) * (w_hi - w_lo) / REGION_SAMPLE_PX)) + 1
-        w_v = np.linspace(w_lo, w_hi, n)
+        # Numbers no camera has (the rig refuses them) end here as "nowhere", not as
+        # overflow warnings or an allocation the size of fx * baseline.
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
+            w_lo, w_hi = self.inverse_depth_range(c)
+            span_px = float(np.hypot(*step)) * (w_hi - w_lo)
+        if not (span_px <= _MAX_SEGMENT_PX and np.all(np.isfinite(step))
+                and math.isfinite(w_lo) and w_hi >= w_lo):
+            return None
+        # The samples are those of linspace(w_lo, w_hi, n), but only the ones whose
+        # centres can fall inside the image are made: the segment along the baseline
+        # grows with fx * baseline, the image does not.
+        n = int(math.ceil(span_px / REGION_SAMPLE_PX)) + 1
+        kept = _indices_in_image(c, step, w_lo, w_hi, n, (w, h))
+        if kept is None:
+            return None
+        w_v = _linspace_part(w_lo, w_hi, n, *kept)
         centers = c + step * w_v[:, None]                                    # (n, 2) (u, v)
-        shift = np.rint(step * self.mirror_inverse_depth(c, w_v)[:, None]).astype(int)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            shift_px = step * self.mirror_inverse_depth(c, w_v)[:, None]
+        # A shift beyond the image size moves every pixel out of it, as NaN does; bounded
+        # so that the cast to integers stays exact.
+        bound = 4.0 * max(w, h)
+        shift = np.rint(np.clip(np.nan_to_num(shift_px, nan=bound), -bound, bound)).astype(int)
         pix = np.rint(centers).astype(int)
         src = pix - shift
         ok = ((pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
@@ -165,6 +186,47 @@ class BaselineSearch:
         return HighlightDetection.missing(
             f"no position along the baseline (object depth {self.object_depth_m[0]:g}-"
             f"{self.object_depth_m[1]:g} m) lies on the object")
+
+
+def _indices_in_image(center_uv, step, w_lo: float, w_hi: float, n: int,
+                      size: tuple[int, int]) -> tuple[int, int] | None:
+    """First and last of the ``n`` samples whose centre may round to a pixel of the image.
+
+    Sample i sits at ``center_uv + step * w_i`` with ``w_i = w_lo + i * dw``; the range is
+    widened by one sample and half a pixel each way, so every sample outside it lies
+    outside the image. None if none can be inside.
+    """
+    lo, hi = w_lo, w_hi
+    for c, s, extent in zip(center_uv, step, size, strict=True):
+        # Pixels round from [-0.5, extent - 0.5); allow half a pixel more either side.
+        a, b = -1.0 - c, float(extent) - c
+        if s == 0.0:
+            if not a <= 0.0 <= b:
+                return None
+            continue
+        ta, tb = sorted((a / s, b / s))
+        lo, hi = max(lo, ta), min(hi, tb)
+    if not lo <= hi:
+        return None
+    if n == 1:
+        return 0, 0
+    dw = (w_hi - w_lo) / (n - 1)
+    if dw == 0.0:
+        return 0, n - 1
+    first = max(int(math.floor((lo - w_lo) / dw)) - 1, 0)
+    last = min(int(math.ceil((hi - w_lo) / dw)) + 1, n - 1)
+    return (first, last) if first <= last else None
+
+
+def _linspace_part(start: float, stop: float, n: int, first: int, last: int) -> np.ndarray:
+    """Return samples ``first..last`` of ``np.linspace(start, stop, n)``, bit for bit, ``(k,)``."""
+    if n == 1:
+        return np.array([start], dtype=np.float64)
+    # linspace computes i * ((stop - start) / (n - 1)) + start and sets the end exactly.
+    out = np.arange(first, last + 1, dtype=np.float64) * ((stop - start) / (n - 1)) + start
+    if last == n - 1:
+        out[-1] = stop
+    return out
 
 
 def shifted_window(mask: np.ndarray, shift_uv, box: tuple[int, int, int, int]) -> np.ndarray:

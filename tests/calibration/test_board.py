@@ -341,3 +341,14 @@ def test_make_board_keeps_an_existing_board_unless_forced(tmp_path, capsys):
 def test_board_dpi_is_capped():
     with pytest.raises(BoardError, match="dpi: expected at most 4800 dots per inch"):
         render_board_image(Board.corner_layout(), dpi=1e6)
+
+
+def test_board_sizes_in_millimetres_are_refused():
+    data = Board.corner_layout().to_dict()
+    data["plate_size_m"] = [297.0, 210.0]
+    with pytest.raises(BoardError, match=r"plate_size_m: expected a plate at most 10 m wide"):
+        Board.from_dict(data)
+    data = Board.corner_layout().to_dict()
+    data["markers"][0]["corners_m"][0] = [1e308, 0.0]
+    with pytest.raises(BoardError, match=r"markers\[0\].corners_m: expected corners within 10 m"):
+        Board.from_dict(data)

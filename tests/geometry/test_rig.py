@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from srde_fusion.errors import RigError
+from srde_fusion.errors import LightError, RigError
 from srde_fusion.geometry import RIG_FORMAT, Camera, CameraRig, Intrinsics
 
 B_M = 0.085
@@ -480,3 +480,63 @@ def test_hostile_json_is_a_rig_error(tmp_path, text, match):
     (tmp_path / "rig.json").write_text(text)
     with pytest.raises(RigError, match=match):
         CameraRig.from_json(tmp_path / "rig.json")
+
+
+# ---------------------------------------------------------------------- numbers in range
+def _rig_dict(**edits) -> dict:
+    data = CameraRig.grid(1, 2, baseline_m=0.1, fx=500.0, image_size=(640, 480)).to_dict()
+    for key, value in edits.items():
+        section, _, name = key.partition("__")
+        if name:
+            data[section][name] = value
+        else:
+            data[section] = value
+    return data
+
+
+@pytest.mark.parametrize("edits, match", [
+    (dict(intrinsics__fx=0.0), r"intrinsics.fx: expected a positive number, got 0.0"),
+    (dict(intrinsics__fy=-5.0), r"intrinsics.fy: expected a positive number, got -5.0"),
+    (dict(intrinsics__fx=1e6), r"intrinsics.fx: expected a focal length in pixels below 1e\+06, "
+                               r"got 1e\+06"),
+    (dict(intrinsics__fx=1e300), r"intrinsics.fx: expected a focal length .* got 1e\+300"),
+    (dict(intrinsics__cx=1e9), r"intrinsics.cx: expected a principal point within 10 image "
+                               r"sizes of the 640x480 image \(\[-6400, 7040\] px\), got 1e\+09"),
+    (dict(intrinsics__cy=-4801.0), r"intrinsics.cy: expected a principal point .* got -4801"),
+    (dict(image_size=[0, 480]), r"image_size: expected \[width, height\] as two positive"),
+    (dict(image_size=[20000, 20000]), r"image_size: expected at most 200000000 pixels \(the "
+                                      r"image pixel limit\), got 20000x20000 = 400000000"),
+    (dict(cameras=[{"name": "cam0", "center": [0.0, 0.0, 0.0]},
+                   {"name": "cam1", "center": [1e9, 0.0, 0.0]}]),
+     r"cameras\[1\].center: expected a position within 1000 m of the array's origin \(metres, "
+     r"not millimetres\), got \[1000000000.0, 0.0, 0.0\]"),
+    (dict(cameras=[{"name": "cam0", "center": [0.0, 0.0, 0.0]},
+                   {"name": "cam1", "center": [1e-9, 0.0, 0.0]}]),
+     r"stereo_pair: expected a baseline of at least 1e-06 m, got 1e-09 m"),
+    (dict(light={"position": [0.0, 1e300, 0.0]}),
+     r"light.position: expected a position within 1000 m"),
+])
+def test_rig_numbers_outside_physical_ranges_are_refused(edits, match):
+    with pytest.raises(RigError, match=match):
+        CameraRig.from_dict(_rig_dict(**edits))
+
+
+def test_rig_numbers_at_the_edges_of_the_ranges_are_kept():
+    rig = CameraRig.from_dict(_rig_dict(intrinsics__fx=999_999.0, intrinsics__cx=-6400.0,
+                                        image_size=[20000, 10000],
+                                        light={"position": [0.0, -999.0, 0.0]}))
+    assert rig.intrinsics.fx == 999_999.0 and rig.image_size == (20000, 10000)
+
+
+def test_a_light_out_of_range_given_in_code_is_a_light_error():
+    rig = CameraRig.grid(1, 2, baseline_m=0.1, fx=500.0)
+    with pytest.raises(LightError, match=r"light_position_m: expected a position within 1000 m"):
+        rig.with_light([1e4, 0.0, 0.0])
+    with pytest.raises(LightError, match=r"light.position: expected a position within 1000 m"):
+        CameraRig.grid(1, 2, baseline_m=0.1, fx=500.0, light_position_m=[0.0, 0.0, -2e3])
+
+
+def test_rig_scaled_far_beyond_the_focal_limit_is_refused():
+    rig = CameraRig.grid(1, 2, baseline_m=0.1, fx=500.0)
+    with pytest.raises(RigError, match="expected a focal length in pixels below"):
+        rig.scaled(1e4)

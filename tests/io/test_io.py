@@ -351,7 +351,7 @@ def test_middlebury_calib_image_size_keyword(tmp_path):
             if not line.startswith(("width", "height"))
         )
     )
-    assert read_middlebury_calib(path, image_size=(100, 80)).rig.image_size == (100, 80)
+    assert read_middlebury_calib(path, image_size=(2880, 1988)).rig.image_size == (2880, 1988)
     with pytest.raises(FileFormatError, match="expected width and height in the file"):
         read_middlebury_calib(path)
 
@@ -776,3 +776,49 @@ def test_ply_round_trip_and_errors(tmp_path):
         write_ply(tmp_path / "q.ply", points[:, :2])
     with pytest.raises(FileFormatError, match=r"expected uint8 colours of shape \(2, 3\)"):
         write_ply(tmp_path / "q.ply", points, colors.astype(np.float32))
+
+
+@pytest.mark.parametrize("size, match", [
+    ((640.5, 480), r"image_width/image_height: expected \[width, height\] as two positive "
+                   r"integers, got \[640.5, 480.0\]"),
+    ((-640, 480), r"expected \[width, height\] as two positive integers, got \[-640.0, 480.0\]"),
+    ((1e300, 480), r"expected \[width, height\] as two positive integers, got \[1e\+300, 480.0\]"),
+    ((30000, 30000), r"image_size: expected at most 200000000 pixels"),
+])
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_opencv_yaml_image_size_out_of_range(tmp_path, size, match):
+    path = _write_opencv_yaml(tmp_path / "stereo.yml", size=size)
+    with pytest.raises(FileFormatError, match=match) as info:
+        read_opencv_stereo_yaml(path)
+    assert str(path) in str(info.value)
+
+
+def test_opencv_yaml_focal_length_out_of_range_names_the_file(tmp_path):
+    path = tmp_path / "stereo.yml"
+    k = np.array([[0.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    t = np.array([[-0.1], [0.0], [0.0]])
+    for name, value in (("K1", k), ("K2", k), ("R", np.eye(3)), ("T", t)):
+        fs.write(name, value)
+    fs.release()
+    with pytest.warns(UserWarning), pytest.raises(
+            FileFormatError, match=r"stereo.yml: intrinsics.fx: expected a positive number, got 0"):
+        read_opencv_stereo_yaml(path, image_size=(640, 480))
+
+
+@pytest.mark.parametrize("edit, match", [
+    (("4161.221 0 1445.577", "4e7 0 1445.577"), r"calib.txt: intrinsics.fx: expected a focal "
+                                                r"length in pixels below 1e\+06"),
+    (("baseline=176.252", "baseline=1e9"), r"calib.txt: cameras\[1\].center: expected a "
+                                           r"position within 1000 m"),
+    (("width=2880", "width=288000"), r"calib.txt: image_size: expected at most 200000000 pixels"),
+])
+def test_middlebury_calib_numbers_out_of_range(tmp_path, edit, match):
+    path = tmp_path / "calib.txt"
+    text = MIDDLEBURY_CALIB.replace(*edit)
+    if "4e7" in edit[1]:  # both cameras, or the reader refuses unequal focal lengths first
+        text = text.replace("4161.221 0 1654.636", "4e7 0 1654.636").replace(
+            "0 4161.221 984.686", "0 4e7 984.686")
+    path.write_text(text)
+    with pytest.raises(FileFormatError, match=match):
+        read_middlebury_calib(path)
