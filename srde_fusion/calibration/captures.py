@@ -9,7 +9,6 @@ plate's pose and the highlight in every view, and solves for the light;
 from __future__ import annotations
 
 import os
-import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .._atomic import backup_path
+from .._atomic import backup_path, write_atomic
 from .._checks import check_views
 from ..errors import FileFormatError, LightError, RigError
 from ..geometry import CameraRig
@@ -247,8 +246,10 @@ def calibrate_light_files(
         path = Path(rig_path)
         backup = backup_path(path)
         try:
-            shutil.copy2(path, backup)
+            old = path.read_bytes()
         except OSError as exc:
             raise FileFormatError(f"{backup}: could not back up {path.name}: {exc}") from None
+        # The backup is written like every other file: whole or not at all.
+        write_atomic(backup, old)
         new_rig.to_json(path)
     return LightCalibration(estimate, new_rig, backup)
