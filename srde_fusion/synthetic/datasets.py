@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -189,9 +191,29 @@ def render_dataset(
             f"({', '.join(p.name for p in existing[:3])}{', ...' if len(existing) > 3 else ''}) "
             f"with their images, rig.json and ground truth; rendering would overwrite or mix "
             f"with them: pass overwrite=True (render --force) to replace them")
-    for folder in existing:
-        shutil.rmtree(folder)
-    folders = []
+    # Replacing a dataset renders into a hidden staging folder first and swaps the scene
+    # folders in at the end: a run killed while rendering leaves the old dataset whole.
+    staging = None
+    if existing:
+        staging = Path(tempfile.mkdtemp(prefix=".render-", dir=out))
+    target = out if staging is None else staging
+    folders: list[Path] = []
+    try:
+        _render_into(target, folders, n_scenes, seed, rig, n_objects, background, supersample,
+                     physics, progress, scene_options)
+    except BaseException:
+        if staging is not None:  # the old dataset is untouched; drop the half-made one
+            shutil.rmtree(staging, ignore_errors=True)
+        raise
+    if staging is not None:
+        folders = _swap_in(staging, out, folders, existing)
+    return folders
+
+
+def _render_into(target: Path, folders: list[Path], n_scenes: int, seed: int, rig: CameraRig,
+                 n_objects: int, background: str, supersample: int, physics: Physics | None,
+                 progress: bool, scene_options: dict) -> None:
+    """Render the scenes of :func:`render_dataset` into ``target``, appending their folders."""
     for i in tqdm(range(n_scenes), desc="render", unit="scene", disable=not progress):
         scene_seed = int(np.random.SeedSequence([seed, i]).generate_state(1)[0])
         scene = random_scene(
@@ -211,7 +233,7 @@ def render_dataset(
         }
         folders.append(
             write_scene(
-                out / f"scene_{i:04d}",
+                target / f"scene_{i:04d}",
                 result.views,
                 scene_rig,
                 mask=result.instance_mask,
@@ -219,4 +241,27 @@ def render_dataset(
                 metadata=metadata,
             )
         )
-    return folders
+
+
+def _swap_in(staging: Path, out: Path, new: list[Path], old: list[Path]) -> list[Path]:
+    """Move freshly rendered scene folders from ``staging`` into ``out``, replacing ``old``.
+
+    Each old folder is first moved aside into the staging folder and the new one renamed
+    into its place (two renames on one file system), so at any moment a scene folder is
+    either the old or the new one; old folders with no new counterpart are removed (an
+    evaluation would otherwise mix them in).
+    """
+    aside = staging / ".replaced"
+    aside.mkdir()
+    placed = []
+    for folder in new:
+        final = out / folder.name
+        if final.exists():
+            os.replace(final, aside / folder.name)
+        os.replace(folder, final)
+        placed.append(final)
+    for folder in old:
+        if folder.exists() and folder not in placed:
+            os.replace(folder, aside / folder.name)
+    shutil.rmtree(staging)
+    return placed

@@ -685,3 +685,27 @@ def test_render_refuses_a_folder_with_scenes_unless_forced(tmp_path, capsys):
     # --force replaces them all: no stale scene_0001 left beside the new scene_0000
     assert main([*args[:3], "1", *args[4:], "--force"]) == 0
     assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["scene_0000"]
+
+
+def test_a_replacing_render_that_fails_leaves_the_old_dataset_whole(tmp_path, monkeypatch):
+    import srde_fusion.synthetic.datasets as datasets
+
+    rig = CameraRig.stereo(0.1, fx=100.0, image_size=(64, 48))
+    datasets.render_dataset(tmp_path, n_scenes=2, rig=rig, progress=False)
+    before = {p.relative_to(tmp_path): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    real_write = datasets.write_scene
+    calls = []
+
+    def write_then_fail(folder, *args, **kwargs):
+        calls.append(folder)
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # the user stops it half-way
+        return real_write(folder, *args, **kwargs)
+
+    monkeypatch.setattr(datasets, "write_scene", write_then_fail)
+    with pytest.raises(KeyboardInterrupt):
+        datasets.render_dataset(tmp_path, n_scenes=2, seed=7, rig=rig, progress=False,
+                                overwrite=True)
+    after = {p.relative_to(tmp_path): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    assert after == before  # no new scene swapped in, no staging folder left
+    assert all(".render-" in str(folder) for folder in calls)  # rendered aside, not in place
