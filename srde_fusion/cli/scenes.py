@@ -16,6 +16,7 @@ from ..errors import SRDEError
 from ..evaluation import format_markdown_table
 from ..fusion import FusionResult
 from ..io import is_kitti_folder
+from ..masks import UserMasks
 from ..workflows import (
     DEMO_OBJECTS,
     DEMO_SEED,
@@ -73,6 +74,15 @@ def _is_dataset(folder: str) -> bool:
                     for p in path.iterdir() if p.is_dir()))
 
 
+def _mask_source(args: argparse.Namespace) -> Any:
+    """Return the --mask file, or a reader that keeps its binary mask as one object."""
+    if not args.mask_as_one:
+        return args.mask
+    if args.mask is None:
+        raise SRDEError("--mask-as-one: expected --mask FILE (the mask to keep whole), got none")
+    return UserMasks(args.mask, split_components=False)
+
+
 def _cli_fuse(args: argparse.Namespace) -> int:
     if args.backbone is None and (args.preset or args.spec) is not None:
         raise SRDEError("--preset/--spec: expected with --backbone (the conventions of a model "
@@ -83,7 +93,7 @@ def _cli_fuse(args: argparse.Namespace) -> int:
         if backbone is None:
             raise SRDEError(f"{args.scene_dir}: expected --backbone for a folder of scenes or "
                             f"frames (one --disparity map cannot serve several), got --disparity")
-        dataset = fuse_dataset(args.scene_dir, args.out, backbone=backbone, mask=args.mask,
+        dataset = fuse_dataset(args.scene_dir, args.out, backbone=backbone, mask=_mask_source(args),
                                auto_mask=args.auto_mask, light=args.light,
                                progress=not args.quiet)
         for name, reason in dataset.failures.items():
@@ -91,7 +101,7 @@ def _cli_fuse(args: argparse.Namespace) -> int:
         print(f"{dataset.summary()}; results in {Path(args.out)}/<scene>/")
         return 1 if dataset.failures else 0
     run = fuse_scene(args.scene_dir, args.out, backbone=backbone, disparity=args.disparity,
-                     disparity_scale=args.disparity_scale, mask=args.mask,
+                     disparity_scale=args.disparity_scale, mask=_mask_source(args),
                      auto_mask=args.auto_mask, light=args.light)
     _print_objects(run.fusion)
     _print_masks(run)
@@ -103,7 +113,7 @@ def _cli_fuse(args: argparse.Namespace) -> int:
 
 
 def _cli_srde(args: argparse.Namespace) -> int:
-    run = srde_scene(args.scene_dir, args.out, mask=args.mask, auto_mask=args.auto_mask,
+    run = srde_scene(args.scene_dir, args.out, mask=_mask_source(args), auto_mask=args.auto_mask,
                      light=args.light, method=args.method)
     for obj in run.fusion.objects:
         srde = obj.srde
@@ -141,6 +151,9 @@ def _add_mask_options(p: argparse.ArgumentParser) -> None:
                    "built-in highlight segmenter")
     p.add_argument("--auto-mask", action="store_true",
                    help="use the built-in highlight segmenter even if the scene has a mask")
+    p.add_argument("--mask-as-one", action="store_true",
+                   help="with --mask: a binary (0/255) mask is one object, not split into its "
+                   "connected components")
     p.add_argument("--light", type=_light, default=None, metavar="X,Y,Z",
                    help="light position in metres (array frame), overriding rig.json")
 

@@ -178,7 +178,8 @@ class UserMasks:
         specks = n_all - len(parts)
         ignored = f", {specks} under {floor} px ignored" if specks else ""
         self.notes = (f"binary mask split into {len(parts)} objects (its 8-connected "
-                      f"components{ignored}); split_components=False keeps one object",)
+                      f"components{ignored}); split_components=False (--mask-as-one) keeps "
+                      f"one object",)
         self._masks = parts
 
     @staticmethod

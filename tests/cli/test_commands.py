@@ -339,3 +339,24 @@ def test_fuse_a_kitti_folder_frame_by_frame(flat_backbone, tmp_path, capsys):
     code, out, err = run_cli(capsys, "fuse", root, "--backbone", flat_backbone, "--out",
                              tmp_path / "o3", "--quiet")
     assert code == 1 and "000000_10: failed - LightError: light: expected a light" in out
+
+
+def test_a_binary_mask_is_split_unless_kept_as_one(dataset, tmp_path, capsys):
+    from srde_fusion.io import write_mask
+
+    scene = read_scene(dataset / "scene_0000")
+    labels = scene.mask_labels
+    binary = np.zeros_like(labels, dtype=np.uint8)
+    binary[labels > 0] = 255
+    # a second, separate blob: two components in one 0/255 mask
+    binary[5:25, 5:25] = 255
+    write_mask(tmp_path / "binary.png", binary)
+    given = dataset / "scene_0000" / "gt_disparity.pfm"
+    base = ["fuse", dataset / "scene_0000", "--disparity", given, "--mask", tmp_path / "binary.png"]
+    code, out, _ = run_cli(capsys, *base, "--out", tmp_path / "split")
+    assert code == 0 and "object 2:" in out and "binary mask split into 2 objects" in out
+    code, out, _ = run_cli(capsys, *base, "--mask-as-one", "--out", tmp_path / "one")
+    assert code == 0 and "object 1:" in out and "object 2:" not in out
+    code, _, err = run_cli(capsys, "fuse", dataset / "scene_0000", "--disparity", given,
+                           "--mask-as-one", "--out", tmp_path / "x")
+    assert code == 2 and "--mask-as-one: expected --mask FILE" in err

@@ -44,7 +44,7 @@ def test_user_masks_from_png_file_binary_and_labels(rig, tmp_path):
     auto = UserMasks(str(tmp_path / "binary.png"))
     assert [int(m.sum()) for m in auto(None, rig)] == [140, 450]
     assert auto.notes == ("binary mask split into 2 objects (its 8-connected components); "
-                          "split_components=False keeps one object",)
+                          "split_components=False (--mask-as-one) keeps one object",)
     one = UserMasks(tmp_path / "binary.png", split_components=False)(None, rig)
     assert len(one) == 1 and np.array_equal(one[0], labels > 0)
     split = UserMasks(tmp_path / "binary.png", split_components=True)(None, rig)
