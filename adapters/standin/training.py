@@ -83,10 +83,10 @@ class TrainingConfig:
     """
 
     size: Any = "default"
-    steps: int = 800
+    steps: int = 3000
     seed: int = 0
-    batch_size: int = 4
-    crop_hw: tuple[int, int] = (96, 224)
+    batch_size: int = 3
+    crop_hw: tuple[int, int] = (128, 256)
     max_train_disparity_px: float = 96.0
     learning_rate: float = 2e-3
     validation_pairs: int = 16
