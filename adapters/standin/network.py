@@ -8,8 +8,9 @@ upsampling), all at 1/4 resolution:
 2. a group-wise correlation cost volume at 1/4 resolution, ``max_disparity_px / 4``
    levels;
 3. a 2-D hourglass (1/4 -> 1/16 -> 1/4) that reads the volume's levels as channels,
-   next to the left features, and returns one matching cost per level; soft-argmin of
-   it is the initial disparity;
+   next to the left features, and returns one matching cost per level, added to a
+   direct weighted sum of the correlation groups; soft-argmin of it is the initial
+   disparity;
 4. a few refinement steps (shared weights, a plain recurrent state): each looks up the
    correlation and the aggregated cost around the current estimate and adds a residual;
 5. a learned convex upsampling by 4 (RAFT) to full resolution, whose weights come from
@@ -35,6 +36,7 @@ __all__ = ["StandinConfig", "StandinStereo", "StandinOutputs", "STANDIN_SIZES", 
 
 FEATURE_STRIDE = 4  # features, volume and refinement run at 1/4 resolution
 INPUT_MULTIPLE = 32  # the hourglass halves 1/4-resolution maps twice more (with margin)
+_DIRECT_INIT_GAIN = 5.0  # initial softmax sharpness of the direct correlation path
 
 
 @dataclass(frozen=True)
@@ -337,6 +339,15 @@ class StandinStereo(nn.Module):
         self.hourglass = Hourglass2d(
             in_channels=correlation_groups * self.levels + hidden_channels,
             channels=volume_channels, levels=self.levels)
+        # The hourglass mixes levels freely, so it must learn which input channel belongs
+        # to which output level; a direct path, the same at every level (a weighted sum of
+        # the groups), gives the cost a matching signal from the first step. Without it
+        # training settled on a constant disparity.
+        self.direct = nn.Conv3d(correlation_groups, 1, 1)
+        with torch.no_grad():
+            self.direct.weight.fill_(_DIRECT_INIT_GAIN / correlation_groups)
+            self.direct.bias.zero_()
+            self.hourglass.cost.weight.mul_(0.1)
         # lookups in the correlation (G channels) and the aggregated cost (1 channel)
         lookup_channels = (correlation_groups + 1) * (2 * lookup_radius + 1)
         self.update = UpdateBlock(hidden_channels=hidden_channels, lookup_channels=lookup_channels)
@@ -373,6 +384,7 @@ class StandinStereo(nn.Module):
         _, _, levels, h, w = corr.shape
         state, cost = self.hourglass(torch.cat(
             [corr.reshape(b, -1, h, w), self.guide(feat_left)], dim=1))
+        cost = cost + self.direct(corr).squeeze(1)  # (B, D, h, w)
 
         prob = softmax_channels(cost)  # (B, D, h, w)
         disparity = (prob * self.levels_px.view(1, -1, 1, 1)).sum(dim=1, keepdim=True)

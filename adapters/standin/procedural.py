@@ -202,7 +202,7 @@ class _Gloss:
 
 def _gloss(rng: np.random.Generator, height: int, width: int,
            disparity_px: float) -> _Gloss | None:
-    """A random glossy appearance for a layer at about ``disparity_px``, or None (matte)."""
+    """Draw a glossy appearance for a layer at about ``disparity_px``, or None (matte)."""
     if rng.random() >= _GLOSSY_PROB:
         return None
     return _Gloss(

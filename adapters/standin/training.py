@@ -83,12 +83,12 @@ class TrainingConfig:
     """
 
     size: Any = "default"
-    steps: int = 3000
+    steps: int = 2400
     seed: int = 0
     batch_size: int = 3
     crop_hw: tuple[int, int] = (128, 256)
     max_train_disparity_px: float = 96.0
-    learning_rate: float = 2e-3
+    learning_rate: float = 1e-3
     validation_pairs: int = 16
     threads: int = 1
 
