@@ -1,10 +1,30 @@
-"""A tiny IGEV-style stereo network, the stand-in backbone of demos and tests.
+"""A small cost-volume stereo network, the stand-in backbone of demos and tests.
 
-It has the parts of IGEV-Stereo (Xu et al., CVPR 2023) at toy scale: a shared feature
-CNN at 1/4 resolution, a group-wise correlation cost volume, a small 3-D hourglass that
-regularises it into a geometry encoding volume, soft-argmin for an initial disparity, a
-convolutional GRU that refines the disparity from lookups into that volume around the
-current estimate, and RAFT's convex upsampling to full resolution.
+Cheap per pixel, with the parts most CPU-friendly stereo networks share (GwcNet's
+group-wise correlation, DispNet-style 2-D aggregation, RAFT's lookups and convex
+upsampling), all at 1/4 resolution:
+
+1. a shared feature CNN to 1/4 resolution;
+2. a group-wise correlation cost volume at 1/4 resolution, ``max_disparity_px / 4``
+   levels;
+3. a 2-D hourglass (1/4 -> 1/16 -> 1/4) that reads the volume's levels as channels,
+   next to the left features, and returns one matching cost per level, added to a
+   direct weighted sum of the correlation groups; soft-argmin of it is the initial
+   disparity;
+4. a few refinement steps (shared weights, a plain recurrent state): each looks up the
+   correlation and the aggregated cost around the current estimate and adds a residual;
+5. a learned convex upsampling by 4 (RAFT) to full resolution, whose weights come from
+   the refinement state, so edges follow the left image.
+
+The bundled weights (``weights/standin.onnx``, described by ``weights/standin.json``)
+come from the previous version of this module, an IGEV-style network (3-D hourglass
+over a group-wise volume, conv-GRU refinement; 1 MB ONNX) trained on the previous
+procedural pairs: the ONNX file is self-contained, and ``standin.json`` records that
+architecture's fields, which share names with :class:`StandinConfig` but not meanings.
+This architecture, trained with the recipe in
+:mod:`srde_fusion.adapters.standin.training`, is about 4x faster and better on the
+rendered scenes but worse in bad-2 on the Middlebury Motorcycle pair, so it does not
+replace them yet.
 
 It follows IGEV's interface: ``(B, 3, H, W)`` float RGB in 0..255, normalised inside,
 ``H`` and ``W`` multiples of 32 (the ``"igev"`` preset pads to that), output
@@ -26,6 +46,7 @@ __all__ = ["StandinConfig", "StandinStereo", "StandinOutputs", "STANDIN_SIZES", 
 
 FEATURE_STRIDE = 4  # features, volume and refinement run at 1/4 resolution
 INPUT_MULTIPLE = 32  # the hourglass halves 1/4-resolution maps twice more (with margin)
+_DIRECT_INIT_GAIN = 5.0  # initial softmax sharpness of the direct correlation path
 
 
 @dataclass(frozen=True)
@@ -37,27 +58,28 @@ class StandinConfig:
     feature_channels : int
         Feature extractor: channels of the 1/4-resolution matching features.
     max_disparity_px : int
-        Cost volume: largest disparity at full resolution (a multiple of 4); the volume
+        Cost volume: largest disparity at full resolution (a multiple of 8); the volume
         has ``max_disparity_px / 4`` levels.
     correlation_groups : int
         Cost volume: groups of the group-wise correlation (divides ``feature_channels``).
     volume_channels : int
-        Aggregation: channels of the 3-D hourglass.
+        Aggregation: channels of the 2-D hourglass at 1/4 resolution (twice as many
+        at 1/8 and 1/16).
     hidden_channels : int
-        Refinement: channels of the convolutional GRU state (and of the context).
+        Refinement: channels of the recurrent state (and of the context).
     lookup_radius : int
         Refinement: volume levels looked up on each side of the current estimate.
     iterations : int
-        Refinement: GRU updates per forward pass.
+        Refinement: residual updates per forward pass.
     """
 
     feature_channels: int = 32
     max_disparity_px: int = 192
-    correlation_groups: int = 8
-    volume_channels: int = 8
+    correlation_groups: int = 2
+    volume_channels: int = 48
     hidden_channels: int = 32
     lookup_radius: int = 3
-    iterations: int = 4
+    iterations: int = 3
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -80,8 +102,8 @@ class StandinConfig:
 #: Named sizes: ``"default"`` is the bundled model, ``"tiny"`` trains in seconds (tests).
 STANDIN_SIZES: dict[str, StandinConfig] = {
     "default": StandinConfig(),
-    "tiny": StandinConfig(feature_channels=16, max_disparity_px=64, correlation_groups=4,
-                          volume_channels=4, hidden_channels=16, lookup_radius=2, iterations=2),
+    "tiny": StandinConfig(feature_channels=16, max_disparity_px=64, correlation_groups=2,
+                          volume_channels=16, hidden_channels=16, lookup_radius=2, iterations=2),
 }
 
 
@@ -92,9 +114,9 @@ class StandinOutputs:
     Attributes
     ----------
     initial : torch.Tensor, (B, 1, H, W), float32, pixels
-        Soft-argmin of the aggregated volume, upsampled bilinearly to full resolution.
+        Soft-argmin of the aggregated cost, upsampled bilinearly to full resolution.
     refined : tuple of torch.Tensor, each (B, 1, H, W), float32, pixels
-        Convex-upsampled estimate after each GRU update; the last one is the output.
+        Convex-upsampled estimate after each refinement step; the last one is the output.
     """
 
     initial: torch.Tensor
@@ -107,12 +129,14 @@ def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
 
 
 class _ResBlock(nn.Module):
-    def __init__(self, channels: int, dilation: int = 1) -> None:
+    def __init__(self, channels: int, dilation: int = 1, norm: bool = True) -> None:
         super().__init__()
         self.conv1 = nn.Conv2d(channels, channels, 3, 1, dilation, dilation=dilation)
         self.conv2 = nn.Conv2d(channels, channels, 3, 1, 1)
-        self.norm1 = nn.InstanceNorm2d(channels)
-        self.norm2 = nn.InstanceNorm2d(channels)
+        # Instance norm in the feature CNN evens out exposure; the refinement's
+        # inputs carry absolute scales (disparity, costs) that it must keep.
+        self.norm1 = nn.InstanceNorm2d(channels) if norm else nn.Identity()
+        self.norm2 = nn.InstanceNorm2d(channels) if norm else nn.Identity()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = F.relu(self.norm1(self.conv1(x)))
@@ -158,29 +182,41 @@ def groupwise_correlation(left: torch.Tensor, right: torch.Tensor, levels: int,
     # Pad on the left so that every shift is a slice with constant bounds; negative
     # slice ends keep the exported ONNX graph valid for any width.
     right_pad = F.pad(right, (levels - 1, 0))
-    shifted = torch.stack(
-        [right_pad[..., levels - 1 - d:(-d or None)] for d in range(levels)], dim=2
-    )  # (B, C, D, h, w)
-    products = (left.unsqueeze(2) * shifted).view(b, groups, c // groups, levels, h, w)
-    return products.sum(dim=2) * (groups / c)
+    left_groups = left.view(b, groups, c // groups, h, w)
+    # One level at a time: the (B, C, D, h, w) products never exist at once.
+    volume = [
+        (left_groups * right_pad[..., levels - 1 - d:(-d or None)].view(b, groups, -1, h, w)
+         ).mean(dim=2)
+        for d in range(levels)
+    ]
+    return torch.stack(volume, dim=2)
 
 
-class Hourglass3d(nn.Module):
-    """(B, G, D, h, w) correlation -> (B, V, D, h, w) geometry volume and (B, D, h, w) cost."""
+class Hourglass2d(nn.Module):
+    """Volume levels as channels + left features -> (B, V, h, w) state and (B, D, h, w) cost."""
 
-    def __init__(self, *, in_channels: int, channels: int) -> None:
+    def __init__(self, *, in_channels: int, channels: int, levels: int) -> None:
         super().__init__()
         v = channels
-        self.stem = nn.Sequential(nn.Conv3d(in_channels, v, 3, 1, 1), nn.ReLU(inplace=True))
-        self.down = nn.Sequential(nn.Conv3d(v, 2 * v, 3, 2, 1), nn.ReLU(inplace=True),
-                                  nn.Conv3d(2 * v, 2 * v, 3, 1, 1), nn.ReLU(inplace=True))
-        self.up = nn.ConvTranspose3d(2 * v, v, 4, 2, 1)
-        self.cost = nn.Conv3d(v, 1, 3, 1, 1)
+        self.stem = nn.Sequential(nn.Conv2d(in_channels, v, 1), nn.ReLU(inplace=True),
+                                  nn.Conv2d(v, v, 3, 1, 1), nn.ReLU(inplace=True))
+        self.down1 = nn.Sequential(nn.Conv2d(v, 2 * v, 3, 2, 1), nn.ReLU(inplace=True),
+                                   nn.Conv2d(2 * v, 2 * v, 3, 1, 1), nn.ReLU(inplace=True))
+        self.down2 = nn.Sequential(nn.Conv2d(2 * v, 2 * v, 3, 2, 1), nn.ReLU(inplace=True),
+                                   nn.Conv2d(2 * v, 2 * v, 3, 1, 2, dilation=2),
+                                   nn.ReLU(inplace=True))
+        self.up2 = nn.ConvTranspose2d(2 * v, 2 * v, 4, 2, 1)
+        self.up1 = nn.ConvTranspose2d(2 * v, v, 4, 2, 1)
+        self.out = nn.Sequential(nn.Conv2d(v, v, 3, 1, 1), nn.ReLU(inplace=True))
+        self.cost = nn.Conv2d(v, levels, 3, 1, 1)
 
-    def forward(self, corr: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        x = self.stem(corr)
-        x = F.relu(x + self.up(self.down(x)))
-        return x, self.cost(x).squeeze(1)
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x0 = self.stem(x)
+        x1 = self.down1(x0)
+        x2 = self.down2(x1)
+        x1 = F.relu(x1 + self.up2(x2))
+        x0 = self.out(F.relu(x0 + self.up1(x1)))
+        return x0, self.cost(x0)
 
 
 def volume_lookup(volume: torch.Tensor, disparity: torch.Tensor, radius: int) -> torch.Tensor:
@@ -200,57 +236,49 @@ def volume_lookup(volume: torch.Tensor, disparity: torch.Tensor, radius: int) ->
     """
     b, v, levels, h, w = volume.shape
     offsets = torch.arange(-radius, radius + 1, dtype=volume.dtype, device=volume.device)
-    grid = torch.arange(levels, dtype=volume.dtype, device=volume.device)
-    # (B, O, 1, h, w) sample positions against (1, 1, D, 1, 1) levels -> hat weights.
-    # Dense weights instead of grid_sample keep the graph to elementwise ops and einsum.
-    pos = disparity.unsqueeze(1) + offsets.view(1, -1, 1, 1, 1)
-    weights = F.relu(1.0 - (pos - grid.view(1, 1, -1, 1, 1)).abs())
-    samples = torch.einsum("bodhw,bvdhw->bvohw", weights, volume)
+    pos = disparity + offsets.view(1, -1, 1, 1)  # (B, O, h, w)
+    below = torch.floor(pos)
+    frac = pos - below
+    samples = 0
+    # Two gathers (the levels either side) instead of dense hat weights over all levels:
+    # far cheaper per pixel; weights of levels outside [0, D - 1] are zeroed.
+    for index, weight in ((below, 1.0 - frac), (below + 1.0, frac)):
+        inside = ((index >= 0) & (index <= levels - 1)).to(volume.dtype)
+        index = index.clamp(0, levels - 1).long().unsqueeze(1).expand(b, v, -1, h, w)
+        samples = samples + torch.gather(volume, 2, index) * (weight * inside).unsqueeze(1)
     return samples.reshape(b, -1, h, w)
 
 
-class ConvGRU(nn.Module):
-    """Convolutional GRU cell (as in RAFT)."""
-
-    def __init__(self, *, hidden_channels: int, input_channels: int) -> None:
-        super().__init__()
-        total = hidden_channels + input_channels
-        self.convz = nn.Conv2d(total, hidden_channels, 3, padding=1)
-        self.convr = nn.Conv2d(total, hidden_channels, 3, padding=1)
-        self.convq = nn.Conv2d(total, hidden_channels, 3, padding=1)
-
-    def forward(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        hx = torch.cat([h, x], dim=1)
-        z = torch.sigmoid(self.convz(hx))
-        r = torch.sigmoid(self.convr(hx))
-        q = torch.tanh(self.convq(torch.cat([r * h, x], dim=1)))
-        return (1 - z) * h + z * q
+def softmax_channels(logits: torch.Tensor, dim: int = 1) -> torch.Tensor:
+    """Softmax along a non-last axis, written out (onnxruntime's Softmax transposes then)."""
+    e = torch.exp(logits - logits.amax(dim=dim, keepdim=True))
+    return e / e.sum(dim=dim, keepdim=True)
 
 
 class UpdateBlock(nn.Module):
-    """Lookups + disparity + context -> GRU -> disparity update and upsampling mask."""
+    """Lookups + disparity + context + state -> new state, disparity update, upsampling mask."""
 
     def __init__(self, *, hidden_channels: int, lookup_channels: int) -> None:
         super().__init__()
         m = hidden_channels
-        self.encode_lookup = nn.Sequential(nn.Conv2d(lookup_channels, m, 1), nn.ReLU(inplace=True))
-        self.encode_disp = nn.Sequential(nn.Conv2d(1, m // 2, 7, padding=3), nn.ReLU(inplace=True))
-        self.encode = nn.Sequential(nn.Conv2d(m + m // 2, m - 1, 3, padding=1),
-                                    nn.ReLU(inplace=True))
-        self.gru = ConvGRU(hidden_channels=m, input_channels=m + m)
-        self.delta = nn.Sequential(nn.Conv2d(m, m, 3, padding=1), nn.ReLU(inplace=True),
-                                   nn.Conv2d(m, 1, 3, padding=1))
+        self.encode = nn.Sequential(nn.Conv2d(lookup_channels + 1, m, 1), nn.ReLU(inplace=True),
+                                    nn.Conv2d(m, m, 3, padding=1), nn.ReLU(inplace=True))
+        self.state = nn.Sequential(nn.Conv2d(3 * m, m, 3, padding=1), nn.ReLU(inplace=True),
+                                   _ResBlock(m, dilation=2, norm=False),
+                                   nn.Conv2d(m, m, 3, padding=1))
+        self.delta = nn.Conv2d(m, 1, 3, padding=1)
         self.mask = nn.Sequential(nn.Conv2d(m, m, 3, padding=1), nn.ReLU(inplace=True),
                                   nn.Conv2d(m, 9 * FEATURE_STRIDE**2, 1))
 
     def forward(self, hidden: torch.Tensor, context: torch.Tensor, lookups: torch.Tensor,
-                disparity: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        motion = self.encode(torch.cat([self.encode_lookup(lookups),
-                                        self.encode_disp(disparity)], dim=1))
-        motion = torch.cat([motion, disparity], dim=1)
-        hidden = self.gru(hidden, torch.cat([motion, context], dim=1))
+                disparity_scaled: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        motion = self.encode(torch.cat([lookups, disparity_scaled], dim=1))
+        hidden = torch.tanh(self.state(torch.cat([hidden, context, motion], dim=1)))
+        return hidden, self.delta(hidden)
+
+    def upsampling_mask(self, hidden: torch.Tensor) -> torch.Tensor:
         # RAFT scales the mask logits by 0.25 to balance the gradients.
-        return hidden, self.delta(hidden), 0.25 * self.mask(hidden)
+        return 0.25 * self.mask(hidden)
 
 
 def convex_upsample(disparity: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -273,7 +301,7 @@ def convex_upsample(disparity: torch.Tensor, mask: torch.Tensor) -> torch.Tensor
     neighbours = [padded[:, :, dy:(dy - 2) or None, dx:(dx - 2) or None]
                   for dy in range(3) for dx in range(3)]
     neighbours = torch.cat(neighbours, dim=1).unsqueeze(2)  # (B, 9, 1, h, w)
-    weights = torch.softmax(mask.view(b, 9, r * r, h, w), dim=1)  # (B, 9, 16, h, w)
+    weights = softmax_channels(mask.view(b, 9, r * r, h, w))  # (B, 9, 16, h, w)
     fine = (weights * neighbours).sum(dim=1)  # (B, 16, h, w)
     return F.pixel_shuffle(fine, r)  # (B, 1, 4h, 4w)
 
@@ -300,11 +328,11 @@ class StandinStereo(nn.Module):
                  # feature extractor
                  feature_channels: int = 32,
                  # cost volume
-                 max_disparity_px: int = 192, correlation_groups: int = 8,
+                 max_disparity_px: int = 192, correlation_groups: int = 2,
                  # aggregation
-                 volume_channels: int = 8,
+                 volume_channels: int = 48,
                  # refinement
-                 hidden_channels: int = 32, lookup_radius: int = 3, iterations: int = 4) -> None:
+                 hidden_channels: int = 32, lookup_radius: int = 3, iterations: int = 3) -> None:
         super().__init__()
         self.config = StandinConfig(
             feature_channels=feature_channels, max_disparity_px=max_disparity_px,
@@ -313,11 +341,25 @@ class StandinStereo(nn.Module):
         )
         self.levels = max_disparity_px // FEATURE_STRIDE
         self.features = FeatureExtractor(out_channels=feature_channels)
+        # a compressed copy of the left features guides the aggregation (edges, texture)
+        self.guide = nn.Sequential(nn.Conv2d(feature_channels, hidden_channels, 1),
+                                   nn.ReLU(inplace=True))
         self.context = nn.Sequential(_conv(feature_channels, hidden_channels),
                                      nn.Conv2d(hidden_channels, 2 * hidden_channels, 3, padding=1))
-        self.hourglass = Hourglass3d(in_channels=correlation_groups, channels=volume_channels)
-        # lookups from the geometry volume, its correlation, and a 2x coarser copy of both
-        lookup_channels = 2 * (volume_channels + correlation_groups) * (2 * lookup_radius + 1)
+        self.hourglass = Hourglass2d(
+            in_channels=correlation_groups * self.levels + hidden_channels,
+            channels=volume_channels, levels=self.levels)
+        # The hourglass mixes levels freely, so it must learn which input channel belongs
+        # to which output level; a direct path, the same at every level (a weighted sum of
+        # the groups), gives the cost a matching signal from the first step. Without it
+        # training settled on a constant disparity.
+        self.direct = nn.Conv3d(correlation_groups, 1, 1)
+        with torch.no_grad():
+            self.direct.weight.fill_(_DIRECT_INIT_GAIN / correlation_groups)
+            self.direct.bias.zero_()
+            self.hourglass.cost.weight.mul_(0.1)
+        # lookups in the correlation (G channels) and the aggregated cost (1 channel)
+        lookup_channels = (correlation_groups + 1) * (2 * lookup_radius + 1)
         self.update = UpdateBlock(hidden_channels=hidden_channels, lookup_channels=lookup_channels)
         self.register_buffer("levels_px", torch.arange(self.levels, dtype=torch.float32),
                              persistent=False)
@@ -334,35 +376,42 @@ class StandinStereo(nn.Module):
         -------
         torch.Tensor, (B, 1, H, W), float32, pixels
         """
-        return self.forward_all(left, right).refined[-1]
+        return self._run(left, right, every_step=False).refined[-1]
 
     def forward_all(self, left: torch.Tensor, right: torch.Tensor) -> StandinOutputs:
         """Every intermediate estimate, for training (same inputs as ``forward``)."""
+        return self._run(left, right, every_step=True)
+
+    def _run(self, left: torch.Tensor, right: torch.Tensor, *, every_step: bool
+             ) -> StandinOutputs:
         cfg = self.config
+        b = left.shape[0]
         # IGEV/RAFT normalisation: 0..255 -> -1..1
         both = torch.cat([left, right], dim=0) * (2.0 / 255.0) - 1.0
         feats = self.features(both)
-        feat_left, feat_right = feats.chunk(2, dim=0)
+        feat_left, feat_right = feats[:b], feats[b:]
         corr = groupwise_correlation(feat_left, feat_right, self.levels, cfg.correlation_groups)
-        geometry, cost = self.hourglass(corr)
+        _, _, levels, h, w = corr.shape
+        state, cost = self.hourglass(torch.cat(
+            [corr.reshape(b, -1, h, w), self.guide(feat_left)], dim=1))
+        cost = cost + self.direct(corr).squeeze(1)  # (B, D, h, w)
 
-        prob = torch.softmax(cost, dim=1)  # (B, D, h, w)
+        prob = softmax_channels(cost)  # (B, D, h, w)
         disparity = (prob * self.levels_px.view(1, -1, 1, 1)).sum(dim=1, keepdim=True)
         initial = F.interpolate(disparity * FEATURE_STRIDE, scale_factor=FEATURE_STRIDE,
                                 mode="bilinear", align_corners=False)
 
-        volume = torch.cat([geometry, corr], dim=1)  # (B, V + G, D, h, w)
-        coarse = F.avg_pool3d(volume, (2, 1, 1), (2, 1, 1))  # halve the disparity axis
+        volume = torch.cat([corr, cost.unsqueeze(1)], dim=1)  # (B, G + 1, D, h, w)
         hidden, context = torch.tanh(self.context(feat_left)).chunk(2, dim=1)
         context = F.relu(context)
         refined = []
-        for _ in range(cfg.iterations):
+        for step in range(cfg.iterations):
             disparity = disparity.detach()  # RAFT/IGEV: no gradient through the iterate
-            lookups = torch.cat([volume_lookup(volume, disparity, cfg.lookup_radius),
-                                 volume_lookup(coarse, disparity * 0.5, cfg.lookup_radius)], dim=1)
-            hidden, delta, mask = self.update(hidden, context, lookups, disparity)
+            lookups = volume_lookup(volume, disparity, cfg.lookup_radius)
+            hidden, delta = self.update(hidden, context, lookups, disparity / self.levels)
             disparity = disparity + delta
-            refined.append(convex_upsample(disparity, mask))
+            if every_step or step == cfg.iterations - 1:
+                refined.append(convex_upsample(disparity, self.update.upsampling_mask(hidden)))
         return StandinOutputs(initial=initial, refined=tuple(refined))
 
 
