@@ -1,6 +1,6 @@
 """Bounded memory for large images: run a model on fewer pixels than the pair has.
 
-A stereo network's memory grows with the pixels it is fed (the bundled stand-in needs
+A stereo network's memory grows with the pixels it is fed (an earlier bundled stand-in needed
 about 1.75 GB per megapixel on a CPU), so a 12 MP pair can exhaust a machine that runs
 640x480 pairs with ease. Rather than fail inside the runtime, an adapter given
 ``max_pixels`` plans each call (:func:`plan_large_image`):
@@ -118,7 +118,7 @@ def default_max_pixels(bytes_per_px: float | None, memory_bytes: int | None = No
 
     Examples
     --------
-    >>> default_max_pixels(1750.0, memory_bytes=24 * 2**30)  # the stand-in, 24 GiB
+    >>> default_max_pixels(1750.0, memory_bytes=24 * 2**30)  # 1.75 GB per MP, 24 GiB
     7362801
     """
     if bytes_per_px is None:
