@@ -147,10 +147,13 @@ def test_default_budgets():
     assert standin.max_pixels == default_max_pixels(STANDIN_BYTES_PER_PX)
     assert standin.spec.bytes_per_px == STANDIN_BYTES_PER_PX
     assert "B/px" in standin.describe()
-    # 12 MP would need ~21 GB: over the budget of a 24 GiB machine, which tiles it
+    # 12 MP needs ~3 GB: inside the budget of a 24 GiB machine (about 50 MP), run whole;
+    # on a 4 GiB machine (about 8 MP) it is tiled
     budget = default_max_pixels(STANDIN_BYTES_PER_PX, memory_bytes=24 * 2**30)
-    assert 6e6 < budget < 8e6
-    assert plan_large_image((3000, 4000), budget, multiple=32).strategy == "tiles"
+    assert 4e7 < budget < 6e7
+    assert plan_large_image((3000, 4000), budget, multiple=32).strategy == "whole"
+    small = default_max_pixels(STANDIN_BYTES_PER_PX, memory_bytes=4 * 2**30)
+    assert plan_large_image((3000, 4000), small, multiple=32).strategy == "tiles"
     # a model of unknown memory per pixel gets no budget, and says so
     unknown = OnnxStereo(default_weights_path(), "igev")
     assert unknown.max_pixels is None and "memory per pixel of this model unknown" in (
