@@ -120,8 +120,9 @@ def rule_decisions(plane: Plane, rig, backbone: np.ndarray, mask: np.ndarray,
             low <= check.max_behind_ratio and high >= check.min_front_ratio)
     # E: what fuse decides: D, the photometric outline check, stricter ratios on weak
     # evidence (the result keeps the estimate's refinement outcome).
-    judged = dataclasses.replace(result, plane=plane, disparity=np.where(
-        mask, srde_full, np.nan).astype(np.float32))
+    u0, v0, u1, v1 = result.box
+    judged = dataclasses.replace(result, plane=plane, disparity_box=np.where(
+        mask, srde_full, np.nan).astype(np.float32)[v0:v1, u0:u1])
     report = fuse(backbone, views, rig, [mask], FixedSRDE(judged)).objects[0]
     out["E (used): D + photometric outline check + stricter ratios on weak evidence"] = (
         report.used_srde)

@@ -17,14 +17,8 @@ upsampling), all at 1/4 resolution:
    the refinement state, so edges follow the left image.
 
 The bundled weights (``weights/standin.onnx``, described by ``weights/standin.json``)
-come from the previous version of this module, an IGEV-style network (3-D hourglass
-over a group-wise volume, conv-GRU refinement; 1 MB ONNX) trained on the previous
-procedural pairs: the ONNX file is self-contained, and ``standin.json`` records that
-architecture's fields, which share names with :class:`StandinConfig` but not meanings.
-This architecture, trained with the recipe in
-:mod:`srde_fusion.adapters.standin.training`, is about 4x faster and better on the
-rendered scenes but worse in bad-2 on the Middlebury Motorcycle pair, so it does not
-replace them yet.
+are this architecture trained with the recipe in
+:mod:`srde_fusion.adapters.standin.training` (2400 steps, seed 0).
 
 It follows IGEV's interface: ``(B, 3, H, W)`` float RGB in 0..255, normalised inside,
 ``H`` and ``W`` multiples of 32 (the ``"igev"`` preset pads to that), output

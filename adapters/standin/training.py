@@ -23,12 +23,12 @@ stream of pairs. It took 26 minutes on a shared 2-core machine; held-out procedu
 (7 minutes) changed the Motorcycle pair (``benchmarks/backbone_accuracy.py``, 741x500)
 from EPE 2.66 px / bad-2 26.3 % to 2.74 px / 26.1 %.
 
-Measured against the bundled weights (the previous, IGEV-style architecture, 800 steps
-on the previous procedural pairs), in one run of ``benchmarks/backbone_accuracy.py``:
-Motorcycle 741x500 EPE 3.06 -> 2.66 px but bad-2 25.1 -> 26.3 %; rendered scenes EPE
-2.82 -> 1.87 px, bad-2 21.1 -> 19.3 %, glossy objects 13.8 -> 8.1 px; 2.45 -> 0.64 s
-per 741x500 pair (0.49 s per 640x480 pair). SGBM in the same run: 1.06 px, 22.6 %,
-0.08 s. Because Motorcycle bad-2 got worse the bundled weights were kept.
+Measured against the previous bundled weights (an IGEV-style architecture with a 3-D
+hourglass and GRU refinement, 800 steps on the previous procedural pairs), in one run of
+``benchmarks/backbone_accuracy.py``: Motorcycle 741x500 EPE 3.06 -> 2.66 px but bad-2
+25.1 -> 26.3 %; rendered scenes EPE 2.82 -> 1.87 px, bad-2 21.1 -> 19.3 %, glossy objects
+13.8 -> 8.1 px; 2.45 -> 0.64 s per 741x500 pair (0.49 s per 640x480 pair). SGBM in the
+same run: 1.06 px, 22.6 %, 0.08 s. The first command's model is the bundled one.
 
 Why procedural pairs and not the rendered scenes of :mod:`srde_fusion.synthetic`: rendering
 one scene takes seconds, too slow to draw fresh pairs at every step on a CPU, and the
