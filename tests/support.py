@@ -90,3 +90,35 @@ FLAT_PX = 15.0
 def flat(left, right):
     """A backbone that answers 15 px everywhere."""
     return np.full(left.shape[:2], FLAT_PX, np.float32)
+
+
+def export_constant_model(path, value_px: float, output_name: str = "disp"):
+    """Export an ONNX 'stereo network' answering ``value_px`` everywhere (dynamic size).
+
+    The right image enters the graph (times 0) so the model has two real inputs.
+    """
+    import warnings
+
+    import torch
+
+    class Constant(torch.nn.Module):
+        def forward(self, left, right):
+            return torch.full_like(left[:, :1], value_px) + 0.0 * right[:, :1]
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the legacy exporter announces its deprecation
+        torch.onnx.export(Constant().eval(),
+                          (torch.zeros(1, 3, 24, 32), torch.zeros(1, 3, 24, 32)), str(path),
+                          input_names=["left", "right"], output_names=[output_name],
+                          dynamic_axes={"left": {2: "h", 3: "w"}, "right": {2: "h", 3: "w"},
+                                        output_name: {2: "h", 3: "w"}}, dynamo=False)
+    return path
+
+
+def run_cli(capsys, *argv):
+    """Run the command in-process: exit code, stdout and stderr."""
+    from srde_fusion.cli import main
+
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err

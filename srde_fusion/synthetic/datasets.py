@@ -199,8 +199,34 @@ def render_dataset(
     target = out if staging is None else staging
     folders: list[Path] = []
     try:
-        _render_into(target, folders, n_scenes, seed, rig, n_objects, background, supersample,
-                     physics, progress, scene_options)
+        for i in tqdm(range(n_scenes), desc="render", unit="scene", disable=not progress):
+            scene_seed = int(np.random.SeedSequence([seed, i]).generate_state(1)[0])
+            scene = random_scene(
+                scene_seed, rig, n_objects=n_objects, background=background, **scene_options
+            )
+            scene_rig = rig.with_light(scene.light.position_m)
+            result = render(scene, scene_rig, supersample=supersample, physics=physics)
+            metadata = {
+                "generator": "srde_fusion.synthetic.random_scene",
+                "seed": scene_seed,
+                "physics": dataclasses.asdict(physics or Physics()),
+                "supersample": supersample,
+                "scene": scene_to_dict(scene),
+                "virtual_lights_m": result.virtual_lights_m.tolist(),
+                "highlight_uv": np.nan_to_num(result.highlight_uv, nan=-1.0).tolist(),
+                "planes": [{"normal": list(p.normal), "offset_m": p.offset_m}
+                           for p in result.planes],
+            }
+            folders.append(
+                write_scene(
+                    target / f"scene_{i:04d}",
+                    result.views,
+                    scene_rig,
+                    mask=result.instance_mask,
+                    gt_disparity=result.disparity_px,
+                    metadata=metadata,
+                )
+            )
     except BaseException:
         if staging is not None:  # the old dataset is untouched; drop the half-made one
             shutil.rmtree(staging, ignore_errors=True)
@@ -208,39 +234,6 @@ def render_dataset(
     if staging is not None:
         folders = _swap_in(staging, out, folders, existing)
     return folders
-
-
-def _render_into(target: Path, folders: list[Path], n_scenes: int, seed: int, rig: CameraRig,
-                 n_objects: int, background: str, supersample: int, physics: Physics | None,
-                 progress: bool, scene_options: dict) -> None:
-    """Render the scenes of :func:`render_dataset` into ``target``, appending their folders."""
-    for i in tqdm(range(n_scenes), desc="render", unit="scene", disable=not progress):
-        scene_seed = int(np.random.SeedSequence([seed, i]).generate_state(1)[0])
-        scene = random_scene(
-            scene_seed, rig, n_objects=n_objects, background=background, **scene_options
-        )
-        scene_rig = rig.with_light(scene.light.position_m)
-        result = render(scene, scene_rig, supersample=supersample, physics=physics)
-        metadata = {
-            "generator": "srde_fusion.synthetic.random_scene",
-            "seed": scene_seed,
-            "physics": dataclasses.asdict(physics or Physics()),
-            "supersample": supersample,
-            "scene": scene_to_dict(scene),
-            "virtual_lights_m": result.virtual_lights_m.tolist(),
-            "highlight_uv": np.nan_to_num(result.highlight_uv, nan=-1.0).tolist(),
-            "planes": [{"normal": list(p.normal), "offset_m": p.offset_m} for p in result.planes],
-        }
-        folders.append(
-            write_scene(
-                target / f"scene_{i:04d}",
-                result.views,
-                scene_rig,
-                mask=result.instance_mask,
-                gt_disparity=result.disparity_px,
-                metadata=metadata,
-            )
-        )
 
 
 def _swap_in(staging: Path, out: Path, new: list[Path], old: list[Path]) -> list[Path]:

@@ -225,12 +225,16 @@ def _albedo(surf: TexturedSurface, local: np.ndarray, footprint_m: float) -> np.
     return base * _sample_bilinear(mip, tu, tv, tiled=surf.tile_m > 0)
 
 
+def _ior(mat: Material) -> float:
+    """Return the refractive index of the exact Fresnel equations: given, or from ``f0``."""
+    return mat.ior if mat.ior is not None else ior_from_f0(mat.f0)
+
+
 def _fresnel(mat: Material, cos_i: np.ndarray, physics: Physics) -> np.ndarray | None:
     """Exact Fresnel reflectance at ``cos_i`` (float32), or None for Schlick's term."""
     if physics.fresnel != "exact":
         return None
-    ior = mat.ior if mat.ior is not None else ior_from_f0(mat.f0)
-    return fresnel_exact(cos_i, ior, mat.extinction).astype(np.float32, copy=False)
+    return fresnel_exact(cos_i, _ior(mat), mat.extinction).astype(np.float32, copy=False)
 
 
 @functools.lru_cache(maxsize=16)
@@ -353,22 +357,22 @@ def shade_points(
     albedo = _albedo(surf, local, footprint_m)
     color = np.asarray(light.color_rgb, dtype=f32)
     mat = surf.shape.material
-    ray_len = np.sqrt(x * x + y * y + f32(1.0))
     direct, ambient = irradiance[:, None] * (color / f32(np.pi)), f32(scene.ambient)
-    if physics.diffuse_transmittance and height_l > 0.0 and height_v > 0.0:
-        # A coating lets (1 - F) of the light in and (1 - F) of the scattered light out;
-        # ambient light comes from everywhere, so it enters with the hemispherical mean.
-        ior = mat.ior if mat.ior is not None else ior_from_f0(mat.f0)
+    lit = height_l > 0.0 and height_v > 0.0  # light and eye both in front of the plane
+    if lit and (mat.specular > 0.0 or physics.diffuse_transmittance):
+        ray_len = np.sqrt(x * x + y * y + f32(1.0))
         cos_l = f32(height_l) / dist
         cos_v = f32(height_v) / (t * ray_len)
+    if physics.diffuse_transmittance and lit:
+        # A coating lets (1 - F) of the light in and (1 - F) of the scattered light out;
+        # ambient light comes from everywhere, so it enters with the hemispherical mean.
+        ior = _ior(mat)
         out = f32(1.0) - fresnel_exact(cos_v, ior, mat.extinction).astype(f32)
         into = f32(1.0) - fresnel_exact(cos_l, ior, mat.extinction).astype(f32)
         direct = direct * (into * out)[:, None]
         ambient = (ambient * f32(1.0 - _hemispherical_fresnel(ior, mat.extinction))) * out[:, None]
     radiance = albedo * (direct + ambient)
-    if mat.specular > 0.0 and height_l > 0.0 and height_v > 0.0:
-        cos_l = f32(height_l) / dist
-        cos_v = f32(height_v) / (t * ray_len)
+    if mat.specular > 0.0 and lit:
         # l . v with v = -ray / |ray|; then h = (l + v) / |l + v|.
         cos_lv = -(to_lx * x + to_ly * y + to_lz) / (dist * ray_len)
         half_len = np.sqrt(np.maximum(f32(2.0) + f32(2.0) * cos_lv, f32(1e-12)))

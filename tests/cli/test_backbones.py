@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import warnings
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ from srde_fusion.cli import main
 from srde_fusion.cli.backbones import spec_from_file
 from srde_fusion.errors import BackboneError
 from srde_fusion.io import read_disparity, read_mask
+from tests.support import export_constant_model, run_cli
 
 # The model below answers this negative flow everywhere; the spec turns it into 15 px.
 FLOW_PX = -30.0
@@ -21,32 +21,14 @@ FLOW_PX = -30.0
 @pytest.fixture(scope="module")
 def flow_model(tmp_path_factory):
     """An ONNX 'stereo network' with RAFT-like conventions: negative flow, twice the scale."""
-    import torch
-
-    class Flow(torch.nn.Module):
-        def forward(self, left, right):
-            return torch.full_like(left[:, :1], FLOW_PX) + 0.0 * right[:, :1]
-
-    path = tmp_path_factory.mktemp("model") / "flow.onnx"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the legacy exporter announces its deprecation
-        torch.onnx.export(Flow().eval(), (torch.zeros(1, 3, 24, 32), torch.zeros(1, 3, 24, 32)),
-                          str(path), input_names=["left", "right"], output_names=["flow"],
-                          dynamic_axes={"left": {2: "h", 3: "w"}, "right": {2: "h", 3: "w"},
-                                        "flow": {2: "h", 3: "w"}}, dynamo=False)
-    return path
+    return export_constant_model(tmp_path_factory.mktemp("model") / "flow.onnx", FLOW_PX,
+                                 output_name="flow")
 
 
 def write_spec(folder, data, name="spec.json"):
     path = folder / name
     path.write_text(json.dumps(data))
     return path
-
-
-def run_cli(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def test_a_spec_file_holds_any_field_and_a_preset_base(tmp_path):

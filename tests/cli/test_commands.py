@@ -2,7 +2,6 @@ from __future__ import annotations
 
 import json
 import sys
-import warnings
 
 import numpy as np
 import pytest
@@ -10,32 +9,13 @@ import pytest
 from srde_fusion.cli import main
 from srde_fusion.io import read_disparity, read_image, read_mask, read_scene, write_scene
 from srde_fusion.workflows import srde_scene
-from tests.support import FLAT_PX
+from tests.support import FLAT_PX, export_constant_model, run_cli
 
 
 @pytest.fixture(scope="module")
 def flat_backbone(tmp_path_factory):
     """An ONNX 'stereo network' that answers 15 px everywhere."""
-    import torch
-
-    class Flat(torch.nn.Module):
-        def forward(self, left, right):
-            return torch.full_like(left[:, :1], FLAT_PX) + 0.0 * right[:, :1]
-
-    path = tmp_path_factory.mktemp("model") / "flat.onnx"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the legacy exporter announces its deprecation
-        torch.onnx.export(Flat().eval(), (torch.zeros(1, 3, 24, 32), torch.zeros(1, 3, 24, 32)),
-                          str(path), input_names=["left", "right"], output_names=["disp"],
-                          dynamic_axes={"left": {2: "h", 3: "w"}, "right": {2: "h", 3: "w"},
-                                        "disp": {2: "h", 3: "w"}}, dynamo=False)
-    return path
-
-
-def run_cli(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
+    return export_constant_model(tmp_path_factory.mktemp("model") / "flat.onnx", FLAT_PX)
 
 
 # ---------------------------------------------------------------- demo

@@ -169,6 +169,7 @@ class LobeModel:
         self._lobe_value = None
         self._specular_key = None
         self._specular_value = self._specular_geometry = None
+        self._shading = self._shading_geometry = None
         self.initial_cost = math.inf  # cost of the start found by initial_guess
         shape = [I_WIDTH] + ([I_TAIL] if lobe == "gtr" else [])
         shape += [I_FORE] if foreshortening is None else []
@@ -188,8 +189,15 @@ class LobeModel:
         return np.einsum("...sp,s->...p", grouped, self.support_weights, out=out)
 
     def _reduced(self, g: ShadingGeometry) -> SampleShading:
-        """Return the samples' diffuse term of a geometry of the model points."""
-        return SampleShading(self.reduce(g.diffuse))
+        """Return the samples' diffuse term of a geometry of the model points.
+
+        Kept for the last geometry: the plane stays while the lobe's shape moves, and the
+        intensity solve caches its diffuse sums on this object's identity.
+        """
+        if self._shading_geometry is not g:
+            self._shading = SampleShading(self.reduce(g.diffuse))
+            self._shading_geometry = g
+        return self._shading
 
     def plane(self, theta: np.ndarray) -> Plane:
         """Return the plane of ``theta``."""
