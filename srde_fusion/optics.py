@@ -11,7 +11,13 @@ import math
 
 import numpy as np
 
-__all__ = ["fresnel_exact", "fresnel_exact_slope", "ior_from_f0", "schlick_fresnel"]
+__all__ = [
+    "fresnel_dielectric",
+    "fresnel_exact",
+    "fresnel_exact_slope",
+    "ior_from_f0",
+    "schlick_fresnel",
+]
 
 
 def schlick_fresnel(cos_vh: np.ndarray, f0: float) -> np.ndarray:
@@ -86,3 +92,53 @@ def fresnel_exact_slope(cos_i: np.ndarray, ior: float, extinction: float = 0.0,
     lo = np.clip(c - step, 0.0, 1.0)
     hi = np.clip(c + step, 0.0, 1.0)
     return (fresnel_exact(hi, ior, extinction) - fresnel_exact(lo, ior, extinction)) / (hi - lo)
+
+
+def fresnel_dielectric(cos_i: np.ndarray, ior: float, *, slope: bool = False):
+    """:func:`fresnel_exact` of a dielectric seen from air (``ior > 1``), and its slope.
+
+    The same reflectance as ``fresnel_exact(cos_i, ior)``, in the real form a dielectric
+    allows: with ``g = sqrt(ior^2 - 1 + c^2)``, ``A = (g - c) / (g + c)`` and
+    ``B = (c (g + c) - 1) / (c (g - c) + 1)``, ``F = A^2 (1 + B^2) / 2``. About a third of
+    the general formula's operations, and the derivative is analytic, so the photometric
+    refinement (which evaluates it at every sample on every step) uses this one.
+
+    Parameters
+    ----------
+    cos_i : numpy.ndarray, (...)
+        Cosine of the angle of incidence, clipped to [0, 1].
+    ior : float
+        Refractive index, > 1 (from air: no total internal reflection).
+    slope : bool
+        Also return ``dF / d cos_i``.
+
+    Returns
+    -------
+    numpy.ndarray, (...), or a tuple of two
+        Reflectance, and its derivative by ``cos_i`` if ``slope``.
+
+    Examples
+    --------
+    >>> c = np.linspace(0.0, 1.0, 5)
+    >>> bool(np.allclose(fresnel_dielectric(c, 1.49), fresnel_exact(c, 1.49)))
+    True
+    """
+    c = np.clip(cos_i, 0.0, 1.0)
+    c2 = c * c
+    g = np.sqrt(c2 + (ior * ior - 1.0))
+    g_plus, g_minus = g + c, g - c
+    a = g_minus / g_plus
+    cg_plus = c * g_plus
+    cg_minus = c * g_minus
+    b_num, b_den = cg_plus - 1.0, cg_minus + 1.0
+    b = b_num / b_den
+    a2, b2 = a * a, b * b
+    reflectance = 0.5 * a2 * (1.0 + b2)
+    if not slope:
+        return reflectance
+    # dg/dc = c / g (g >= sqrt(ior^2 - 1) > 0 for ior > 1; at ior = 1, g = c)
+    dg = np.divide(c, g, out=np.ones_like(g), where=g > 0.0)
+    da = 2.0 * (c * dg - g) / (g_plus * g_plus)
+    cdg = c * dg
+    db = ((g + cdg + 2.0 * c) * b_den - b_num * (g + cdg - 2.0 * c)) / (b_den * b_den)
+    return reflectance, a * da * (1.0 + b2) + a2 * b * db

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...geometry import CameraRig, Plane
-from ...optics import fresnel_exact, ior_from_f0
+from ...optics import fresnel_dielectric, ior_from_f0
 from .layout import N_PLANE
 from .samples import HighlightSamples
 
@@ -46,6 +46,7 @@ class ShadingGeometry:
     half_norm: np.ndarray  # |omega_i + omega_o|
     grazing: np.ndarray  # 1 - omega_i . h
     fresnel: np.ndarray
+    fresnel_slope: np.ndarray  # dF / d(omega_i . h)
 
 
 class PlaneReflection:
@@ -170,11 +171,13 @@ class PlaneReflection:
         grazing /= half_norm
         np.subtract(1.0, grazing, out=grazing)
         if self.fresnel == "exact":
-            fresnel = fresnel_exact(1.0 - grazing, self.ior)
+            fresnel, fresnel_slope = fresnel_dielectric(1.0 - grazing, self.ior, slope=True)
         else:
             # Schlick; powers by multiplication (numpy's ** 5 is a slow generic pow)
             fresnel = grazing * grazing
             fresnel *= fresnel
+            # d F / d cos = -5 (1 - f0) x^4 with x = grazing = 1 - cos
+            fresnel_slope = fresnel * (-5.0 * (1.0 - self.f0))
             fresnel *= grazing
             fresnel *= 1.0 - self.f0
             fresnel += self.f0
@@ -191,7 +194,8 @@ class PlaneReflection:
         return ShadingGeometry(cos_h=cos_h, sin2_h=sin2_h, log_foreshortening=log_foreshortening,
                          diffuse=diffuse, specular=specular, normal=n, t=t, nk=nk, tq_b=tq_b,
                          r=r, cos_i=cos_i, cos_o=cos_o, cos_io=cos_io, half_norm=half_norm,
-                         grazing=grazing, fresnel=fresnel)
+                         grazing=grazing, fresnel=fresnel,
+                         fresnel_slope=fresnel_slope)
 
     def at(self, theta: np.ndarray) -> ShadingGeometry | None:
         """Geometry of ``theta``'s plane, reused while only the photometry changes."""

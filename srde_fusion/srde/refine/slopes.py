@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...optics import fresnel_exact_slope
 from .layout import I_DIFF, I_FORE, I_SPEC, I_TAIL, I_WIDTH, N_PLANE
 from .lobes import lobe_shape_slopes
 from .reflection import PlaneReflection, ShadingGeometry
@@ -94,16 +93,9 @@ def _plane_slope_terms(reflection: PlaneReflection, g: ShadingGeometry, fore, di
     grazing_t -= 1.0
     grazing_t *= kappa
     grazing_t *= inv_half
-    if reflection.fresnel == "exact":
-        # d log F / dx with x = grazing = 1 - cos: -F'(cos) / F
-        fresnel_slope = fresnel_exact_slope(1.0 - g.grazing, reflection.ior)
-        fresnel_slope /= g.fresnel
-        np.negative(fresnel_slope, out=fresnel_slope)
-    else:
-        # d log F = 5 (1 - f0) x^4 / F dx, x = grazing (Schlick)
-        fresnel_slope = g.grazing * g.grazing
-        fresnel_slope *= fresnel_slope
-        fresnel_slope *= 5.0 * (1.0 - reflection.f0) / g.fresnel
+    # d log F / dx with x = grazing = 1 - cos: -F'(cos) / F
+    fresnel_slope = g.fresnel_slope / g.fresnel
+    np.negative(fresnel_slope, out=fresnel_slope)
     # The model's slope on d cos_h, on the specular factor's relative change and on
     # the diffuse factor's relative change.
     on_cos_h = by * spec_term
