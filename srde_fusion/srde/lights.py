@@ -1,0 +1,545 @@
+"""Several known lights: which highlight belongs to which light, and the plane they share.
+
+With one light, the brightest blob on the object is its highlight. With several, each
+view may show a highlight of every light that lands on the object, and the brightest blob
+of one view need not belong to the same light as that of another: triangulating them
+together gives a wrong virtual light with a small residual. The lights' positions are
+known, and that settles the correspondence by geometry:
+
+* one light's highlights in all views are the images of *one* point, its virtual light,
+  so in a rectified rig they sit on the reference highlight's baseline lines at a single
+  inverse depth;
+* every light's virtual light is the mirror image of that light across the *same*
+  plane, so a plane proposed from one light's virtual light predicts where every other
+  light's highlight must appear, and on which views it lands on the object.
+
+:func:`assign_lights` proposes a plane for every pairing of a reference-view candidate
+with a candidate on its baseline line in another view and every light, scores each
+plane by the candidates it explains (and the on-object highlights it predicts that are
+missing), refits the best one to all the highlights it explains, and reports the
+assignment with its evidence. When another plane explains the candidates as well, the
+object is reported ``"ambiguous"``: a wrong assignment yields a wrong plane with a small
+residual, so a tie is a reasoned failure, never a guess.
+
+Pure geometry on highlight centres; :func:`find_candidates` finds the candidates in one
+view's search region (every blob that stands out, not only the brightest).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..geometry import CameraRig, Plane, plane_from_lights
+from .config import DetectorConfig
+from .highlight import HighlightDetection, detect_in_view
+
+__all__ = [
+    "LightAssignment",
+    "LightsSolution",
+    "assign_lights",
+    "find_candidates",
+    "candidate_band",
+]
+
+#: Candidates per view at most (blobs beyond the brightest few are noise or texture).
+MAX_CANDIDATES = 8
+
+
+#: A detected blob is blanked out of the search region over this many times its
+#: half-maximum radius before the next one is sought, so that its own flanks are not
+#: found again as a dimmer blob.
+BLANK_RADII = 2.5
+
+
+#: Two planes whose disparity differs by less than this over the object's box (pixels)
+#: are the same answer.
+SAME_PLANE_PX = 0.5
+
+
+#: Rounds of "refit the plane to what it explains, then match again".
+_REFIT_ROUNDS = 3
+
+
+@dataclass(frozen=True)
+class LightAssignment:
+    """The highlights of one light on the object, and how well the plane explains them.
+
+    Parameters
+    ----------
+    light : int
+        Index of the light in the lights given.
+    centers_uv : numpy.ndarray, (N, 2) float64
+        Highlight centre assigned to this light per view, pixels; NaN where none.
+    predicted_uv : numpy.ndarray, (N, 2) float64
+        Where the fitted plane puts this light's highlight in every view, pixels.
+    on_object : numpy.ndarray, (N,) bool
+        Views where the predicted highlight lands on the object (so a candidate was
+        expected there).
+    residuals_px : numpy.ndarray, (N,) float64
+        Distance between assigned and predicted centre, pixels; NaN where none.
+    virtual_light_m : numpy.ndarray, (3,) float64
+        The light mirrored across the fitted plane, array frame, metres.
+    """
+
+    light: int
+    centers_uv: np.ndarray
+    predicted_uv: np.ndarray
+    on_object: np.ndarray
+    residuals_px: np.ndarray
+    virtual_light_m: np.ndarray
+
+    @property
+    def n_views(self) -> int:
+        """Views in which this light's highlight was assigned."""
+        return int(np.count_nonzero(np.isfinite(self.centers_uv[:, 0])))
+
+    @property
+    def missing_views(self) -> tuple[int, ...]:
+        """Views where the highlight should be on the object but no candidate was there."""
+        return tuple(int(j) for j in np.flatnonzero(self.on_object
+                                                    & ~np.isfinite(self.centers_uv[:, 0])))
+
+
+@dataclass(frozen=True)
+class LightsSolution:
+    """Outcome of :func:`assign_lights`.
+
+    Parameters
+    ----------
+    status : {"ok", "no_highlight", "too_few_views", "ambiguous"}
+    reason : str
+        Why it failed, with the numbers ("" if ok).
+    plane : Plane or None
+        The plane fitted to every assigned highlight of every light (the best
+        hypothesis's plane when ambiguous; None when no hypothesis was possible).
+    assignments : tuple of LightAssignment
+        One per light, in the lights' order (empty if no plane).
+    residual_px : float
+        RMS distance between assigned and predicted centres over all assignments, px.
+    hypotheses : int
+        Planes proposed and scored.
+    evidence : str
+        The winner's and the best different plane's support, in words.
+    candidates_uv : tuple of numpy.ndarray
+        The candidates ``(m_j, 2)`` of every view the assignment chose from.
+    """
+
+    status: str
+    reason: str
+    plane: Plane | None
+    assignments: tuple[LightAssignment, ...]
+    residual_px: float
+    hypotheses: int
+    evidence: str
+    candidates_uv: tuple[np.ndarray, ...] = field(repr=False, default=())
+
+    @property
+    def ok(self) -> bool:
+        """Whether a plane was found and is unambiguous."""
+        return self.status == "ok"
+
+    @property
+    def n_observations(self) -> int:
+        """Assigned highlight centres, all lights and views together."""
+        return sum(a.n_views for a in self.assignments)
+
+    @property
+    def solved_lights(self) -> tuple[int, ...]:
+        """Lights whose highlight was assigned in two or more views."""
+        return tuple(a.light for a in self.assignments if a.n_views >= 2)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary of the assignment and its evidence."""
+        return {
+            "status": self.status,
+            "reason": self.reason,
+            "hypotheses": self.hypotheses,
+            "evidence": self.evidence,
+            "residual_px": None if not math.isfinite(self.residual_px) else self.residual_px,
+            "lights": [{
+                "light": a.light,
+                "views": [int(j) for j in np.flatnonzero(np.isfinite(a.centers_uv[:, 0]))],
+                "missing_views": list(a.missing_views),
+                "virtual_light_m": [float(v) for v in a.virtual_light_m],
+            } for a in self.assignments],
+        }
+
+
+# ---------------------------------------------------------------------- candidates
+def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
+                    max_candidates: int = MAX_CANDIDATES) -> list[HighlightDetection]:
+    """Every highlight blob in a view's search region, brightest (most light) first.
+
+    The single-light detector (:func:`~srde_fusion.srde.highlight.detect_in_view`) keeps
+    the blob with the most light; here it runs again on the region with each found blob
+    blanked out (over :data:`BLANK_RADII` times its half-maximum radius), until nothing
+    stands out by the detector's contrast or ``max_candidates`` are found.
+
+    Parameters
+    ----------
+    image : numpy.ndarray, (H, W) or (H, W, 3)
+        A validated view.
+    region : numpy.ndarray, (H, W) bool
+        Where to look.
+    config : DetectorConfig
+        The blob detector's options (its minimum contrast ends the search).
+    max_candidates : int
+
+    Returns
+    -------
+    list of HighlightDetection
+        Found detections only (possibly none).
+    """
+    remaining = region.copy()
+    found: list[HighlightDetection] = []
+    height, width = region.shape
+    while len(found) < max_candidates and remaining.any():
+        det = detect_in_view(image, remaining, config)
+        if not det:
+            break
+        found.append(det)
+        radius = BLANK_RADII * math.sqrt(max(det.area_px, 1) / math.pi) + 1.0
+        u, v = det.center_uv
+        u0, v0 = max(int(u - radius), 0), max(int(v - radius), 0)
+        u1, v1 = min(int(u + radius) + 2, width), min(int(v + radius) + 2, height)
+        vv, uu = np.ogrid[v0:v1, u0:u1]
+        disc = (uu - u) ** 2 + (vv - v) ** 2 <= radius * radius
+        remaining[v0:v1, u0:u1] &= ~disc
+        # A blob's bounding box can reach beyond the disc (an elongated highlight).
+        bu0, bv0, bu1, bv1 = det.bbox
+        remaining[bv0:bv1, bu0:bu1] = False
+    return found
+
+
+def candidate_band(rig: CameraRig, view: int, box: tuple[int, int, int, int],
+                   inverse_depth_m: tuple[float, float]) -> np.ndarray:
+    """Where a highlight of the reference box can appear in another view, ``(H, W)`` bool.
+
+    A virtual light seen inside the reference box ``(u0, v0, u1, v1)`` at inverse depth
+    ``w`` appears in view j moved by ``-w (fx dX_j, fy dY_j)``; over ``w`` in
+    ``inverse_depth_m`` the box sweeps a band along the baseline.
+    """
+    k = rig.intrinsics
+    offset = rig.centers_m[view, :2] - rig.reference_center_m[:2]
+    step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
+    w_lo, w_hi = inverse_depth_m
+    u0, v0, u1, v1 = box
+    band = np.zeros((rig.height, rig.width), dtype=bool)
+    span_px = float(np.hypot(*step)) * (w_hi - w_lo)
+    n = max(2, int(math.ceil(span_px / max(1.0, 0.5 * min(u1 - u0, v1 - v0)))) + 1)
+    for w in np.linspace(w_lo, w_hi, n):
+        du, dv = step * w
+        a0, b0 = int(math.floor(u0 + du)), int(math.floor(v0 + dv))
+        a1, b1 = int(math.ceil(u1 + du)), int(math.ceil(v1 + dv))
+        a0, b0, a1, b1 = max(a0, 0), max(b0, 0), min(a1, rig.width), min(b1, rig.height)
+        if a1 > a0 and b1 > b0:
+            band[b0:b1, a0:a1] = True
+    return band
+
+
+# ---------------------------------------------------------------------- assignment
+@dataclass(frozen=True)
+class _Score:
+    """What one plane explains."""
+
+    plane: Plane
+    matched: np.ndarray  # (K, N) int: candidate index per light and view, -1 if none
+    distance_px: np.ndarray  # (K, N) float, NaN where unmatched
+    predicted_uv: np.ndarray  # (K, N, 2)
+    on_object: np.ndarray  # (K, N) bool
+
+    @property
+    def n_matched(self) -> int:
+        return int(np.count_nonzero(self.matched >= 0))
+
+    @property
+    def n_missing(self) -> int:
+        return int(np.count_nonzero(self.on_object & (self.matched < 0)))
+
+    @property
+    def key(self) -> tuple[int, int, float]:
+        """Larger is better: explained highlights, then fewer missing ones, then residual."""
+        d = self.distance_px[self.matched >= 0]
+        rms = float(np.sqrt(np.mean(d * d))) if d.size else math.inf
+        return (self.n_matched, -self.n_missing, -rms)
+
+
+def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
+                  candidates_uv, *, tolerance_px: float = 2.0, min_views: int = 2,
+                  object_depth_m: tuple[float, float] = (0.2, 10.0)) -> LightsSolution:
+    """Match highlight candidates to known lights and fit the plane they share.
+
+    Parameters
+    ----------
+    rig : CameraRig
+        The rectified rig (camera centres differ in x and y only).
+    lights_m : array_like, (K, 3), metres
+        The lights, array frame.
+    mask : numpy.ndarray, (H, W) bool
+        The object in the reference view; a predicted highlight counts as "on the
+        object" in a view when the plane point that reflects it there lies in the mask.
+    candidates_uv : sequence of N array_like, each (m_j, 2), pixels
+        Highlight candidates per view (any order; the reference view's must lie on
+        the object).
+    tolerance_px : float
+        A candidate explains a predicted highlight within this distance.
+    min_views : int
+        A light's highlight must be assigned in at least this many views for the
+        object to be solved.
+    object_depth_m : (float, float)
+        Plausible depth range of the object (reference camera z): planes outside it at
+        the reference highlight are not proposed.
+
+    Returns
+    -------
+    LightsSolution
+    """
+    lights = np.atleast_2d(np.asarray(lights_m, dtype=np.float64))
+    cands = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in candidates_uv]
+    ref = rig.reference
+    context = _Context(rig, lights, mask, cands, tolerance_px, object_depth_m, min_views)
+    if len(cands[ref]) == 0:
+        return _no_plane("no_highlight", "reference view: no highlight candidate on the "
+                         "object", cands)
+    scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
+    if not scores:
+        return _no_plane("too_few_views", "no reference candidate has a partner on its "
+                         "baseline line in another view at a plausible depth for any light "
+                         f"({sum(len(c) for c in cands)} candidates in {len(cands)} views)",
+                         cands, hypotheses=context.n_proposed)
+    scores.sort(key=lambda s: s.key, reverse=True)
+    best = context.refit(scores[0])
+    # The strongest rival: the best hypothesis whose plane is a different answer.
+    rival = next((s for s in scores[1:]
+                  if context.plane_gap_px(s.plane, best.plane) > SAME_PLANE_PX), None)
+    if rival is not None:
+        rival = context.refit(rival)
+        if context.plane_gap_px(rival.plane, best.plane) <= SAME_PLANE_PX:
+            rival = None
+    solution = context.solution(best, rival)
+    return solution
+
+
+def _no_plane(status: str, reason: str, cands, hypotheses: int = 0) -> LightsSolution:
+    return LightsSolution(status, reason, None, (), math.nan, hypotheses, "", tuple(cands))
+
+
+class _Context:
+    """The fixed inputs of one assignment and the geometry every hypothesis shares."""
+
+    def __init__(self, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, cands,
+                 tolerance_px: float, object_depth_m, min_views: int) -> None:
+        self.rig = rig
+        self.min_views = int(min_views)
+        self.lights = lights
+        self.mask = mask
+        self.cands = cands
+        self.tolerance_px = float(tolerance_px)
+        self.object_depth_m = object_depth_m
+        self.n_proposed = 0
+        k = rig.intrinsics
+        offsets = rig.centers_m - rig.reference_center_m
+        self.steps = np.stack([-k.fx * offsets[:, 0], -k.fy * offsets[:, 1]], axis=1)  # (N, 2)
+        ys, xs = np.nonzero(mask)
+        self.box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+        u0, v0, u1, v1 = self.box
+        corners = np.array([[u0, v0], [u1 - 1, v0], [u0, v1 - 1], [u1 - 1, v1 - 1]], float)
+        self.corner_rays = rig.rays(corners)
+
+    # -------------------------------------------------------------- proposals
+    def proposals(self):
+        """Candidate planes: a reference candidate, a partner on its line, a light."""
+        rig, ref = self.rig, self.rig.reference
+        seen: set[tuple[int, int, int]] = set()
+        for r, c_ref in enumerate(self.cands[ref]):
+            ray = rig.rays(c_ref)
+            for j in range(rig.n_cameras):
+                step = self.steps[j]
+                norm2 = float(step @ step)
+                if j == ref or norm2 == 0.0 or len(self.cands[j]) == 0:
+                    continue
+                d = self.cands[j] - c_ref
+                w = d @ step / norm2  # inverse depth of the virtual light
+                perp = np.abs(d[:, 0] * step[1] - d[:, 1] * step[0]) / math.sqrt(norm2)
+                for q in np.flatnonzero((perp <= self.tolerance_px) & (w > 0.0)):
+                    # Proposals from the same reference candidate at the same depth
+                    # (to half a pixel of shift in the widest view) are one.
+                    key = (r, int(round(float(w[q]) * float(np.max(np.abs(self.steps))) * 2)), 0)
+                    virtual = rig.reference_center_m + ray / float(w[q])
+                    for light_index, light in enumerate(self.lights):
+                        if (key[0], key[1], light_index) in seen:
+                            continue
+                        seen.add((key[0], key[1], light_index))
+                        self.n_proposed += 1
+                        plane = self._plane(light, virtual, ray)
+                        if plane is not None:
+                            yield plane
+
+    def _plane(self, light: np.ndarray, virtual: np.ndarray, ray: np.ndarray) -> Plane | None:
+        """The bisector plane of a light and a virtual light, if a plausible one."""
+        rig = self.rig
+        if np.linalg.norm(virtual - light) < 1e-9:
+            return None
+        plane = plane_from_lights(light, virtual, rig.reference_center_m)
+        if not self._plausible(plane):
+            return None
+        # The reflection point of the reference candidate must be at a plausible depth.
+        n = plane.n
+        t = (plane.offset_m - float(n @ rig.reference_center_m)) / float(n @ ray)
+        if not (self.object_depth_m[0] <= t <= self.object_depth_m[1]):
+            return None
+        return plane
+
+    def _plausible(self, plane: Plane) -> bool:
+        n = plane.n
+        if not (np.all(np.isfinite(n)) and n[2] < 0.0):
+            return False
+        if np.any(plane.signed_distance(self.rig.centers_m) <= 0.0):
+            return False
+        return bool(np.all(plane.signed_distance(self.lights) > 0.0))
+
+    # -------------------------------------------------------------- scoring
+    def predict(self, plane: Plane):
+        """Predicted highlight ``(K, N, 2)`` and whether it is on the object ``(K, N)``."""
+        rig = self.rig
+        virtual = plane.mirror(self.lights)  # (K, 3)
+        centers = rig.centers_m  # (N, 3)
+        offsets = centers - rig.reference_center_m
+        # Seen from camera j, a point X is X - (C_j - C_ref) seen from the reference.
+        moved = virtual[:, None, :] - offsets[None, :, :]  # (K, N, 3)
+        uv = rig.project(moved.reshape(-1, 3)).reshape(len(virtual), len(centers), 2)
+        # The plane point that reflects the light towards camera j: where the segment
+        # from C_j to V crosses the plane.
+        n, c = plane.n, plane.offset_m
+        direction = virtual[:, None, :] - centers[None, :, :]
+        height = c - centers @ n  # (N,) < 0 for cameras in front
+        t = height[None, :] / (direction @ n)
+        points = centers[None, :, :] + t[..., None] * direction
+        ref_uv = rig.project(points.reshape(-1, 3)).reshape(uv.shape)
+        ru = np.rint(ref_uv[..., 0]).astype(np.int64)
+        rv = np.rint(ref_uv[..., 1]).astype(np.int64)
+        h, w = self.mask.shape
+        inside = (ru >= 0) & (ru < w) & (rv >= 0) & (rv < h) & (t > 0) & (t < 1)
+        on_object = np.zeros(inside.shape, dtype=bool)
+        on_object[inside] = self.mask[rv[inside], ru[inside]]
+        return uv, on_object
+
+    def score(self, plane: Plane | None) -> _Score | None:
+        if plane is None:
+            return None
+        uv, on_object = self.predict(plane)
+        n_lights, n_views = on_object.shape
+        matched = np.full((n_lights, n_views), -1)
+        distance = np.full((n_lights, n_views), np.nan)
+        for j in range(n_views):
+            cand = self.cands[j]
+            if len(cand) == 0:
+                continue
+            gaps = np.linalg.norm(uv[:, j, None, :] - cand[None, :, :], axis=2)  # (K, m)
+            # Nearest first; a candidate explains one light at most.
+            taken: set[int] = set()
+            for flat in np.argsort(gaps, axis=None):
+                light, q = divmod(int(flat), len(cand))
+                if gaps[light, q] > self.tolerance_px:
+                    break
+                if matched[light, j] >= 0 or q in taken:
+                    continue
+                matched[light, j] = q
+                distance[light, j] = gaps[light, q]
+                taken.add(q)
+        if np.count_nonzero(matched >= 0) < 2:
+            return None
+        return _Score(plane, matched, distance, uv, on_object)
+
+    # -------------------------------------------------------------- the joint plane
+    def refit(self, score: _Score) -> _Score:
+        """Fit the plane to every highlight it explains, match again; repeat."""
+        for _ in range(_REFIT_ROUNDS):
+            plane = self._fit(score)
+            again = self.score(plane) if plane is not None and self._plausible(plane) else None
+            if again is None or again.key < score.key:
+                return score
+            settled = np.array_equal(again.matched, score.matched)
+            score = again
+            if settled:
+                break
+        return score
+
+    def _fit(self, score: _Score) -> Plane | None:
+        """Least-squares plane: predicted minus assigned centres over every assignment."""
+        rig = self.rig
+        light_idx, view_idx = np.nonzero(score.matched >= 0)
+        observed = np.stack([self.cands[j][score.matched[k, j]]
+                             for k, j in zip(light_idx, view_idx, strict=True)])
+        offsets = rig.centers_m - rig.reference_center_m
+        n0, c0 = score.plane.n, score.plane.offset_m
+        helper = np.eye(3)[int(np.argmin(np.abs(n0)))]
+        e1 = np.cross(n0, helper)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n0, e1)
+        lights = self.lights[light_idx]
+        moved_by = offsets[view_idx]
+
+        def plane_of(p):
+            m = n0 + p[0] * e1 + p[1] * e2
+            return m / np.linalg.norm(m), c0 + p[2]
+
+        def residuals(p):
+            n, c = plane_of(p)
+            virtual = lights - 2.0 * ((lights @ n) - c)[:, None] * n
+            return (rig.project(virtual - moved_by) - observed).ravel()
+
+        if len(observed) < 2:
+            return None
+        fit = least_squares(residuals, np.zeros(3), method="trf", x_scale="jac")
+        if not fit.success or not np.all(np.isfinite(fit.x)):
+            return None
+        n, c = plane_of(fit.x)
+        return Plane(tuple(float(v) for v in n), float(c))
+
+    def plane_gap_px(self, a: Plane, b: Plane) -> float:
+        """Largest disparity difference of two planes at the object's box corners, px."""
+        rig = self.rig
+        scale = rig.intrinsics.fx * rig.baseline_m
+        out = []
+        for plane in (a, b):
+            n = plane.n
+            out.append(scale * (self.corner_rays @ n)
+                       / (plane.offset_m - float(n @ rig.reference_center_m)))
+        return float(np.max(np.abs(out[0] - out[1])))
+
+    # -------------------------------------------------------------- the answer
+    def solution(self, best: _Score, rival: _Score | None) -> LightsSolution:
+        rig = self.rig
+        virtual = best.plane.mirror(self.lights)
+        assignments = []
+        for k in range(len(self.lights)):
+            centers = np.full((rig.n_cameras, 2), np.nan)
+            for j in np.flatnonzero(best.matched[k] >= 0):
+                centers[j] = self.cands[j][best.matched[k, j]]
+            residual = np.linalg.norm(centers - best.predicted_uv[k], axis=1)
+            assignments.append(LightAssignment(k, centers, best.predicted_uv[k],
+                                               best.on_object[k], residual, virtual[k]))
+        d = best.distance_px[best.matched >= 0]
+        rms = float(np.sqrt(np.mean(d * d)))
+        evidence = (f"best plane explains {best.n_matched} highlight(s) "
+                    f"({best.n_missing} expected on the object but not found), RMS {rms:.2f} px")
+        if rival is not None:
+            evidence += (f"; the best different plane ({self.plane_gap_px(rival.plane, best.plane):.1f}"
+                         f" px away) explains {rival.n_matched} ({rival.n_missing} missing)")
+        status, reason = "ok", ""
+        if rival is not None and rival.key[:2] >= best.key[:2]:
+            status = "ambiguous"
+            reason = ("lights: two different planes explain the highlights equally well; "
+                      + evidence)
+        elif max(a.n_views for a in assignments) < self.min_views:
+            status = "too_few_views"
+            reason = (f"lights: no light's highlight is assigned in {self.min_views} or more "
+                      "views; " + evidence)
+        return LightsSolution(status, reason, best.plane, tuple(assignments), rms,
+                              self.n_proposed, evidence, tuple(self.cands))
