@@ -19,6 +19,7 @@ from .rig import (
     Camera,
     CameraRig,
     Intrinsics,
+    RigLight,
     project_points,
 )
 from .rotations import (
@@ -44,6 +45,7 @@ __all__ = [
     "Intrinsics",
     "Camera",
     "CameraRig",
+    "RigLight",
     "RIG_FORMAT",
     "project_points",
     "rotation_from_vector",
