@@ -15,6 +15,7 @@ from .plane import (
     plane_from_lights,
 )
 from .rig import (
+    MAX_LIGHTS,
     RIG_FORMAT,
     Camera,
     CameraRig,
@@ -47,6 +48,7 @@ __all__ = [
     "CameraRig",
     "RigLight",
     "RIG_FORMAT",
+    "MAX_LIGHTS",
     "project_points",
     "rotation_from_vector",
     "rotation_to_vector",
