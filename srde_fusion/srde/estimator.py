@@ -52,6 +52,7 @@ from ..geometry import (
 from .backends import DetectionRequest, HighlightBackend, NumpyBackend
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
 from .highlight import HighlightDetection
+from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
 from .result import SRDEResult
 from .search import BaselineSearch
@@ -192,15 +193,19 @@ class SRDE:
                                 min_extent_px=min_extent_px, blob_center=blob_center,
                                 min_contrast=min_contrast, min_area_px=MIN_BLOB_AREA_PX)
         if light is None:
-            light = rig.light
-            if light is None:
+            light = rig.light_positions_m
+            if len(light) == 0:
                 raise LightError("light: expected a light position (x, y, z) in metres, or a rig "
                                  "with a light, got neither")
-        light_m = check_point3(light, "light")
-        reach_m = float(np.max(np.abs(light_m - rig.reference_center_m)))
+        lights_m = check_lights(light)
+        light_m = lights_m[0]
+        reach_m = float(np.max(np.abs(lights_m - rig.reference_center_m)))
         if reach_m > MAX_LIGHT_DISTANCE_M:
             raise LightError(f"light: expected a position within {MAX_LIGHT_DISTANCE_M:g} m of the "
                              f"reference camera, got one {reach_m:.3g} m away")
+        if len(lights_m) > 1 and (method != "default" or backend != "numpy"):
+            raise SRDEError(f"light: several lights need method='default' and backend='numpy', "
+                            f"got method={method!r}, backend={backend!r}")
         if (isinstance(mask_erosion_px, bool) or not isinstance(mask_erosion_px, (int, np.integer))
                 or mask_erosion_px < 0):
             raise SRDEError(f"mask_erosion_px: expected an integer >= 0 (pixels), got "
@@ -227,6 +232,7 @@ class SRDE:
             raise SRDEError(f"refine_lobe: expected one of {list(LOBES)}, got {refine_lobe!r}")
         self.rig = rig
         self.light_m = light_m
+        self.lights_m = lights_m
         self.method = method
         # The paper's method stays the paper's unless asked otherwise.
         self.refine = (method == "default") if refine is None else refine
@@ -290,6 +296,8 @@ class SRDE:
                 return self._failed(
                     "mask_too_small", f"mask: nothing left to search after eroding the "
                     f"{int(mask.sum())}-px mask by {self.mask_erosion_px} px")
+        if len(self.lights_m) > 1:
+            return estimate_with_lights(self, views, mask, search)
         ref = rig.reference
         ref_det = self.backend.detect(views, [DetectionRequest(ref, search)])[0]
         if not ref_det:
@@ -416,9 +424,13 @@ class SRDE:
                           result.virtual_light_m, centers, used, result.residual_px,
                           self.method, result.notes, detections)
 
-    def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None
-                ) -> SRDEResult:
-        """Check the virtual light and the plane, refine it (given views); disparity."""
+    def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None,
+                light=None) -> SRDEResult:
+        """Check the virtual light and the plane, refine it (given views); disparity.
+
+        ``light``: the light ``point`` is the virtual light of (one of several); the
+        SRDE's light by default.
+        """
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}
         shift = max_shift_px(rig, w, used) if np.isfinite(w) else 0.0
@@ -430,7 +442,7 @@ class SRDE:
             return self._failed(
                 "behind_cameras", f"virtual light: triangulated at z = {1.0 / w:.3f} m, behind "
                 f"the cameras (image shift {shift:.2f} px the wrong way)", **fail)
-        light = self.light_m
+        light = self.light_m if light is None else light
         gap = float(np.linalg.norm(point - light))
         reach = float(np.linalg.norm(light - rig.reference_center_m))
         if gap < LIGHT_ON_PLANE_FRACTION * reach:

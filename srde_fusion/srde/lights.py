@@ -27,38 +27,59 @@ view's search region (every blob that stands out, not only the brightest).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..geometry import CameraRig, Plane, plane_from_lights
-from .config import DetectorConfig
-from .highlight import HighlightDetection, detect_in_view
+from .._checks import check_point3
+from ..errors import LightError
+from ..geometry import MAX_LIGHTS, CameraRig, Plane, plane_from_lights
+from ..imaging import luminance
+from .config import BLOB_LEVEL, PEAK_SMOOTHING_SIGMA_PX, DetectorConfig
+from .highlight import HighlightDetection, detect_in_view, search_box, weighted_centroid
+from .search import BaselineSearch
+
+if TYPE_CHECKING:
+    from .estimator import SRDE
+    from .result import SRDEResult
 
 __all__ = [
     "LightAssignment",
     "LightsSolution",
     "assign_lights",
-    "find_candidates",
     "candidate_band",
+    "check_lights",
+    "estimate_with_lights",
+    "find_candidates",
 ]
 
 #: Candidates per view at most (blobs beyond the brightest few are noise or texture).
 MAX_CANDIDATES = 8
 
 
-#: A detected blob is blanked out of the search region over this many times its
-#: half-maximum radius before the next one is sought, so that its own flanks are not
-#: found again as a dimmer blob.
-BLANK_RADII = 2.5
+#: Radius (pixels) of the neighbourhood a highlight's peak is the maximum of.
+PEAK_RADIUS_PX = 3
+
+
+#: Two peaks are two highlights if the luminance between them dips below the dimmer one
+#: by this fraction of its contrast; else they are the flat top of one clipped blob.
+SEPARATING_DIP = 0.2
 
 
 #: Two planes whose disparity differs by less than this over the object's box (pixels)
 #: are the same answer.
 SAME_PLANE_PX = 0.5
+
+
+#: A plane that predicts more on-object highlights that are not there than this fraction
+#: of those it explains is not the answer (two highlights blended into one, a light
+#: hidden): reported "inconsistent" rather than guessed.
+UNEXPLAINED_RATIO = 2.0
 
 
 #: Rounds of "refit the plane to what it explains, then match again".
@@ -173,12 +194,17 @@ class LightsSolution:
 # ---------------------------------------------------------------------- candidates
 def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
                     max_candidates: int = MAX_CANDIDATES) -> list[HighlightDetection]:
-    """Every highlight blob in a view's search region, brightest (most light) first.
+    """Every highlight in a view's search region, brightest first.
 
-    The single-light detector (:func:`~srde_fusion.srde.highlight.detect_in_view`) keeps
-    the blob with the most light; here it runs again on the region with each found blob
-    blanked out (over :data:`BLANK_RADII` times its half-maximum radius), until nothing
-    stands out by the detector's contrast or ``max_candidates`` are found.
+    Two highlights of different lights can lie close enough to merge above one
+    half-maximum level, so the single-light detector's "component with the most light"
+    would return a blend of both. Here every local maximum of the luminance (smoothed
+    at the blob detector's peak scale) that stands out from the region's median by the
+    detector's ``min_contrast`` is a highlight, unless the luminance between it and a
+    brighter one never dips by :data:`SEPARATING_DIP` of its contrast (the flat top of
+    one clipped blob). Each highlight's centre is the light-weighted centroid of the
+    pixels above its own half-maximum level, connected to its peak and nearer to it than
+    to any other peak.
 
     Parameters
     ----------
@@ -187,33 +213,73 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     region : numpy.ndarray, (H, W) bool
         Where to look.
     config : DetectorConfig
-        The blob detector's options (its minimum contrast ends the search).
+        The blob detector's options (encoding, minimum contrast).
     max_candidates : int
 
     Returns
     -------
     list of HighlightDetection
-        Found detections only (possibly none).
+        Found detections only (possibly none), ``score`` = peak contrast.
     """
-    remaining = region.copy()
-    found: list[HighlightDetection] = []
-    height, width = region.shape
-    while len(found) < max_candidates and remaining.any():
-        det = detect_in_view(image, remaining, config)
-        if not det:
+    box = search_box(region, config.margin_px + PEAK_RADIUS_PX)
+    if box is None:
+        return []
+    u0, v0, u1, v1 = box
+    lum = luminance(image[v0:v1, u0:u1], config.encoding)
+    inside = region[v0:v1, u0:u1]
+    smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX,
+                              borderType=cv2.BORDER_REFLECT)
+    background = float(np.median(lum[inside]))
+    side = 2 * PEAK_RADIUS_PX + 1
+    local_max = cv2.dilate(smooth, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side)))
+    peaks = inside & (smooth >= local_max) & (smooth > background + config.min_contrast)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(peaks.view(np.uint8),
+                                                                   connectivity=8)
+    if n <= 1:
+        return []
+    tops = np.array([float(smooth[labels == i].max()) for i in range(1, n)])
+    where = centroids[1:]
+    kept: list[int] = []
+    for i in np.argsort(-tops, kind="stable"):
+        if all(_dips_between(smooth, where[i], where[k], tops[i], background) for k in kept):
+            kept.append(int(i))
+        if len(kept) == max_candidates:
             break
-        found.append(det)
-        radius = BLANK_RADII * math.sqrt(max(det.area_px, 1) / math.pi) + 1.0
-        u, v = det.center_uv
-        u0, v0 = max(int(u - radius), 0), max(int(v - radius), 0)
-        u1, v1 = min(int(u + radius) + 2, width), min(int(v + radius) + 2, height)
-        vv, uu = np.ogrid[v0:v1, u0:u1]
-        disc = (uu - u) ** 2 + (vv - v) ** 2 <= radius * radius
-        remaining[v0:v1, u0:u1] &= ~disc
-        # A blob's bounding box can reach beyond the disc (an elongated highlight).
-        bu0, bv0, bu1, bv1 = det.bbox
-        remaining[bv0:bv1, bu0:bu1] = False
+    # Each pixel belongs to its nearest kept peak.
+    vv, uu = np.mgrid[0:v1 - v0, 0:u1 - u0]
+    gaps = np.stack([(uu - where[i][0]) ** 2 + (vv - where[i][1]) ** 2 for i in kept])
+    nearest = np.argmin(gaps, axis=0)
+    found = []
+    for rank, i in enumerate(kept):
+        level = background + BLOB_LEVEL * (tops[i] - background)
+        above = inside & (nearest == rank) & (lum > level)
+        count, parts = cv2.connectedComponents(above.view(np.uint8), connectivity=8)
+        pu, pv = (int(round(c)) for c in where[i])
+        label = parts[pv, pu] if above[pv, pu] else 0
+        if label == 0:  # the smoothed peak sits beside its pixels: take the largest part
+            if count <= 1:
+                continue
+            label = 1 + int(np.argmax(np.bincount(parts[above], minlength=count)[1:]))
+        blob = parts == label
+        weights = np.where(blob, lum - level, 0.0)
+        ys, xs = np.nonzero(blob)
+        center = weighted_centroid(weights) + np.array([u0, v0], dtype=np.float64)
+        bbox = (int(xs.min()) + u0, int(ys.min()) + v0, int(xs.max()) + 1 + u0,
+                int(ys.max()) + 1 + v0)
+        found.append(HighlightDetection(True, center, int(blob.sum()), bbox,
+                                        float(tops[i] - background), "", float(level)))
     return found
+
+
+def _dips_between(smooth: np.ndarray, a, b, top: float, background: float) -> bool:
+    """Whether the luminance dips between two peaks (so they are two highlights)."""
+    length = float(np.hypot(*(np.asarray(b) - np.asarray(a))))
+    steps = max(2, int(math.ceil(length)) + 1)
+    t = np.linspace(0.0, 1.0, steps)
+    us = np.rint(a[0] + t * (b[0] - a[0])).astype(np.intp)
+    vs = np.rint(a[1] + t * (b[1] - a[1])).astype(np.intp)
+    low = float(smooth[vs, us].min())
+    return low < top - SEPARATING_DIP * (top - background)
 
 
 def candidate_band(rig: CameraRig, view: int, box: tuple[int, int, int, int],
@@ -381,7 +447,7 @@ class _Context:
                             yield plane
 
     def _plane(self, light: np.ndarray, virtual: np.ndarray, ray: np.ndarray) -> Plane | None:
-        """The bisector plane of a light and a virtual light, if a plausible one."""
+        """Return the bisector plane of a light and a virtual light, if a plausible one."""
         rig = self.rig
         if np.linalg.norm(virtual - light) < 1e-9:
             return None
@@ -530,16 +596,95 @@ class _Context:
         evidence = (f"best plane explains {best.n_matched} highlight(s) "
                     f"({best.n_missing} expected on the object but not found), RMS {rms:.2f} px")
         if rival is not None:
-            evidence += (f"; the best different plane ({self.plane_gap_px(rival.plane, best.plane):.1f}"
-                         f" px away) explains {rival.n_matched} ({rival.n_missing} missing)")
+            gap_px = self.plane_gap_px(rival.plane, best.plane)
+            evidence += (f"; the best different plane ({gap_px:.1f} px away) explains "
+                         f"{rival.n_matched} ({rival.n_missing} missing)")
         status, reason = "ok", ""
         if rival is not None and rival.key[:2] >= best.key[:2]:
             status = "ambiguous"
             reason = ("lights: two different planes explain the highlights equally well; "
                       + evidence)
+        elif best.n_missing * UNEXPLAINED_RATIO > best.n_matched:
+            status = "inconsistent"
+            reason = (f"lights: the best plane predicts {best.n_missing} highlight(s) on the "
+                      f"object that are not there, more than 1/{UNEXPLAINED_RATIO:g} of the "
+                      f"{best.n_matched} it explains (blended or hidden highlights); " + evidence)
         elif max(a.n_views for a in assignments) < self.min_views:
             status = "too_few_views"
             reason = (f"lights: no light's highlight is assigned in {self.min_views} or more "
                       "views; " + evidence)
         return LightsSolution(status, reason, best.plane, tuple(assignments), rms,
                               self.n_proposed, evidence, tuple(self.cands))
+
+
+# ---------------------------------------------------------------------- in SRDE
+def check_lights(lights: Any) -> np.ndarray:
+    """Validate one light ``(3,)`` or several ``(K, 3)`` (metres); return ``(K, 3)`` float64."""
+    try:
+        arr = np.asarray(lights, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise LightError(f"light: expected 3 numbers (x, y, z) in metres or K rows of them, "
+                         f"got {lights!r:.80}") from None
+    if arr.ndim == 1:
+        return check_point3(arr, "light")[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3 or not 1 <= len(arr) <= MAX_LIGHTS:
+        raise LightError(f"light: expected (x, y, z) in metres or (K, 3) with 1 <= K <= "
+                         f"{MAX_LIGHTS}, got an array of shape {arr.shape}")
+    for i, row in enumerate(arr):
+        check_point3(row, f"light[{i}]")
+    return arr
+
+
+def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
+                         ) -> SRDEResult:
+    """:meth:`SRDE.estimate` with several known lights (``srde.lights_m``).
+
+    Candidates in the reference search region and, in every other view, in the band
+    where a highlight of the object can appear for any light; :func:`assign_lights`
+    matches them to the lights and fits the plane. The plane then goes through the same
+    checks (and, with ``srde.refine``, the same photometric refinement, on the
+    highlights of the light seen in most views) as a single light's.
+    """
+    rig, config = srde.rig, srde.config
+    ref = rig.reference
+    ref_found = find_candidates(views[ref], search, config)
+    if not ref_found:
+        reason = detect_in_view(views[ref], search, config).reason
+        return srde._failed("no_highlight", f"{srde._view(ref)}: {reason}")
+    # Inverse depths of a virtual light seen at any reference candidate, for any light.
+    w_range = [BaselineSearch(rig, light, srde.object_depth_m).inverse_depth_range(d.center_uv)
+               for light in srde.lights_m for d in ref_found]
+    w_lo, w_hi = min(w[0] for w in w_range), max(w[1] for w in w_range)
+    ys, xs = np.nonzero(search)
+    box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    found: list[list[HighlightDetection]] = []
+    for j in range(rig.n_cameras):
+        if j == ref:
+            found.append(ref_found)
+        else:
+            band = candidate_band(rig, j, box, (w_lo, w_hi))
+            found.append(find_candidates(views[j], band, config) if band.any() else [])
+    cands = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
+    solution = assign_lights(rig, srde.lights_m, mask, cands,
+                             tolerance_px=2.0 * srde.max_residual_px,
+                             min_views=srde.min_views, object_depth_m=srde.object_depth_m)
+    if not solution.ok:
+        status = solution.status
+        return dataclasses.replace(srde._failed(status, solution.reason), lights=solution)
+    # The light seen in most views (then with the smallest residual) carries the checks
+    # and the refinement; the joint plane mirrors it onto its own virtual light.
+    main = max((a for a in solution.assignments if a.n_views),
+               key=lambda a: (a.n_views, -float(np.nanmax(a.residuals_px))))
+    used = np.isfinite(main.centers_uv[:, 0])
+    notes = tuple(
+        f"light {a.light}: highlight expected on the object but not found in view(s) "
+        f"{list(a.missing_views)}" for a in solution.assignments if a.missing_views)
+    point = main.virtual_light_m
+    w = 1.0 / (point[2] - rig.reference_center_m[2])
+    detections = tuple(
+        next((d for d in found[j] if np.allclose(d.center_uv, main.centers_uv[j])),
+             HighlightDetection.missing(f"no highlight of light {main.light}"))
+        for j in range(rig.n_cameras))
+    result = srde._finish(mask, point, w, used, main.centers_uv, detections, notes,
+                          views=views, light=srde.lights_m[main.light])
+    return dataclasses.replace(result, lights=solution)

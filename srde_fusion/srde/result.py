@@ -15,6 +15,7 @@ from ..geometry import (
     Plane,
 )
 from .highlight import HighlightDetection
+from .lights import LightsSolution
 from .refine import PlaneRefinement
 
 __all__ = [
@@ -78,6 +79,9 @@ class SRDEResult:
         The photometric refinement of the plane (default method), refined or not; None
         if it did not run. ``virtual_light_m`` is the light mirrored across the returned
         plane; ``residual_px`` stays the triangulation's.
+    lights : LightsSolution or None
+        With several lights: which highlight belongs to which light, the evidence, and the
+        joint plane (:func:`~srde_fusion.srde.lights.assign_lights`); None with one light.
     """
 
     status: str
@@ -94,6 +98,7 @@ class SRDEResult:
     notes: tuple[str, ...] = ()
     detections: tuple[HighlightDetection, ...] = field(default=(), repr=False)
     refinement: PlaneRefinement | None = field(default=None, repr=False)
+    lights: LightsSolution | None = field(default=None, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -126,6 +131,7 @@ class SRDEResult:
             "highlight_centers_px": np.asarray(self.highlight_centers, dtype=np.float64),
             "used_views": np.asarray(self.used_views, dtype=bool).ravel(),
             "residual_px": self.residual_px,
+            **({} if self.lights is None else {"lights": self.lights.to_dict()}),
         })
 
     def __bool__(self) -> bool:
