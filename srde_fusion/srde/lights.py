@@ -42,6 +42,7 @@ from ..geometry import MAX_LIGHTS, CameraRig, Plane, plane_from_lights
 from ..imaging import luminance
 from .config import BLOB_LEVEL, PEAK_SMOOTHING_SIGMA_PX, DetectorConfig
 from .highlight import HighlightDetection, detect_in_view, search_box, weighted_centroid
+from .refine.samples import references_from_views
 from .search import BaselineSearch
 
 if TYPE_CHECKING:
@@ -66,6 +67,11 @@ MAX_CANDIDATES = 8
 PEAK_RADIUS_PX = 3
 
 
+#: Maxima within this fraction of the contrast of their neighbourhood's maximum are one
+#: plateau (the flat top of a clipped blob, with rounding noise on it).
+PLATEAU_SLACK = 1e-3
+
+
 #: Two peaks are two highlights if the luminance between them dips below the dimmer one
 #: by this fraction of its contrast; else they are the flat top of one clipped blob.
 SEPARATING_DIP = 0.2
@@ -76,9 +82,9 @@ SEPARATING_DIP = 0.2
 SAME_PLANE_PX = 0.5
 
 
-#: A plane that predicts more on-object highlights that are not there than this fraction
-#: of those it explains is not the answer (two highlights blended into one, a light
-#: hidden): reported "inconsistent" rather than guessed.
+#: A plane with more evidence against it (predicted on-object highlights that are not
+#: there, on-object blobs no light explains) than this fraction of the highlights it
+#: explains is not the answer: reported "inconsistent" rather than guessed.
 UNEXPLAINED_RATIO = 2.0
 
 
@@ -232,15 +238,18 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     background = float(np.median(lum[inside]))
     side = 2 * PEAK_RADIUS_PX + 1
     local_max = cv2.dilate(smooth, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side)))
-    peaks = inside & (smooth >= local_max) & (smooth > background + config.min_contrast)
+    # (A clipped blob's flat top is one plateau of near-equal maxima: the slack joins it.)
+    slack = PLATEAU_SLACK * max(float(local_max.max()) - background, 0.0)
+    peaks = inside & (smooth >= local_max - slack) & (smooth > background + config.min_contrast)
     n, labels, stats, centroids = cv2.connectedComponentsWithStats(peaks.view(np.uint8),
                                                                    connectivity=8)
     if n <= 1:
         return []
-    tops = np.array([float(smooth[labels == i].max()) for i in range(1, n)])
-    where = centroids[1:]
+    tops = np.zeros(n)
+    np.maximum.at(tops, labels[peaks], smooth[peaks])
+    tops, where = tops[1:], centroids[1:]
     kept: list[int] = []
-    for i in np.argsort(-tops, kind="stable"):
+    for i in np.argsort(-tops, kind="stable")[:4 * max_candidates]:
         if all(_dips_between(smooth, where[i], where[k], tops[i], background) for k in kept):
             kept.append(int(i))
         if len(kept) == max_candidates:
@@ -318,6 +327,8 @@ class _Score:
     distance_px: np.ndarray  # (K, N) float, NaN where unmatched
     predicted_uv: np.ndarray  # (K, N, 2)
     on_object: np.ndarray  # (K, N) bool
+    missing: np.ndarray  # (K, N) bool: on the object, unexplained, and dark there
+    n_strays: int  # candidates on the object that no light explains
 
     @property
     def n_matched(self) -> int:
@@ -325,19 +336,25 @@ class _Score:
 
     @property
     def n_missing(self) -> int:
-        return int(np.count_nonzero(self.on_object & (self.matched < 0)))
+        return int(np.count_nonzero(self.missing))
+
+    @property
+    def n_against(self) -> int:
+        """Evidence against the plane: missing highlights and stray candidates."""
+        return self.n_missing + self.n_strays
 
     @property
     def key(self) -> tuple[int, int, float]:
-        """Larger is better: explained highlights, then fewer missing ones, then residual."""
+        """Larger is better: explained highlights, then less evidence against, then residual."""
         d = self.distance_px[self.matched >= 0]
         rms = float(np.sqrt(np.mean(d * d))) if d.size else math.inf
-        return (self.n_matched, -self.n_missing, -rms)
+        return (self.n_matched, -self.n_against, -rms)
 
 
 def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
                   candidates_uv, *, tolerance_px: float = 2.0, min_views: int = 2,
-                  object_depth_m: tuple[float, float] = (0.2, 10.0)) -> LightsSolution:
+                  object_depth_m: tuple[float, float] = (0.2, 10.0),
+                  lit=None) -> LightsSolution:
     """Match highlight candidates to known lights and fit the plane they share.
 
     Parameters
@@ -360,6 +377,13 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
     object_depth_m : (float, float)
         Plausible depth range of the object (reference camera z): planes outside it at
         the reference highlight are not proposed.
+    lit : callable, optional
+        ``lit(j, uv)`` -> ``(M,)`` bool: whether view j is bright (a highlight, possibly
+        not its centre) at pixels ``uv`` ``(M, 2)``. A highlight predicted on the object
+        where no candidate explains it counts against a plane only where the view is
+        dark there: two lights' highlights blended into one blob, or a highlight cut by
+        the outline, have a centre that explains neither, yet they are there. Without it
+        every unexplained on-object prediction counts as missing.
 
     Returns
     -------
@@ -368,7 +392,7 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
     lights = np.atleast_2d(np.asarray(lights_m, dtype=np.float64))
     cands = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in candidates_uv]
     ref = rig.reference
-    context = _Context(rig, lights, mask, cands, tolerance_px, object_depth_m, min_views)
+    context = _Context(rig, lights, mask, cands, lit, tolerance_px, object_depth_m, min_views)
     if len(cands[ref]) == 0:
         return _no_plane("no_highlight", "reference view: no highlight candidate on the "
                          "object", cands)
@@ -398,9 +422,10 @@ def _no_plane(status: str, reason: str, cands, hypotheses: int = 0) -> LightsSol
 class _Context:
     """The fixed inputs of one assignment and the geometry every hypothesis shares."""
 
-    def __init__(self, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, cands,
+    def __init__(self, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, cands, lit,
                  tolerance_px: float, object_depth_m, min_views: int) -> None:
         self.rig = rig
+        self.lit = lit
         self.min_views = int(min_views)
         self.lights = lights
         self.mask = mask
@@ -518,9 +543,37 @@ class _Context:
                 matched[light, j] = q
                 distance[light, j] = gaps[light, q]
                 taken.add(q)
+        missing = on_object & (matched < 0)
+        if self.lit is not None:
+            # Unexplained but bright: a blended or cut highlight, not a missing one.
+            for j in range(n_views):
+                ask = np.flatnonzero(missing[:, j])
+                if ask.size:
+                    missing[ask, j] &= ~self.lit(j, uv[ask, j])
         if np.count_nonzero(matched >= 0) < 2:
             return None
-        return _Score(plane, matched, distance, uv, on_object)
+        return _Score(plane, matched, distance, uv, on_object, missing,
+                      self._strays(plane, matched))
+
+    def _strays(self, plane: Plane, matched: np.ndarray) -> int:
+        """Candidates that lie on the object (by ``plane``) and that no light explains.
+
+        With every light known, each highlight on the object belongs to one of them.
+        """
+        rig = self.rig
+        maps = references_from_views(rig, plane)
+        h, w = self.mask.shape
+        count = 0
+        for j, cand in enumerate(self.cands):
+            free = np.setdiff1d(np.arange(len(cand)), matched[:, j])
+            if free.size == 0:
+                continue
+            ref_uv = cand[free] @ maps[j, :, :2].T + maps[j, :, 2]
+            u = np.rint(ref_uv[:, 0]).astype(np.intp)
+            v = np.rint(ref_uv[:, 1]).astype(np.intp)
+            ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            count += int(np.count_nonzero(self.mask[v[ok], u[ok]]))
+        return count
 
     # -------------------------------------------------------------- the joint plane
     def refit(self, score: _Score) -> _Score:
@@ -593,22 +646,25 @@ class _Context:
                                                best.on_object[k], residual, virtual[k]))
         d = best.distance_px[best.matched >= 0]
         rms = float(np.sqrt(np.mean(d * d)))
-        evidence = (f"best plane explains {best.n_matched} highlight(s) "
-                    f"({best.n_missing} expected on the object but not found), RMS {rms:.2f} px")
+        evidence = (f"best plane explains {best.n_matched} highlight(s), RMS {rms:.2f} px; "
+                    f"{best.n_missing} predicted on the object are not there, "
+                    f"{best.n_strays} on the object belong to no light")
         if rival is not None:
             gap_px = self.plane_gap_px(rival.plane, best.plane)
             evidence += (f"; the best different plane ({gap_px:.1f} px away) explains "
-                         f"{rival.n_matched} ({rival.n_missing} missing)")
+                         f"{rival.n_matched} ({rival.n_missing} missing, {rival.n_strays} "
+                         "stray)")
         status, reason = "ok", ""
         if rival is not None and rival.key[:2] >= best.key[:2]:
             status = "ambiguous"
             reason = ("lights: two different planes explain the highlights equally well; "
                       + evidence)
-        elif best.n_missing * UNEXPLAINED_RATIO > best.n_matched:
+        elif best.n_against * UNEXPLAINED_RATIO > best.n_matched:
             status = "inconsistent"
-            reason = (f"lights: the best plane predicts {best.n_missing} highlight(s) on the "
-                      f"object that are not there, more than 1/{UNEXPLAINED_RATIO:g} of the "
-                      f"{best.n_matched} it explains (blended or hidden highlights); " + evidence)
+            reason = (f"lights: the evidence against the best plane ({best.n_against}) is more "
+                      f"than 1/{UNEXPLAINED_RATIO:g} of the {best.n_matched} highlight(s) it "
+                      "explains (blended or hidden highlights, or an unknown light); "
+                      + evidence)
         elif max(a.n_views for a in assignments) < self.min_views:
             status = "too_few_views"
             reason = (f"lights: no light's highlight is assigned in {self.min_views} or more "
@@ -665,9 +721,24 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             band = candidate_band(rig, j, box, (w_lo, w_hi))
             found.append(find_candidates(views[j], band, config) if band.any() else [])
     cands = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
+    levels = [min((d.level for d in dets), default=math.inf) for dets in found]
+
+    def lit(j: int, uv: np.ndarray) -> np.ndarray:
+        # Mean linear luminance over the 3 x 3 pixels around each point, against the
+        # half-maximum level of the view's dimmest highlight.
+        u = np.clip(np.rint(uv[:, 0]).astype(np.intp), 1, rig.width - 2)
+        v = np.clip(np.rint(uv[:, 1]).astype(np.intp), 1, rig.height - 2)
+        du, dv = np.meshgrid([-1, 0, 1], [-1, 0, 1])
+        pixels = views[j][v[:, None] + dv.ravel(), u[:, None] + du.ravel()]
+        lum = luminance(pixels, config.encoding).mean(axis=1)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] <= rig.width - 1) & (uv[:, 1] >= 0) \
+            & (uv[:, 1] <= rig.height - 1)
+        return inside & (lum > levels[j])
+
     solution = assign_lights(rig, srde.lights_m, mask, cands,
                              tolerance_px=2.0 * srde.max_residual_px,
-                             min_views=srde.min_views, object_depth_m=srde.object_depth_m)
+                             min_views=srde.min_views, object_depth_m=srde.object_depth_m,
+                             lit=lit)
     if not solution.ok:
         status = solution.status
         return dataclasses.replace(srde._failed(status, solution.reason), lights=solution)
