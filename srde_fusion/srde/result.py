@@ -35,6 +35,7 @@ SRDE_STATUSES = (
     "light_on_plane",    # V ~ L: the light lies (nearly) on the plane, the normal is undefined
     "light_behind_plane",  # L on the far side of the plane from the cameras
     "grazing",           # some mask pixel rays meet the plane (nearly) edge-on, or behind
+    "ambiguous",         # several lights: two different planes explain the highlights alike
 )
 
 

@@ -1,0 +1,151 @@
+"""Several known lights: candidates, their assignment to lights, the joint plane, SRDE."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from srde_fusion.errors import LightError, SRDEError
+from srde_fusion.geometry import CameraRig, Plane, plane_disparity
+from srde_fusion.srde import SRDE, SRDE_STATUSES
+from srde_fusion.srde.config import DetectorConfig
+from srde_fusion.srde.lights import assign_lights, check_lights, find_candidates
+from srde_fusion.synthetic import RandomSceneConfig, default_rig, random_scene, render
+from srde_fusion.synthetic.scene import rig_lights
+
+W, H = 640, 480
+PLANE = Plane.from_point_normal([0.02, 0.01, 0.9], [0.15, -0.2, -1.0],
+                                towards_m=(0.0, 0.0, 0.0))
+LIGHTS = np.array([[0.3, -0.2, 0.0], [-0.25, -0.3, 0.05], [0.1, 0.35, 0.0]])
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, image_size=(W, H))
+
+
+def projected(rig, plane, lights, noise_px=0.0, seed=0):
+    """Every light's highlight in every view: the virtual lights' images."""
+    rng = np.random.default_rng(seed)
+    virtual = plane.mirror(lights)
+    offsets = rig.centers_m - rig.reference_center_m
+    return [rig.project(virtual - offsets[j]) + rng.normal(0.0, noise_px, (len(lights), 2))
+            for j in range(rig.n_cameras)]
+
+
+def test_assignment_recovers_each_light_and_the_plane(grid):
+    cands = projected(grid, PLANE, LIGHTS, noise_px=0.05)
+    # Candidates come in no particular order.
+    cands = [c[::-1] if j % 2 else c for j, c in enumerate(cands)]
+    solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands)
+    assert solution.ok, solution.reason
+    assert solution.n_observations == 27
+    truth = projected(grid, PLANE, LIGHTS)
+    for a in solution.assignments:
+        for j in range(grid.n_cameras):
+            np.testing.assert_allclose(a.centers_uv[j], truth[j][a.light], atol=0.3)
+    assert solution.plane.angle_to(PLANE) < 0.05  # degrees
+    gap = plane_disparity(solution.plane, grid) - plane_disparity(PLANE, grid)
+    assert np.nanmax(np.abs(gap)) < 0.05
+    assert solution.residual_px < 0.15
+    assert solution.to_dict()["lights"][2]["views"] == list(range(9))
+
+
+def test_a_stray_blob_is_left_out_and_counted(grid):
+    cands = projected(grid, PLANE, LIGHTS)
+    cands[4] = np.vstack([cands[4], cands[4][0] + [17.0, -9.0]])
+    solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands)
+    assert solution.ok
+    assert solution.n_observations == 27
+    assert "1 on the object belong to no light" in solution.evidence
+
+
+def test_one_light_two_equally_good_blobs_is_ambiguous_not_a_guess():
+    rig = CameraRig.stereo(0.085, fx=600.0, image_size=(W, H))
+    light = LIGHTS[:1]
+    other = Plane.from_point_normal([0.0, 0.0, 0.7], [-0.1, 0.1, -1.0], towards_m=(0, 0, 0))
+    # Each view shows two blobs, each pair consistent with its own plane.
+    cands = [np.vstack([a, b]) for a, b in zip(projected(rig, PLANE, light),
+                                              projected(rig, other, light), strict=True)]
+    solution = assign_lights(rig, light, np.ones((H, W), bool), cands)
+    assert solution.status == "ambiguous"
+    assert "two different planes" in solution.reason
+    assert solution.status in SRDE_STATUSES
+
+
+def test_a_plane_contradicted_by_missing_highlights_is_inconsistent(grid):
+    # Only the first light's highlight is found, but the plane it gives puts the other two
+    # on the object in every view, where the images are dark.
+    cands = [c[:1] for c in projected(grid, PLANE, LIGHTS)]
+    solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands,
+                             lit=lambda j, uv: np.zeros(len(uv), bool))
+    assert solution.status == "inconsistent"
+    assert "evidence against" in solution.reason
+    # Where the images are bright there (blended or cut highlights), nothing speaks against
+    # it -- nor against the planes that give the blobs to either other light: ambiguous.
+    solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands,
+                             lit=lambda j, uv: np.ones(len(uv), bool))
+    assert solution.status == "ambiguous"
+
+
+def test_no_reference_candidate(grid):
+    cands = projected(grid, PLANE, LIGHTS)
+    cands[grid.reference] = np.zeros((0, 2))
+    solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands)
+    assert solution.status == "no_highlight" and solution.plane is None
+
+
+def blobs_image(centers, sigma_px, peak, size=(120, 160)):
+    vv, uu = np.mgrid[0:size[0], 0:size[1]].astype(np.float64)
+    lum = np.full(size, 0.05)
+    for (u, v), p in zip(centers, peak, strict=True):
+        lum += p * np.exp(-((uu - u) ** 2 + (vv - v) ** 2) / (2 * sigma_px**2))
+    return np.clip(lum, 0.0, 1.0).astype(np.float32)
+
+
+def test_candidates_separate_nearby_highlights_and_keep_a_clipped_one_whole():
+    config = DetectorConfig(method="blob", encoding="linear")
+    region = np.ones((120, 160), bool)
+    image = blobs_image([(50.3, 60.2), (72.6, 58.9), (120.0, 40.0)], 3.0, [0.8, 0.5, 3.0])
+    found = find_candidates(image, region, config)
+    centers = np.array([d.center_uv for d in found])
+    assert len(found) == 3
+    # Brightest first: the clipped blob, whose flat top is one highlight.
+    np.testing.assert_allclose(centers[0], [120.0, 40.0], atol=0.05)
+    for truth in ([50.3, 60.2], [72.6, 58.9]):
+        assert np.min(np.linalg.norm(centers - truth, axis=1)) < 0.5
+    assert find_candidates(np.full((120, 160), 0.05, np.float32), region, config) == []
+
+
+def test_check_lights_messages():
+    assert check_lights([0.1, 0.2, 0.3]).shape == (1, 3)
+    assert check_lights(LIGHTS).shape == (3, 3)
+    with pytest.raises(LightError, match="shape"):
+        check_lights(np.zeros((2, 2)))
+    with pytest.raises(LightError, match=r"light\[1\]"):
+        check_lights([[0, 0, 0], [0, np.nan, 0]])
+
+
+def test_several_lights_need_the_default_method(grid):
+    with pytest.raises(SRDEError, match="several lights"):
+        SRDE(grid, light=LIGHTS, method="paper")
+
+
+def test_srde_with_three_rendered_lights_solves_the_plane_and_reports_the_assignment():
+    rig = default_rig()
+    scene = random_scene(7003, rig, config=RandomSceneConfig(n_lights=3))
+    out = render(scene, rig)
+    lit = rig.with_lights(rig_lights(scene))
+    mask = out.object_masks[0]
+    result = SRDE(lit, refine=False).estimate(out.views, mask)
+    assert result.ok, result.reason
+    assert result.lights is not None and result.lights.ok
+    on = out.highlight_on_object[:, 0, :]
+    for a in result.lights.assignments:
+        for j in np.flatnonzero(np.isfinite(a.centers_uv[:, 0])):
+            assert on[a.light, j]
+            assert np.linalg.norm(a.centers_uv[j] - out.highlight_uv_by_light[a.light, 0, j]) < 3
+    assert result.lights.n_observations >= 15
+    epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
+    assert epe < 0.05
+    assert "lights" in result.to_dict()
