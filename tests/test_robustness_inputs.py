@@ -172,7 +172,7 @@ def test_detect_highlight_with_an_empty_region_is_a_result(views):
     ([0.1, np.nan, 0.2], "light: expected 3 finite numbers"),
     ([0.1, np.inf, 0.2], "light: expected 3 finite numbers"),
     ("above", r"light: expected 3 numbers \(x, y, z\) in metres, got 'above'"),
-    ([[0.1, 0.2, 0.3]], "light: expected 3 finite numbers"),
+    ([[0.1, 0.2], [0.3, 0.4]], r"light: expected \(x, y, z\) in metres or \(K, 3\)"),
     ([0.0, -1e200, 0.0], r"light: expected a position within 1e\+12 m of the reference camera, "
      r"got one 1e\+200 m away"),
 ])

@@ -679,8 +679,8 @@ def check_lights(lights: Any) -> np.ndarray:
     try:
         arr = np.asarray(lights, dtype=np.float64)
     except (TypeError, ValueError):
-        raise LightError(f"light: expected 3 numbers (x, y, z) in metres or K rows of them, "
-                         f"got {lights!r:.80}") from None
+        raise LightError(f"light: expected 3 numbers (x, y, z) in metres, got {lights!r:.80}; "
+                         "several lights are K rows of them") from None
     if arr.ndim == 1:
         return check_point3(arr, "light")[None, :]
     if arr.ndim != 2 or arr.shape[1] != 3 or not 1 <= len(arr) <= MAX_LIGHTS:
