@@ -13,8 +13,9 @@ pixel). Every scene is estimated three ways:
 * ``best single light``: ``SRDE`` told of one light at a time, the lowest EPE among
   them -- an oracle that knows which answer is right, the bar for "no worse".
 
-An assignment is wrong when a light is given a candidate that is not the blob nearest to
-that light's true highlight, or a highlight the renderer says is not on the object. A
+An assignment is wrong when an ``ok`` result gives a light a candidate that is not the
+blob nearest to that light's true highlight, or a highlight the renderer says is not on
+the object (failed results use no assignment). A
 plane is wrong when its masked EPE exceeds 1 px. Time: the whole ``estimate`` call
 (geometric only, the refinement off, so that the assignment's own growth with k shows),
 median over scenes, beside the single-light estimate on the same images.
@@ -104,7 +105,7 @@ def run_scene(rig, seed: int, k: int) -> dict:
     finite = [e for e in singles if np.isfinite(e)]
     record.update(
         status=result.status, reason=result.reason, epe=masked_epe(result, lit, rendering, mask),
-        wrong=wrong_assignments(result, rendering),
+        wrong=wrong_assignments(result, rendering) if result.ok else 0,
         observations=0 if result.lights is None else result.lights.n_observations,
         first_status=first_result.status,
         first_epe=masked_epe(first_result, first, rendering, mask),

@@ -444,32 +444,44 @@ class _Context:
 
     # -------------------------------------------------------------- proposals
     def proposals(self):
-        """Candidate planes: a reference candidate, a partner on its line, a light."""
+        """Candidate planes: a reference candidate, a depth its partners agree on, a light.
+
+        Partners of a reference candidate lie on its baseline lines; each gives the
+        virtual light's inverse depth ``w``. Partners from different views at the same
+        ``w`` (within the tolerance) are one virtual light seen several times: only depths
+        that two views agree on are proposed when three or more views have candidates,
+        which keeps the proposals from growing with every pairing of unrelated blobs.
+        """
         rig, ref = self.rig, self.rig.reference
-        seen: set[tuple[int, int, int]] = set()
-        for r, c_ref in enumerate(self.cands[ref]):
+        span = float(np.max(np.hypot(self.steps[:, 0], self.steps[:, 1])))
+        others = [j for j in range(rig.n_cameras) if j != ref and len(self.cands[j])
+                  and float(self.steps[j] @ self.steps[j]) > 0.0]
+        need = 2 if len(others) >= 2 else 1
+        for c_ref in self.cands[ref]:
             ray = rig.rays(c_ref)
-            for j in range(rig.n_cameras):
+            depths, views = [], []
+            for j in others:
                 step = self.steps[j]
                 norm2 = float(step @ step)
-                if j == ref or norm2 == 0.0 or len(self.cands[j]) == 0:
-                    continue
                 d = self.cands[j] - c_ref
                 w = d @ step / norm2  # inverse depth of the virtual light
                 perp = np.abs(d[:, 0] * step[1] - d[:, 1] * step[0]) / math.sqrt(norm2)
-                for q in np.flatnonzero((perp <= self.tolerance_px) & (w > 0.0)):
-                    # Proposals from the same reference candidate at the same depth
-                    # (to half a pixel of shift in the widest view) are one.
-                    key = (r, int(round(float(w[q]) * float(np.max(np.abs(self.steps))) * 2)), 0)
-                    virtual = rig.reference_center_m + ray / float(w[q])
-                    for light_index, light in enumerate(self.lights):
-                        if (key[0], key[1], light_index) in seen:
-                            continue
-                        seen.add((key[0], key[1], light_index))
-                        self.n_proposed += 1
-                        plane = self._plane(light, virtual, ray)
-                        if plane is not None:
-                            yield plane
+                keep = (perp <= self.tolerance_px) & (w > 0.0)
+                depths += w[keep].tolist()
+                views += [j] * int(keep.sum())
+            order = np.argsort(depths)
+            depths, views = np.asarray(depths)[order], np.asarray(views)[order]
+            # Runs of depths closer than the tolerance (as a shift in the widest view).
+            breaks = np.flatnonzero(np.diff(depths) * span > self.tolerance_px) + 1
+            for run in np.split(np.arange(len(depths)), breaks):
+                if run.size == 0 or len(set(views[run].tolist())) < need:
+                    continue
+                virtual = rig.reference_center_m + ray / float(np.median(depths[run]))
+                for light in self.lights:
+                    self.n_proposed += 1
+                    plane = self._plane(light, virtual, ray)
+                    if plane is not None:
+                        yield plane
 
     def _plane(self, light: np.ndarray, virtual: np.ndarray, ray: np.ndarray) -> Plane | None:
         """Return the bisector plane of a light and a virtual light, if a plausible one."""
