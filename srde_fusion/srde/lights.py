@@ -82,6 +82,11 @@ SEPARATING_DIP = 0.2
 SAME_PLANE_PX = 0.5
 
 
+#: Two lights' highlights predicted closer than this many half-maximum radii can merge
+#: into one blob.
+BLEND_RADII = 3.0
+
+
 #: A plane with more evidence against it (predicted on-object highlights that are not
 #: there, on-object blobs no light explains) than this fraction of the highlights it
 #: explains is not the answer: reported "inconsistent" rather than guessed.
@@ -107,6 +112,9 @@ class LightAssignment:
     on_object : numpy.ndarray, (N,) bool
         Views where the predicted highlight lands on the object (so a candidate was
         expected there).
+    missing : numpy.ndarray, (N,) bool
+        Views where it lands on the object, no candidate explains it and the view is dark
+        there (not excused as blended with another light's or cut by the outline).
     residuals_px : numpy.ndarray, (N,) float64
         Distance between assigned and predicted centre, pixels; NaN where none.
     virtual_light_m : numpy.ndarray, (3,) float64
@@ -117,6 +125,7 @@ class LightAssignment:
     centers_uv: np.ndarray
     predicted_uv: np.ndarray
     on_object: np.ndarray
+    missing: np.ndarray
     residuals_px: np.ndarray
     virtual_light_m: np.ndarray
 
@@ -128,8 +137,7 @@ class LightAssignment:
     @property
     def missing_views(self) -> tuple[int, ...]:
         """Views where the highlight should be on the object but no candidate was there."""
-        return tuple(int(j) for j in np.flatnonzero(self.on_object
-                                                    & ~np.isfinite(self.centers_uv[:, 0])))
+        return tuple(int(j) for j in np.flatnonzero(self.missing))
 
 
 @dataclass(frozen=True)
@@ -354,7 +362,7 @@ class _Score:
 def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
                   candidates_uv, *, tolerance_px: float = 2.0, min_views: int = 2,
                   object_depth_m: tuple[float, float] = (0.2, 10.0),
-                  lit=None) -> LightsSolution:
+                  lit=None, blob_radius_px: float = 0.0) -> LightsSolution:
     """Match highlight candidates to known lights and fit the plane they share.
 
     Parameters
@@ -384,6 +392,10 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         dark there: two lights' highlights blended into one blob, or a highlight cut by
         the outline, have a centre that explains neither, yet they are there. Without it
         every unexplained on-object prediction counts as missing.
+    blob_radius_px : float
+        Typical half-maximum radius of a highlight, pixels: predictions within
+        :data:`BLEND_RADII` of it of another light's, or whose reflecting point lies
+        closer than it to the outline, may be excused by ``lit``; no others are.
 
     Returns
     -------
@@ -392,7 +404,8 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
     lights = np.atleast_2d(np.asarray(lights_m, dtype=np.float64))
     cands = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in candidates_uv]
     ref = rig.reference
-    context = _Context(rig, lights, mask, cands, lit, tolerance_px, object_depth_m, min_views)
+    context = _Context(rig, lights, mask, cands, lit, tolerance_px, object_depth_m, min_views,
+                       blob_radius_px)
     if len(cands[ref]) == 0:
         return _no_plane("no_highlight", "reference view: no highlight candidate on the "
                          "object", cands)
@@ -423,9 +436,14 @@ class _Context:
     """The fixed inputs of one assignment and the geometry every hypothesis shares."""
 
     def __init__(self, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, cands, lit,
-                 tolerance_px: float, object_depth_m, min_views: int) -> None:
+                 tolerance_px: float, object_depth_m, min_views: int,
+                 blob_radius_px: float) -> None:
         self.rig = rig
         self.lit = lit
+        self.blend_px = BLEND_RADII * float(blob_radius_px)
+        side = 2 * int(math.ceil(blob_radius_px)) + 1
+        self.inner = cv2.erode(np.ascontiguousarray(mask).view(np.uint8),
+                               np.ones((side, side), np.uint8)).view(bool)
         self.min_views = int(min_views)
         self.lights = lights
         self.mask = mask
@@ -530,12 +548,14 @@ class _Context:
         inside = (ru >= 0) & (ru < w) & (rv >= 0) & (rv < h) & (t > 0) & (t < 1)
         on_object = np.zeros(inside.shape, dtype=bool)
         on_object[inside] = self.mask[rv[inside], ru[inside]]
-        return uv, on_object
+        near_edge = on_object.copy()
+        near_edge[inside] &= ~self.inner[rv[inside], ru[inside]]
+        return uv, on_object, near_edge
 
     def score(self, plane: Plane | None) -> _Score | None:
         if plane is None:
             return None
-        uv, on_object = self.predict(plane)
+        uv, on_object, near_edge = self.predict(plane)
         n_lights, n_views = on_object.shape
         matched = np.full((n_lights, n_views), -1)
         distance = np.full((n_lights, n_views), np.nan)
@@ -556,10 +576,14 @@ class _Context:
                 distance[light, j] = gaps[light, q]
                 taken.add(q)
         missing = on_object & (matched < 0)
-        if self.lit is not None:
-            # Unexplained but bright: a blended or cut highlight, not a missing one.
+        if self.lit is not None and self.blend_px > 0.0:
+            # Unexplained but bright where another light's highlight is predicted close by
+            # (one blob of both) or where the outline cuts the blob: not a missing one.
+            gaps = np.linalg.norm(uv[:, None, :, :] - uv[None, :, :, :], axis=3)  # (K, K, N)
+            gaps[np.arange(n_lights), np.arange(n_lights)] = np.inf
+            excusable = np.any(gaps < self.blend_px, axis=1) | near_edge
             for j in range(n_views):
-                ask = np.flatnonzero(missing[:, j])
+                ask = np.flatnonzero(missing[:, j] & excusable[:, j])
                 if ask.size:
                     missing[ask, j] &= ~self.lit(j, uv[ask, j])
         if np.count_nonzero(matched >= 0) < 2:
@@ -655,7 +679,8 @@ class _Context:
                 centers[j] = self.cands[j][best.matched[k, j]]
             residual = np.linalg.norm(centers - best.predicted_uv[k], axis=1)
             assignments.append(LightAssignment(k, centers, best.predicted_uv[k],
-                                               best.on_object[k], residual, virtual[k]))
+                                               best.on_object[k], best.missing[k], residual,
+                                               virtual[k]))
         d = best.distance_px[best.matched >= 0]
         rms = float(np.sqrt(np.mean(d * d)))
         evidence = (f"best plane explains {best.n_matched} highlight(s), RMS {rms:.2f} px; "
@@ -677,6 +702,16 @@ class _Context:
                       f"than 1/{UNEXPLAINED_RATIO:g} of the {best.n_matched} highlight(s) it "
                       "explains (blended or hidden highlights, or an unknown light); "
                       + evidence)
+        elif len(self.lights) > 1 and np.count_nonzero((best.matched >= 0).any(axis=1)) < 2 \
+                and np.any(best.on_object.sum(axis=1)[(best.matched < 0).all(axis=1)]
+                           >= self.min_views):
+            # Only one light's blobs are explained while other lights are predicted on the
+            # object: nothing ties the blobs to that light rather than to another.
+            status = "ambiguous"
+            lights = np.flatnonzero((best.matched >= 0).any(axis=1)).tolist()
+            reason = (f"lights: only light {lights}'s highlights are explained, while other "
+                      "lights' are predicted on the object and not seen apart (blended or "
+                      "cut); which light the blobs belong to is not established; " + evidence)
         elif max(a.n_views for a in assignments) < self.min_views:
             status = "too_few_views"
             reason = (f"lights: no light's highlight is assigned in {self.min_views} or more "
@@ -750,7 +785,9 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     solution = assign_lights(rig, srde.lights_m, mask, cands,
                              tolerance_px=2.0 * srde.max_residual_px,
                              min_views=srde.min_views, object_depth_m=srde.object_depth_m,
-                             lit=lit)
+                             lit=lit, blob_radius_px=float(np.median(
+                                 [math.sqrt(d.area_px / math.pi) for dets in found
+                                  for d in dets])))
     if not solution.ok:
         status = solution.status
         return dataclasses.replace(srde._failed(status, solution.reason), lights=solution)

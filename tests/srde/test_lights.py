@@ -78,14 +78,18 @@ def test_a_plane_contradicted_by_missing_highlights_is_inconsistent(grid):
     # on the object in every view, where the images are dark.
     cands = [c[:1] for c in projected(grid, PLANE, LIGHTS)]
     solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands,
-                             lit=lambda j, uv: np.zeros(len(uv), bool))
+                             lit=lambda j, uv: np.zeros(len(uv), bool), blob_radius_px=200.0)
     assert solution.status == "inconsistent"
     assert "evidence against" in solution.reason
     # Where the images are bright there (blended or cut highlights), nothing speaks against
     # it -- nor against the planes that give the blobs to either other light: ambiguous.
     solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands,
-                             lit=lambda j, uv: np.ones(len(uv), bool))
+                             lit=lambda j, uv: np.ones(len(uv), bool), blob_radius_px=200.0)
     assert solution.status == "ambiguous"
+    # Bright, but neither next to another light's highlight nor at the outline: missing.
+    solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands,
+                             lit=lambda j, uv: np.ones(len(uv), bool), blob_radius_px=2.0)
+    assert solution.status == "inconsistent"
 
 
 def test_no_reference_candidate(grid):
