@@ -570,8 +570,9 @@ class _Context:
                 light, q = divmod(int(flat), len(cand))
                 if gaps[light, q] > self.tolerance_px:
                     break
-                if matched[light, j] >= 0 or q in taken:
-                    continue
+                if (matched[light, j] >= 0 or q in taken or near_edge[light, j]
+                        or not on_object[light, j]):
+                    continue  # (a blob cut by the outline has its centre off the light's)
                 matched[light, j] = q
                 distance[light, j] = gaps[light, q]
                 taken.add(q)
@@ -592,9 +593,10 @@ class _Context:
                       self._strays(plane, matched))
 
     def _strays(self, plane: Plane, matched: np.ndarray) -> int:
-        """Candidates that lie on the object (by ``plane``) and that no light explains.
+        """Candidates well inside the object (by ``plane``) that no light explains.
 
         With every light known, each highlight on the object belongs to one of them.
+        Near the outline a blob may be the flank of a highlight just off the object.
         """
         rig = self.rig
         maps = references_from_views(rig, plane)
@@ -608,7 +610,7 @@ class _Context:
             u = np.rint(ref_uv[:, 0]).astype(np.intp)
             v = np.rint(ref_uv[:, 1]).astype(np.intp)
             ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-            count += int(np.count_nonzero(self.mask[v[ok], u[ok]]))
+            count += int(np.count_nonzero(self.inner[v[ok], u[ok]]))
         return count
 
     # -------------------------------------------------------------- the joint plane
