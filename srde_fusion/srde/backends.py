@@ -97,11 +97,15 @@ class DetectionRequest:
     level : float or None
         Blob detector: the linear intensity that delimits the blob (the reference
         view's, so that every view of one highlight is measured at one level).
+    bbox : (int, int, int, int) or None
+        The region's bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive, pixels, when
+        the caller knows it (backends then skip finding it); None to let them find it.
     """
 
     view: int
     region: np.ndarray
     level: float | None = None
+    bbox: tuple[int, int, int, int] | None = None
 
 
 class HighlightBackend(Protocol):
@@ -149,7 +153,8 @@ class NumpyBackend:
         """Detect the highlight for each request (see :func:`detect_in_view`)."""
         whites = self.white_references
         return [detect_in_view(frame[r.view], r.region, self.config, level=r.level,
-                               white_reference=None if whites is None else whites[r.view])
+                               white_reference=None if whites is None else whites[r.view],
+                               region_bbox=r.bbox)
                 for r in requests]
 
     def brightest(self, frame: Views, searches: Sequence[tuple[int, Candidates]]) -> list[int]:

@@ -51,7 +51,7 @@ from ..geometry import (
 )
 from .backends import DetectionRequest, HighlightBackend, NumpyBackend
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
-from .highlight import HighlightDetection
+from .highlight import HighlightDetection, search_box
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
 from .result import SRDEResult
 from .search import BaselineSearch
@@ -291,11 +291,16 @@ class SRDE:
                     "mask_too_small", f"mask: nothing left to search after eroding the "
                     f"{int(mask.sum())}-px mask by {self.mask_erosion_px} px")
         ref = rig.reference
-        ref_det = self.backend.detect(views, [DetectionRequest(ref, search)])[0]
+        search_bbox = search_box(search, 0)
+        if search_bbox is None:  # an empty region: the detector says so
+            ref_det = self.backend.detect(views, [DetectionRequest(ref, search)])[0]
+        else:
+            ref_det = self.backend.detect(views, [DetectionRequest(ref, search, None,
+                                                                   search_bbox)])[0]
         if not ref_det:
             return self._failed("no_highlight", f"{self._view(ref)}: {ref_det.reason}",
                                 detections=(ref_det,))
-        detections = self._detect_others(views, ref_det, search)
+        detections = self._detect_others(views, ref_det, search, search_bbox)
         centers = np.full((rig.n_cameras, 2), np.nan)
         for j, det in enumerate(detections):
             if det:
@@ -322,9 +327,12 @@ class SRDE:
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         return cv2.erode(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
 
-    def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray
-                       ) -> list[HighlightDetection]:
-        """Every view's detection: the reference's as given, the others where it can appear."""
+    def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray,
+                       search_bbox: tuple[int, int, int, int]) -> list[HighlightDetection]:
+        """Every view's detection: the reference's as given, the others where it can appear.
+
+        ``search_bbox`` is the bounding box ``(u0, v0, u1, v1)`` of ``search``.
+        """
         rig = self.rig
         others = [j for j in range(rig.n_cameras) if j != rig.reference]
         candidates = {j: self.search.candidates(j, ref_det, search) for j in others}
@@ -332,11 +340,12 @@ class SRDE:
         regions = {}
         if reachable:
             best = self.backend.brightest(views, reachable)
-            regions = {j: self.search.region_at(c, b, search)
+            regions = {j: self.search.region_box_at(c, b, search, search_bbox)
                        for (j, c), b in zip(reachable, best, strict=True)}
         # One level for all views: an asymmetric lobe's centroid depends on it.
         level = None if np.isnan(ref_det.level) else ref_det.level
-        requests = [DetectionRequest(j, r, level) for j, r in regions.items() if r.any()]
+        requests = [DetectionRequest(j, r, level, bbox) for j, (r, bbox) in regions.items()
+                    if bbox is not None]
         found = dict(zip([r.view for r in requests], self.backend.detect(views, requests),
                          strict=True))
         return [ref_det if j == rig.reference

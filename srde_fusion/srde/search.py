@@ -127,26 +127,70 @@ class BaselineSearch:
         return Candidates(step, w_v, centers, pix, shift, ok, sigma, half_diagonal,
                            (int(lo[0]), int(lo[1])), (int(hi[0]), int(hi[1])))
 
-    def region_at(self, cand: Candidates, best: int, search: np.ndarray) -> np.ndarray:
-        """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool."""
+    def region_at(self, cand: Candidates, best: int, search: np.ndarray,
+                  search_bbox: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool.
+
+        ``search_bbox``, the bounding box ``(u0, v0, u1, v1)`` of ``search`` if known,
+        only saves work (see :meth:`region_box_at`).
+        """
+        return self.region_box_at(cand, best, search, search_bbox)[0]
+
+    def region_box_at(self, cand: Candidates, best: int, search: np.ndarray,
+                      search_bbox: tuple[int, int, int, int] | None = None
+                      ) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
+        """Return the search region around candidate ``best`` and its bounding box.
+
+        Parameters
+        ----------
+        cand : Candidates
+        best : int
+            Index of the chosen candidate.
+        search : numpy.ndarray, (H, W) bool
+            The reference view's search region.
+        search_bbox : (int, int, int, int), optional
+            ``(u0, v0, u1, v1)``, inclusive-exclusive, a box holding every pixel of
+            ``search`` (its bounding box). The region lies inside it moved with the
+            highlight, so only that part of the disc is computed; the region is the same.
+
+        Returns
+        -------
+        region : numpy.ndarray, (H, W) bool
+        bbox : (int, int, int, int) or None
+            The region's bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive; None if
+            the region is empty.
+        """
         h, w = self.rig.height, self.rig.width
         radius = CAPSULE_SCALE * cand.half_diagonal_px + CAPSULE_MARGIN_PX
         center = cand.centers[best]
         bu0, bv0 = np.maximum(np.floor(center - radius).astype(int), 0)
         bu1, bv1 = np.minimum(np.ceil(center + radius).astype(int) + 1, [w, h])
-        vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
-        disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
         # Moved with the highlight, the reference region clips the blob the same way in
         # every view, so the clip biases all centroids alike. The paper detector is also
         # kept inside the object as it appears in view j: its edges would be gradient rings.
         moves = [np.rint(cand.step * cand.w_v[best]).astype(int)]
         if self.paper_detector:
             moves.append(cand.shift[best])
+        if search_bbox is not None:
+            # Outside the moved search box every moved window is False: skip those pixels.
+            su0, sv0, su1, sv1 = search_bbox
+            for du, dv in moves:
+                bu0, bv0 = max(bu0, su0 + int(du)), max(bv0, sv0 + int(dv))
+                bu1, bv1 = min(bu1, su1 + int(du)), min(bv1, sv1 + int(dv))
+        region = np.zeros((h, w), dtype=bool)
+        if bu1 <= bu0 or bv1 <= bv0:
+            return region, None
+        vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
+        disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
         for moved in moves:
             disc &= shifted_window(search, moved, (bu0, bv0, bu1, bv1))
-        region = np.zeros((h, w), dtype=bool)
+        rows = np.flatnonzero(disc.any(axis=1))
+        if rows.size == 0:
+            return region, None
+        cols = np.flatnonzero(disc.any(axis=0))
         region[bv0:bv1, bu0:bu1] = disc
-        return region
+        return region, (bu0 + int(cols[0]), bv0 + int(rows[0]), bu0 + int(cols[-1]) + 1,
+                        bv0 + int(rows[-1]) + 1)
 
     def inverse_depth_range(self, center_uv: np.ndarray) -> tuple[float, float]:
         """Range of ``w = 1 / z`` of a virtual light seen at ``center_uv`` in the reference view.
