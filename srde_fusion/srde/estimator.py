@@ -75,6 +75,11 @@ MIN_VIRTUAL_LIGHT_SHIFT_PX = 1.0
 LIGHT_ON_PLANE_FRACTION = 0.01
 
 
+# The grazing check trusts a box whose corner rays are at least this far (degrees) below
+# max_incidence_deg; the angles' rounding is some 1e-12 deg.
+GRAZING_CHECK_MARGIN_DEG = 1e-6
+
+
 # A light farther than this (metres, per coordinate; the sun is 1.5e11 m away) is a
 # placeholder or a unit slip: its virtual light is at infinity for any rig, and far enough
 # out its squared distances overflow.
@@ -335,7 +340,7 @@ class SRDE:
         """
         rig = self.rig
         others = [j for j in range(rig.n_cameras) if j != rig.reference]
-        candidates = {j: self.search.candidates(j, ref_det, search) for j in others}
+        candidates = self.search.all_candidates(others, ref_det, search)
         reachable = [(j, c) for j, c in candidates.items() if c is not None]
         regions = {}
         if reachable:
@@ -471,8 +476,11 @@ class SRDE:
                 notes = (*notes, f"refinement: kept the geometric plane; {refinement.reason}")
         # Rays of the mask's bounding box are separable; a ray per mask pixel costs more.
         box, inside = _mask_box(mask)
-        angle = incidence_angle_deg(plane, rig, window=box)[inside]
-        steep = angle > self.max_incidence_deg
+        if self._grazing_possible(plane, box):
+            angle = incidence_angle_deg(plane, rig, window=box)[inside]
+            steep = angle > self.max_incidence_deg
+        else:
+            steep = np.zeros(0, dtype=bool)
         if steep.any():
             worst = int(np.argmax(angle))
             uv = _mask_uv(mask)
@@ -486,6 +494,22 @@ class SRDE:
                           np.asarray(point, dtype=np.float64),
                           centers, used, residual, self.method, tuple(notes), detections,
                           refinement)
+
+    def _grazing_possible(self, plane, box) -> bool:
+        """Whether any pixel of the box ``(u0, v0, u1, v1)`` may see the plane too obliquely.
+
+        Rays within an angle below 90 deg of a direction form a convex cone, which meets
+        the image plane in a convex set: if the box's corner pixels lie in it, so does
+        every pixel of the box. The corners are checked with a margin far above the
+        angles' rounding, so a False here is exact; True asks for the per-pixel check.
+        """
+        if self.max_incidence_deg >= 90.0 - GRAZING_CHECK_MARGIN_DEG:
+            return True
+        u0, v0, u1, v1 = box
+        corners = np.array([[u0, v0], [u1 - 1, v0], [u0, v1 - 1], [u1 - 1, v1 - 1]],
+                           dtype=np.float64)
+        angle = incidence_angle_deg(plane, self.rig, corners)
+        return not bool(np.all(angle <= self.max_incidence_deg - GRAZING_CHECK_MARGIN_DEG))
 
     def _failed(self, status: str, reason: str, *, centers=None, used=None, detections=(),
                 plane=None, point=None) -> SRDEResult:
@@ -526,7 +550,14 @@ def _mask_uv(mask: np.ndarray) -> np.ndarray:
 
 
 def _rms_residual(rig, point, centers, used) -> float:
-    pred = np.stack([rig.project(point, j) for j in range(rig.n_cameras)])
+    # rig.project's arithmetic for every camera at once.
+    rel = np.asarray(point, dtype=np.float64) - rig.centers_m                       # (N, 3)
+    k = rig.intrinsics
+    z = rel[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(z > 0, k.fx * rel[:, 0] / z + k.cx, np.nan)
+        v = np.where(z > 0, k.fy * rel[:, 1] / z + k.cy, np.nan)
+    pred = np.stack([u, v], axis=-1)
     err = np.linalg.norm(pred - centers, axis=1)[used]
     return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
 

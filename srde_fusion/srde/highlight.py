@@ -447,7 +447,10 @@ def median(values: np.ndarray) -> float:
 def weighted_centroid(weights: np.ndarray) -> np.ndarray:
     """``(u, v)`` centroid of a non-negative weight image (pixel centres at integers)."""
     total = float(weights.sum())
-    vv, uu = np.indices(weights.shape, dtype=np.float64)
+    h, w = weights.shape
+    # Broadcast coordinates make the same products as full index grids, without them.
+    uu = np.arange(w, dtype=np.float64)[None, :]
+    vv = np.arange(h, dtype=np.float64)[:, None]
     return np.array([(weights * uu).sum() / total, (weights * vv).sum() / total])
 
 

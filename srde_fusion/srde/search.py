@@ -82,6 +82,22 @@ class BaselineSearch:
     def candidates(self, j: int, ref_det: HighlightDetection, search: np.ndarray
                    ) -> Candidates | None:
         """Where along its baseline view j can show the reference highlight; None if nowhere."""
+        return self.all_candidates([j], ref_det, search)[j]
+
+    def all_candidates(self, views, ref_det: HighlightDetection, search: np.ndarray
+                       ) -> dict[int, Candidates | None]:
+        """:meth:`candidates` of several views, sharing the reference ray's geometry.
+
+        Returns
+        -------
+        dict
+            View index -> its Candidates, or None where it can show the highlight nowhere.
+        """
+        ray = _RefRay(self, ref_det.center_uv)
+        return {j: self._candidates(j, ref_det, search, ray) for j in views}
+
+    def _candidates(self, j: int, ref_det: HighlightDetection, search: np.ndarray,
+                    ray: _RefRay) -> Candidates | None:
         rig = self.rig
         k = rig.intrinsics
         h, w = rig.height, rig.width
@@ -91,7 +107,7 @@ class BaselineSearch:
         # overflow warnings or an allocation the size of fx * baseline.
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
-            w_lo, w_hi = self.inverse_depth_range(c)
+            w_lo, w_hi = ray.w_range
             span_px = float(np.hypot(*step)) * (w_hi - w_lo)
         if not (span_px <= _MAX_SEGMENT_PX and np.all(np.isfinite(step))
                 and math.isfinite(w_lo) and w_hi >= w_lo):
@@ -106,7 +122,7 @@ class BaselineSearch:
         w_v = _linspace_part(w_lo, w_hi, n, *kept)
         centers = c + step * w_v[:, None]                                    # (n, 2) (u, v)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            shift_px = step * self.mirror_inverse_depth(c, w_v)[:, None]
+            shift_px = step * ray.mirror_inverse_depth(w_v)[:, None]
         # A shift beyond the image size moves every pixel out of it, as NaN does; bounded
         # so that the cast to integers stays exact.
         bound = 4.0 * max(w, h)
@@ -230,6 +246,31 @@ class BaselineSearch:
         return HighlightDetection.missing(
             f"no position along the baseline (object depth {self.object_depth_m[0]:g}-"
             f"{self.object_depth_m[1]:g} m) lies on the object")
+
+
+class _RefRay:
+    """The reference highlight's ray, computed once for every view's search.
+
+    The same arithmetic as :meth:`BaselineSearch.inverse_depth_range` and
+    :meth:`BaselineSearch.mirror_inverse_depth`, with what does not depend on the view
+    (or on ``w_v``) kept.
+    """
+
+    def __init__(self, search: BaselineSearch, center_uv: np.ndarray) -> None:
+        rig = search.rig
+        ray = rig.rays(center_uv)
+        self.unit = ray / np.linalg.norm(ray)
+        self.light = search.light_m - rig.reference_center_m
+        self.light_sq = self.light @ self.light
+        self.unit_light = self.unit @ self.light
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self.w_range = search.inverse_depth_range(center_uv)
+
+    def mirror_inverse_depth(self, w_v: np.ndarray) -> np.ndarray:
+        """``1 / z`` of the mirror point for virtual lights at inverse depths ``w_v``."""
+        distance = 1.0 / (w_v * self.unit[2])
+        t = (distance ** 2 - self.light_sq) / (2.0 * (distance - self.unit_light))
+        return 1.0 / (t * self.unit[2])
 
 
 def _indices_in_image(center_uv, step, w_lo: float, w_hi: float, n: int,
