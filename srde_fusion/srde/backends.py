@@ -27,7 +27,7 @@ from .config import DetectorConfig
 from .highlight import HighlightDetection, detect_in_view
 from .search import Candidates
 
-__all__ = ["DetectionRequest", "HighlightBackend", "NumpyBackend", "block_means",
+__all__ = ["DetectionRequest", "HighlightBackend", "HostFrame", "NumpyBackend", "block_means",
            "gaussian_ksize", "smooth_at"]
 
 
@@ -178,6 +178,19 @@ class HighlightBackend(Protocol):
         """Return, for each ``(view, candidates)``, the index of its brightest candidate."""
 
 
+class HostFrame(Views):
+    """One frame's validated views, and the luminance crops computed from them so far.
+
+    ``luminance_crops`` maps a view to ``((u0, v0, u1, v1), lum)``: its linear luminance
+    over that box (:func:`~srde_fusion.imaging.luminance`, float32), which the
+    brightness search computes and the detection in the same view then reads instead
+    of converting the pixels again. A frame lives for one estimate.
+    """
+
+    def __init__(self, views) -> None:
+        self.luminance_crops: dict[int, tuple[tuple[int, int, int, int], np.ndarray]] = {}
+
+
 class NumpyBackend:
     """Highlight detection with numpy and OpenCV on host images, one view at a time.
 
@@ -195,17 +208,22 @@ class NumpyBackend:
         self.config = config
         self.white_references = white_references
 
-    def prepare(self, views: Any) -> Views:
-        """Validate the views (no copy; a validated ``Views`` passes straight through)."""
-        return check_views(views, self.rig.n_cameras, self.rig.image_size)
+    def prepare(self, views: Any) -> HostFrame:
+        """Validate the views (no copy of the images; a validated ``Views`` is not re-read)."""
+        return HostFrame(check_views(views, self.rig.n_cameras, self.rig.image_size))
 
     def detect(self, frame: Views, requests: Sequence[DetectionRequest]
                ) -> list[HighlightDetection]:
-        """Detect the highlight for each request (see :func:`detect_in_view`)."""
+        """Detect the highlight for each request (see :func:`detect_in_view`).
+
+        A view whose luminance the brightness search of this frame computed over a box
+        holding the detection's crop is not converted again.
+        """
         whites = self.white_references
+        known = getattr(frame, "luminance_crops", {})
         return [detect_in_view(frame[r.view], r.region, self.config, level=r.level,
                                white_reference=None if whites is None else whites[r.view],
-                               region_bbox=r.bbox)
+                               region_bbox=r.bbox, luminance_crop=known.get(r.view))
                 for r in requests]
 
     def brightest(self, frame: Views, searches: Sequence[tuple[int, Candidates]]) -> list[int]:
@@ -214,9 +232,12 @@ class NumpyBackend:
         The smoothing is evaluated at the candidates only (:func:`smooth_at`).
         """
         best = []
+        known = getattr(frame, "luminance_crops", None)
         for j, cand in searches:
             (u0, v0), (u1, v1) = cand.lo, cand.hi
             lum = luminance(frame[j][v0:v1, u0:u1], self.config.encoding)
+            if known is not None:
+                known[j] = ((u0, v0, u1, v1), lum)
             brightness = np.full(cand.w_v.size, -np.inf)
             brightness[cand.ok] = smooth_at(lum, cand.pix[cand.ok] - np.array([u0, v0]),
                                             cand.sigma_px)

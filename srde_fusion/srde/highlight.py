@@ -291,7 +291,8 @@ def grown_box(bbox: tuple[int, int, int, int], margin_px: int, shape: tuple[int,
 
 def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
                    level: float | None = None, white_reference: np.ndarray | None = None,
-                   region_bbox: tuple[int, int, int, int] | None = None) -> HighlightDetection:
+                   region_bbox: tuple[int, int, int, int] | None = None,
+                   luminance_crop=None) -> HighlightDetection:
     """Detect the highlight of one validated view inside ``region`` (numpy and OpenCV).
 
     Only the region's bounding box plus the filters' margin is read.
@@ -309,6 +310,10 @@ def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig
     region_bbox : (int, int, int, int), optional
         ``region``'s bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive, if known;
         found from ``region`` otherwise.
+    luminance_crop : ((int, int, int, int), numpy.ndarray), optional
+        ``(box, lum)``: the image's linear luminance over ``box = (u0, v0, u1, v1)``,
+        already computed; read instead of converting the pixels again when ``box``
+        holds the detection's crop.
 
     Returns
     -------
@@ -320,7 +325,13 @@ def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig
         return HighlightDetection.missing("search region is empty")
     u0, v0, u1, v1 = box
     crop = (slice(v0, v1), slice(u0, u1))
-    lum = luminance(image[crop], config.encoding)
+    lum = None
+    if luminance_crop is not None:
+        (ku0, kv0, ku1, kv1), known = luminance_crop
+        if ku0 <= u0 and kv0 <= v0 and u1 <= ku1 and v1 <= kv1:
+            lum = known[v0 - kv0:v1 - kv0, u0 - ku0:u1 - ku0]
+    if lum is None:
+        lum = luminance(image[crop], config.encoding)
     if white_reference is not None:
         white = luminance(white_reference[crop], config.encoding)
         white = cv2.GaussianBlur(white, (0, 0), WHITE_SIGMA_PX, borderType=cv2.BORDER_REFLECT)

@@ -11,7 +11,7 @@ reference blob's size around it, within the reference search region moved by V's
 (and, for the paper detector, also by the object's shift, so that object edges, which sit
 at the object's disparity and not at V's, stay out).
 
-Pure geometry: no pixel is read here.
+Pure geometry: no pixel of an image is read here.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..geometry import CameraRig
@@ -196,17 +197,22 @@ class BaselineSearch:
         region = np.zeros((h, w), dtype=bool)
         if bu1 <= bu0 or bv1 <= bv0:
             return region, None
-        vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
-        disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
+        du2 = (np.arange(bu0, bu1) - center[0]) ** 2                          # (w',)
+        dv2 = (np.arange(bv0, bv1) - center[1]) ** 2                          # (h',)
+        # Rounding keeps du2 + dv2 growing with |u - cu| and |v - cv|: if the box's
+        # farthest corner is in the disc, every pixel is.
+        if max(du2[0], du2[-1]) + max(dv2[0], dv2[-1]) <= radius * radius:
+            disc = shifted_window(search, moves[0], (bu0, bv0, bu1, bv1))
+            moves = moves[1:]
+        else:
+            disc = du2[None, :] + dv2[:, None] <= radius * radius
         for moved in moves:
             disc &= shifted_window(search, moved, (bu0, bv0, bu1, bv1))
-        rows = np.flatnonzero(disc.any(axis=1))
-        if rows.size == 0:
+        x, y, bw, bh = cv2.boundingRect(disc.view(np.uint8))
+        if bw == 0:
             return region, None
-        cols = np.flatnonzero(disc.any(axis=0))
         region[bv0:bv1, bu0:bu1] = disc
-        return region, (bu0 + int(cols[0]), bv0 + int(rows[0]), bu0 + int(cols[-1]) + 1,
-                        bv0 + int(rows[-1]) + 1)
+        return region, (bu0 + x, bv0 + y, bu0 + x + bw, bv0 + y + bh)
 
     def inverse_depth_range(self, center_uv: np.ndarray) -> tuple[float, float]:
         """Range of ``w = 1 / z`` of a virtual light seen at ``center_uv`` in the reference view.
