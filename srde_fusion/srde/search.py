@@ -87,41 +87,51 @@ class BaselineSearch:
 
     def all_candidates(self, views, ref_det: HighlightDetection, search: np.ndarray
                        ) -> dict[int, Candidates | None]:
-        """:meth:`candidates` of several views, sharing the reference ray's geometry.
+        """:meth:`candidates` of several views at once.
+
+        The reference ray's geometry is computed once, and the samples of every view go
+        through one set of array operations (each sample's arithmetic is the one a
+        single view's search does, so the candidates are the same bit for bit).
 
         Returns
         -------
         dict
             View index -> its Candidates, or None where it can show the highlight nowhere.
         """
-        ray = _RefRay(self, ref_det.center_uv)
-        return {j: self._candidates(j, ref_det, search, ray) for j in views}
-
-    def _candidates(self, j: int, ref_det: HighlightDetection, search: np.ndarray,
-                    ray: _RefRay) -> Candidates | None:
         rig = self.rig
         k = rig.intrinsics
         h, w = rig.height, rig.width
-        offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
         c = ref_det.center_uv
-        # Numbers no camera has (the rig refuses them) end here as "nowhere", not as
-        # overflow warnings or an allocation the size of fx * baseline.
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
-            w_lo, w_hi = ray.w_range
-            span_px = float(np.hypot(*step)) * (w_hi - w_lo)
-        if not (span_px <= _MAX_SEGMENT_PX and np.all(np.isfinite(step))
-                and math.isfinite(w_lo) and w_hi >= w_lo):
-            return None
-        # The samples are those of linspace(w_lo, w_hi, n), but only the ones whose
-        # centres can fall inside the image are made: the segment along the baseline
-        # grows with fx * baseline, the image does not.
-        n = int(math.ceil(span_px / REGION_SAMPLE_PX)) + 1
-        kept = _indices_in_image(c, step, w_lo, w_hi, n, (w, h))
-        if kept is None:
-            return None
-        w_v = _linspace_part(w_lo, w_hi, n, *kept)
-        centers = c + step * w_v[:, None]                                    # (n, 2) (u, v)
+        ray = _RefRay(self, c)
+        w_lo, w_hi = ray.w_range
+        found: dict[int, Candidates | None] = {j: None for j in views}
+        segments = []                                  # (view, step, first, last, n)
+        for j in views:
+            offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
+            # Numbers no camera has (the rig refuses them) end here as "nowhere", not as
+            # overflow warnings or an allocation the size of fx * baseline.
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
+                span_px = float(np.hypot(*step)) * (w_hi - w_lo)
+            if not (span_px <= _MAX_SEGMENT_PX and np.all(np.isfinite(step))
+                    and math.isfinite(w_lo) and w_hi >= w_lo):
+                continue
+            # The samples are those of linspace(w_lo, w_hi, n), but only the ones whose
+            # centres can fall inside the image are made: the segment along the baseline
+            # grows with fx * baseline, the image does not.
+            n = int(math.ceil(span_px / REGION_SAMPLE_PX)) + 1
+            kept = _indices_in_image(c, step, w_lo, w_hi, n, (w, h))
+            if kept is not None:
+                segments.append((j, step, *kept, n))
+        if not segments:
+            return found
+        sizes = np.array([last - first + 1 for _, _, first, last, _ in segments])
+        ends = np.cumsum(sizes)
+        starts = ends - sizes
+        w_v = np.concatenate([_linspace_part(w_lo, w_hi, n, first, last)
+                              for _, _, first, last, n in segments])
+        step = np.repeat(np.stack([seg[1] for seg in segments]), sizes, axis=0)  # (M, 2)
+        centers = c + step * w_v[:, None]                                    # (M, 2) (u, v)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             shift_px = step * ray.mirror_inverse_depth(w_v)[:, None]
         # A shift beyond the image size moves every pixel out of it, as NaN does; bounded
@@ -133,16 +143,24 @@ class BaselineSearch:
         ok = ((pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
               & (src[:, 0] >= 0) & (src[:, 0] < w) & (src[:, 1] >= 0) & (src[:, 1] < h))
         ok[ok] = search[src[ok, 1], src[ok, 0]]
-        if not ok.any():
-            return None
+        # Per view: whether any sample is on the object, and the box of those that are.
+        any_ok = np.logical_or.reduceat(ok, starts)
+        big = np.iinfo(pix.dtype).max
+        low = np.minimum.reduceat(np.where(ok[:, None], pix, big), starts, axis=0)
+        high = np.maximum.reduceat(np.where(ok[:, None], pix, -big), starts, axis=0)
         u0, v0, u1, v1 = ref_det.bbox
         half_diagonal = 0.5 * math.hypot(u1 - u0, v1 - v0)
         sigma = max(1.0, 0.5 * half_diagonal)
         pad = int(math.ceil(3 * sigma))
-        lo = np.maximum(pix[ok].min(axis=0) - pad, 0)
-        hi = np.minimum(pix[ok].max(axis=0) + pad + 1, [w, h])
-        return Candidates(step, w_v, centers, pix, shift, ok, sigma, half_diagonal,
-                           (int(lo[0]), int(lo[1])), (int(hi[0]), int(hi[1])))
+        for i, (j, step_j, *_) in enumerate(segments):
+            if not any_ok[i]:
+                continue
+            part = slice(int(starts[i]), int(ends[i]))
+            lo = (max(int(low[i, 0]) - pad, 0), max(int(low[i, 1]) - pad, 0))
+            hi = (min(int(high[i, 0]) + pad + 1, w), min(int(high[i, 1]) + pad + 1, h))
+            found[j] = Candidates(step_j, w_v[part], centers[part], pix[part], shift[part],
+                                  ok[part], sigma, half_diagonal, lo, hi)
+        return found
 
     def region_at(self, cand: Candidates, best: int, search: np.ndarray,
                   search_bbox: tuple[int, int, int, int] | None = None) -> np.ndarray:
