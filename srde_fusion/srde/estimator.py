@@ -330,7 +330,16 @@ class SRDE:
         if r == 0:
             return mask
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        return cv2.erode(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
+        # Only the mask's box grown by r can change (erosion keeps the image border's
+        # outside as inside, on the crop as on the whole image): the same result.
+        box = search_box(mask, r)
+        out = np.zeros(mask.shape, dtype=bool)
+        if box is None:
+            return out
+        u0, v0, u1, v1 = box
+        crop = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
+        out[v0:v1, u0:u1] = cv2.erode(crop, kernel).view(bool)
+        return out
 
     def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray,
                        search_bbox: tuple[int, int, int, int]) -> list[HighlightDetection]:
@@ -529,9 +538,7 @@ class SRDE:
 
 def _mask_box(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
     """Return the mask's bounding box ``(u0, v0, u1, v1)`` and the mask cropped to it."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    v0, v1, u0, u1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    u0, v0, u1, v1 = search_box(mask, 0)
     return (u0, v0, u1, v1), mask[v0:v1, u0:u1]
 
 

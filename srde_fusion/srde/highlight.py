@@ -268,13 +268,11 @@ def search_box(region: np.ndarray, margin_px: int) -> tuple[int, int, int, int] 
     With the detector's margin (:attr:`DetectorConfig.margin_px`) the crop gives the same
     filter values as the whole image inside the region. None for an empty region.
     """
-    rows = np.flatnonzero(region.any(axis=1))
-    if rows.size == 0:
+    # OpenCV's box of the non-zero pixels: one pass, no per-axis reductions.
+    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(region).view(np.uint8))
+    if bw == 0:
         return None
-    cols = np.flatnonzero(region.any(axis=0))
-    h, w = region.shape
-    return (max(int(cols[0]) - margin_px, 0), max(int(rows[0]) - margin_px, 0),
-            min(int(cols[-1]) + 1 + margin_px, w), min(int(rows[-1]) + 1 + margin_px, h))
+    return grown_box((x, y, x + bw, y + bh), margin_px, region.shape)
 
 
 def grown_box(bbox: tuple[int, int, int, int], margin_px: int, shape: tuple[int, int]
