@@ -146,7 +146,7 @@ def test_candidates_of_all_views_are_each_views_own(seed):
 def test_region_inside_the_moved_search_box_is_the_whole_discs(seed):
     rig, search, det, geometry = _search_geometry(seed)
     others = [j for j in range(rig.n_cameras) if j != rig.reference]
-    for j, cand in geometry.all_candidates(others, det, search).items():
+    for cand in geometry.all_candidates(others, det, search).values():
         if cand is None:
             continue
         for best in np.flatnonzero(cand.ok)[::7]:
