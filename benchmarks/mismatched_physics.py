@@ -85,8 +85,12 @@ def best_time_s(fn, repeats: int = TIMING_REPEATS) -> float:
     return best
 
 
-def run_scene(rig: CameraRig, seed: int, config: RandomSceneConfig, timed: bool) -> dict:
-    """Render one scene under both physics; score SRDE's planes. Plain numbers only."""
+def run_scene(rig: CameraRig, seed: int, config: RandomSceneConfig, timed: bool,
+              repeats: int = TIMING_REPEATS) -> dict:
+    """Render one scene under both physics; score SRDE's planes. Plain numbers only.
+
+    Timed runs keep the best of ``repeats`` calls (the floor: of ``max(10, repeats)``).
+    """
     scene = scene_for(seed, rig, config)
     lit = rig.with_light(scene.light.position_m)
     record = {"seed": seed, "roughness": scene.objects[0].material.roughness,
@@ -110,10 +114,11 @@ def run_scene(rig: CameraRig, seed: int, config: RandomSceneConfig, timed: bool)
                                signed=signed)
             if timed:
                 run[method]["time_s"] = best_time_s(
-                    lambda s=srde, v=out.views, m=mask: s.estimate(v, m))
+                    lambda s=srde, v=out.views, m=mask: s.estimate(v, m), repeats)
         if timed:
             run["floor_s"] = best_time_s(
-                lambda v=out.views: [cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) for x in v], 10)
+                lambda v=out.views: [cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) for x in v],
+                max(10, repeats))
         record["runs"][label] = run
     return record
 
@@ -218,15 +223,16 @@ def speed_only(args) -> int:
             for radius in LIGHT_RADII_M:
                 config = RandomSceneConfig(roughness=(lo, hi), light_radius_m=radius,
                                            clip_ratio=CLIP_RATIO)
-                typical.append(run_scene(rig, seed + 1, config, timed=True))
+                typical.append(run_scene(rig, seed + 1, config, True, args.repeats))
                 seed += args.scenes
-        harsh = [run_scene(rig, 9000 + i, RandomSceneConfig(**HARSH), timed=True)
+        harsh = [run_scene(rig, 9000 + i, RandomSceneConfig(**HARSH), True, args.repeats)
                  for i in range(args.harsh)]
         typical_speed, typical_numbers = speed_lines(typical, "typical scenes")
         harsh_speed, harsh_numbers = speed_lines(harsh, "harsh scenes")
         md += [f"## {rig_name} ({rig.n_cameras} views)", "",
-               "Median over scenes; best of three calls each:", "",
+               f"Median over scenes; best of {args.repeats} calls each:", "",
                *typical_speed, *harsh_speed, ""]
+        report["repeats"] = args.repeats
         report["rigs"][rig_name] = {"speed": {"typical": typical_numbers,
                                               "harsh": harsh_numbers},
                                     "records": typical, "harsh_records": harsh}
@@ -245,6 +251,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--harsh", type=int, default=6, help="harsh scenes per rig (timing)")
     parser.add_argument("--speed-only", action="store_true",
                         help="run only the speed section (writes mismatched_physics_speed.*)")
+    parser.add_argument("--repeats", type=int, default=TIMING_REPEATS,
+                        help="timed calls per scene and method, the best kept (speed only; "
+                        "more are steadier on a loaded machine)")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
     args = parser.parse_args(argv)
     if args.speed_only:
