@@ -123,9 +123,11 @@ def block_means(image: np.ndarray, factor: int) -> np.ndarray:
             row_sums += runs[..., i]
     else:
         eights = runs.reshape(h, cols, factor // 8, 8)
-        partial = eights[:, :, 0].copy()                                  # (h, cols, 8)
-        for i in range(1, factor // 8):
-            partial += eights[:, :, i]
+        partial = eights[:, :, 0]                                         # (h, cols, 8)
+        if factor > 8:
+            partial = partial + eights[:, :, 1]
+            for i in range(2, factor // 8):
+                partial += eights[:, :, i]
         pairs = partial[..., 0::2] + partial[..., 1::2]
         quads = pairs[..., 0::2] + pairs[..., 1::2]
         row_sums = quads[..., 0] + quads[..., 1]
