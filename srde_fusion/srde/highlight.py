@@ -55,6 +55,7 @@ __all__ = [
     "blob_rejection",
     "paper_rejection",
     "components",
+    "crop_luminance",
     "median",
     "weighted_centroid",
     "lobe_center",
@@ -310,8 +311,8 @@ def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig
         found from ``region`` otherwise.
     luminance_crop : ((int, int, int, int), numpy.ndarray), optional
         ``(box, lum)``: the image's linear luminance over ``box = (u0, v0, u1, v1)``,
-        already computed; read instead of converting the pixels again when ``box``
-        holds the detection's crop.
+        already computed; read where it overlaps the detection's crop instead of
+        converting those pixels again (see :func:`crop_luminance`).
 
     Returns
     -------
@@ -323,13 +324,7 @@ def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig
         return HighlightDetection.missing("search region is empty")
     u0, v0, u1, v1 = box
     crop = (slice(v0, v1), slice(u0, u1))
-    lum = None
-    if luminance_crop is not None:
-        (ku0, kv0, ku1, kv1), known = luminance_crop
-        if ku0 <= u0 and kv0 <= v0 and u1 <= ku1 and v1 <= kv1:
-            lum = known[v0 - kv0:v1 - kv0, u0 - ku0:u1 - ku0]
-    if lum is None:
-        lum = luminance(image[crop], config.encoding)
+    lum = crop_luminance(image, box, config.encoding, luminance_crop)
     if white_reference is not None:
         white = luminance(white_reference[crop], config.encoding)
         white = cv2.GaussianBlur(white, (0, 0), WHITE_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
@@ -342,6 +337,35 @@ def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig
         saturated = None if config.blob_center == "weighted" else saturation_mask(image[crop])
         det = _detect_blob(lum, saturated, sub_region, config, level)
     return det.shifted((u0, v0))
+
+
+def crop_luminance(image: np.ndarray, box: tuple[int, int, int, int], encoding: str,
+                   known=None) -> np.ndarray:
+    """Linear luminance of ``image`` over ``box = (u0, v0, u1, v1)``, ``(v1 - v0, u1 - u0)``.
+
+    ``known = (known_box, lum)``, the luminance already computed over another box, is
+    read where the boxes overlap (a slice when it holds ``box``); only the rest of the
+    pixels are converted. Luminance is per pixel, so the values are those of
+    ``luminance(image[v0:v1, u0:u1], encoding)``.
+    """
+    u0, v0, u1, v1 = box
+    if known is None:
+        return luminance(image[v0:v1, u0:u1], encoding)
+    (ku0, kv0, ku1, kv1), lum = known
+    if ku0 <= u0 and kv0 <= v0 and u1 <= ku1 and v1 <= kv1:
+        return lum[v0 - kv0:v1 - kv0, u0 - ku0:u1 - ku0]
+    # The overlap's rows span the box's width only if it does; the rest are strips.
+    ou0, ov0, ou1, ov1 = max(u0, ku0), max(v0, kv0), min(u1, ku1), min(v1, kv1)
+    if ou0 >= ou1 or ov0 >= ov1 or 2 * (ou1 - ou0) * (ov1 - ov0) < (u1 - u0) * (v1 - v0):
+        return luminance(image[v0:v1, u0:u1], encoding)  # too little to reuse
+    out = np.empty((v1 - v0, u1 - u0), dtype=np.float32)
+    out[ov0 - v0:ov1 - v0, ou0 - u0:ou1 - u0] = lum[ov0 - kv0:ov1 - kv0, ou0 - ku0:ou1 - ku0]
+    strips = [(u0, v0, u1, ov0), (u0, ov1, u1, v1), (u0, ov0, ou0, ov1), (ou1, ov0, u1, ov1)]
+    for su0, sv0, su1, sv1 in strips:  # above, below, left, right of the overlap
+        if su1 > su0 and sv1 > sv0:
+            out[sv0 - v0:sv1 - v0, su0 - u0:su1 - u0] = luminance(image[sv0:sv1, su0:su1],
+                                                                 encoding)
+    return out
 
 
 def components(binary: np.ndarray):

@@ -25,6 +25,7 @@ from srde_fusion.srde.config import DetectorConfig
 from srde_fusion.srde.estimator import _in_box, _mask_box, _plane_disparity_in_box
 from srde_fusion.srde.highlight import (
     HighlightDetection,
+    crop_luminance,
     detect_in_view,
     median,
     search_box,
@@ -191,6 +192,41 @@ def test_disparity_in_box_is_plane_disparity_gathered_and_scattered(seed):
     got = _plane_disparity_in_box(plane, rig, box, inside)
     assert got.dtype == want.dtype == np.float32
     np.testing.assert_array_equal(got, want)
+
+
+@given(st.integers(0, 2 ** 31), st.sampled_from(["rgb8", "grey8", "rgb32", "grey32"]),
+       st.sampled_from(["srgb", "linear"]))
+def test_crop_luminance_reuses_a_known_box_exactly(seed, kind, encoding):
+    rng = np.random.default_rng(seed)
+    shape = (40, 50, 3) if kind.startswith("rgb") else (40, 50)
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    if kind.endswith("32"):
+        image = (image / 255.0).astype(np.float32)
+
+    def random_box():
+        u0, v0 = int(rng.integers(0, 49)), int(rng.integers(0, 39))
+        return u0, v0, int(rng.integers(u0 + 1, 51)), int(rng.integers(v0 + 1, 41))
+
+    box, known_box = random_box(), random_box()
+    ku0, kv0, ku1, kv1 = known_box
+    known = (known_box, luminance(image[kv0:kv1, ku0:ku1], encoding))
+    u0, v0, u1, v1 = box
+    want = luminance(image[v0:v1, u0:u1], encoding)
+    got = crop_luminance(image, box, encoding, known)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(crop_luminance(image, box, encoding), want)
+
+
+def test_crop_luminance_fills_the_strips_around_a_partial_overlap():
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    box = (10, 10, 40, 30)
+    for known_box in [(5, 0, 35, 35), (12, 12, 50, 40), (0, 14, 50, 25), (11, 0, 39, 40)]:
+        ku0, kv0, ku1, kv1 = known_box
+        known = (known_box, luminance(image[kv0:kv1, ku0:ku1]))
+        np.testing.assert_array_equal(crop_luminance(image, box, "srgb", known),
+                                      luminance(image[10:30, 10:40]))
 
 
 @pytest.fixture(scope="module")
