@@ -132,7 +132,18 @@ def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
     """
     lin = to_linear(image, encoding)
     if lin.ndim == 3:
-        lin = lin @ REC709_LUMA
+        # Every pixel gets the same arithmetic wherever it sits, so a crop's luminance
+        # equals the same pixels' in a larger crop: a (pixels, 3) product computes
+        # (r wr + g wg) + b wb, but numpy's (H, 1, 3) product and its single-row one
+        # round differently, so a single pixel is computed as the product does it.
+        height, width = lin.shape[:2]
+        flat = lin.reshape(-1, 3)
+        if flat.shape[0] == 1:
+            wr, wg, wb = REC709_LUMA
+            flat = (flat[:, 0] * wr + flat[:, 1] * wg) + flat[:, 2] * wb
+        else:
+            flat = flat @ REC709_LUMA
+        lin = flat.reshape(height, width)
     return lin.astype(np.float32, copy=False)
 
 
