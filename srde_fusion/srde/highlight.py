@@ -423,15 +423,23 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
         level = background + BLOB_LEVEL * contrast
     excess = np.where(region, lum - level, 0.0).astype(np.float32, copy=False)
     above = excess > 0
-    n, labels = cv2.connectedComponents(above.view(np.uint8), connectivity=8)
+    # Components are labelled only over the box of the pixels above the level: outside
+    # it there is nothing to label, and inside it raster order is the crop's.
+    ax, ay, aw, ah = cv2.boundingRect(above.view(np.uint8))
+    ox, oy = ax, ay  # where the labelled box sits in the crop
+    above_box = np.ascontiguousarray(above[ay:ay + ah, ax:ax + aw])
+    n = 1
+    if aw:
+        n, labels = cv2.connectedComponents(above_box.view(np.uint8), connectivity=8)
     label = area = 0
-    blob_mask = above  # the brightest blob's pixels over the crop, once it is known
+    blob_mask = above_box  # the brightest blob's pixels over the box, once it is known
     if n == 2:
         label = 1
     elif n > 2:
         # Only pixels above the level carry light (the rest weigh 0 in label 0); summing
         # just them, in the same raster order, gives the same float sums.
-        light = np.bincount(labels[above], weights=excess[above], minlength=n)
+        light = np.bincount(labels[above_box],
+                            weights=excess[ay:ay + ah, ax:ax + aw][above_box], minlength=n)
         label = 1 + int(np.argmax(light[1:]))
         blob_mask = labels == label
     if label:
@@ -442,8 +450,9 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
         return HighlightDetection.missing(reason)
     # connectedComponentsWithStats would give the box too, at several times the cost.
     x, y, bw, bh = cv2.boundingRect(blob_mask.view(np.uint8))
+    blob = blob_mask[y:y + bh, x:x + bw]
+    x, y = x + ox, y + oy
     box = (slice(y, y + bh), slice(x, x + bw))
-    blob = blob_mask[box]
     weights = np.where(blob, excess[box], 0.0)
     center_uv = weighted_centroid(weights) + np.array([x, y], dtype=np.float64)
     if config.blob_center == "core":
@@ -451,7 +460,9 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
         if int(core.sum()) >= MIN_CORE_PX:
             center_uv = weighted_centroid(core.astype(np.float64)) + np.array([x, y], np.float64)
     elif config.blob_center == "lobe":
-        fitted = lobe_center(lum, saturated, region, blob_mask, background, contrast)
+        whole = np.zeros(lum.shape, dtype=bool)
+        whole[box] = blob
+        fitted = lobe_center(lum, saturated, region, whole, background, contrast)
         if fitted is not None:
             center_uv = fitted
     return HighlightDetection(True, center_uv, area, (x, y, x + bw, y + bh), contrast, "",
