@@ -132,18 +132,15 @@ def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
     """
     lin = to_linear(image, encoding)
     if lin.ndim == 3:
-        # Every pixel gets the same arithmetic wherever it sits, so a crop's luminance
-        # equals the same pixels' in a larger crop: a (pixels, 3) product computes
-        # (r wr + g wg) + b wb, but numpy's (H, 1, 3) product and its single-row one
-        # round differently, so a single pixel is computed as the product does it.
-        height, width = lin.shape[:2]
-        flat = lin.reshape(-1, 3)
-        if flat.shape[0] == 1:
+        # Every pixel gets the same arithmetic, (r wr + g wg) + b wb, wherever it sits,
+        # so a crop's luminance equals the same pixels' in a larger crop; numpy's product
+        # rounds a single column differently, which is therefore written out. (A flat
+        # (pixels, 3) product would go to a multi-threaded BLAS, many times slower.)
+        if lin.shape[1] == 1:
             wr, wg, wb = REC709_LUMA
-            flat = (flat[:, 0] * wr + flat[:, 1] * wg) + flat[:, 2] * wb
+            lin = (lin[..., 0] * wr + lin[..., 1] * wg) + lin[..., 2] * wb
         else:
-            flat = flat @ REC709_LUMA
-        lin = flat.reshape(height, width)
+            lin = lin @ REC709_LUMA
     return lin.astype(np.float32, copy=False)
 
 
