@@ -132,7 +132,15 @@ def luminance(image: np.ndarray, encoding: str = "srgb") -> np.ndarray:
     """
     lin = to_linear(image, encoding)
     if lin.ndim == 3:
-        lin = lin @ REC709_LUMA
+        # Every pixel gets the same arithmetic, (r wr + g wg) + b wb, wherever it sits,
+        # so a crop's luminance equals the same pixels' in a larger crop; numpy's product
+        # rounds a single column differently, which is therefore written out. (A flat
+        # (pixels, 3) product would go to a multi-threaded BLAS, many times slower.)
+        if lin.shape[1] == 1:
+            wr, wg, wb = REC709_LUMA
+            lin = (lin[..., 0] * wr + lin[..., 1] * wg) + lin[..., 2] * wb
+        else:
+            lin = lin @ REC709_LUMA
     return lin.astype(np.float32, copy=False)
 
 

@@ -102,3 +102,18 @@ def test_saturation_mask():
     np.testing.assert_array_equal(saturation_mask(rgb), [[False, True, True, False]])
     grey = np.array([[0.999, 0.99, 1.0]], np.float32)
     np.testing.assert_array_equal(saturation_mask(grey), [[True, False, True]])
+
+
+@given(st.integers(0, 2 ** 31), st.sampled_from([np.uint8, np.float32]),
+       st.sampled_from(["srgb", "linear"]))
+def test_luminance_of_a_crop_is_the_same_pixels_in_the_whole_image(seed, dtype, encoding):
+    # Crops of any size, single columns and rows included: the detector reuses one
+    # crop's luminance for another and relies on per-pixel arithmetic.
+    rng = np.random.default_rng(seed)
+    image = rng.integers(0, 256, (23, 31, 3), dtype=np.uint8)
+    if dtype is np.float32:
+        image = (image / 255.0).astype(np.float32)
+    u0, v0 = int(rng.integers(0, 31)), int(rng.integers(0, 23))
+    u1, v1 = int(rng.integers(u0 + 1, 32)), int(rng.integers(v0 + 1, 24))
+    np.testing.assert_array_equal(luminance(image[v0:v1, u0:u1], encoding),
+                                  luminance(image, encoding)[v0:v1, u0:u1])

@@ -248,11 +248,11 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float,
     if count[order[0]] < 2:
         return _result(rig, centers_uv, finite & False, None)
     best_use = inliers[order[0]]
-    medians = np.median(res[:, finite], axis=1)
-    least = int(np.argmin(medians))
-    least_median, median_residuals = float(medians[least]), res[least]
-    use = _refit(rig, centers_uv, finite, best_use, max_residual_px)
+    refitted = None
     if min_residual_px is not None and finite.sum() >= _MIN_VIEWS_FOR_SCALE:
+        medians = np.median(res[:, finite], axis=1)
+        least = int(np.argmin(medians))
+        least_median, median_residuals = float(medians[least]), res[least]
         # Least median of squares over the pair proposals: a residual scale that up to
         # half the views being off cannot inflate. Residual norms of isotropic 2D noise
         # are Rayleigh distributed, with median sigma * sqrt(2 ln 2).
@@ -262,12 +262,22 @@ def robust_triangulate(rig, centers_uv, *, max_residual_px: float,
         # outliers would pull towards them and hide them.
         start = finite & (np.nan_to_num(median_residuals, nan=np.inf) <= bound)
         if start.sum() >= 2:
-            use = _refit(rig, centers_uv, finite, start, bound)
-    return _result(rig, centers_uv, use, _solve(rig, centers_uv, use))
+            refitted = _refit(rig, centers_uv, finite, start, bound)
+    if refitted is None:  # the fixed bound, from the proposal with the most inliers
+        refitted = _refit(rig, centers_uv, finite, best_use, max_residual_px)
+    use, solution = refitted
+    if solution is None:
+        solution = _solve(rig, centers_uv, use)
+    return _result(rig, centers_uv, use, solution)
 
 
-def _refit(rig, centers_uv, finite, use, bound) -> np.ndarray:
-    """Refit and re-select the views within ``bound`` until the selection settles."""
+def _refit(rig, centers_uv, finite, use, bound):
+    """Refit and re-select the views within ``bound`` until the selection settles.
+
+    Returns the selection and its solution, or None in place of the solution when the
+    last selection was not solved (``_solve`` of it then gives it).
+    """
+    solution = None
     for _ in range(_MAX_REFITS):
         solution = _solve(rig, centers_uv, use)
         if solution is None:
@@ -277,7 +287,8 @@ def _refit(rig, centers_uv, finite, use, bound) -> np.ndarray:
         if refit.sum() < 2 or np.array_equal(refit, use):
             break
         use = refit
-    return use
+        solution = None
+    return use, solution
 
 
 def adjacent_pairs(rig) -> list[tuple[int, int]]:

@@ -51,7 +51,7 @@ from ..geometry import (
 )
 from .backends import DetectionRequest, HighlightBackend, NumpyBackend
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
-from .highlight import HighlightDetection
+from .highlight import HighlightDetection, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
 from .result import SRDEResult
@@ -74,6 +74,11 @@ MIN_VIRTUAL_LIGHT_SHIFT_PX = 1.0
 # |V - L| below this fraction of the light's distance from the reference camera means the
 # light lies (nearly) on the plane; the normal direction V - L is then mostly noise.
 LIGHT_ON_PLANE_FRACTION = 0.01
+
+
+# The grazing check trusts a box whose corner rays are at least this far (degrees) below
+# max_incidence_deg; the angles' rounding is some 1e-12 deg.
+GRAZING_CHECK_MARGIN_DEG = 1e-6
 
 
 # A light farther than this (metres, per coordinate; the sun is 1.5e11 m away) is a
@@ -299,11 +304,16 @@ class SRDE:
         if len(self.lights_m) > 1:
             return estimate_with_lights(self, views, mask, search)
         ref = rig.reference
-        ref_det = self.backend.detect(views, [DetectionRequest(ref, search)])[0]
+        search_bbox = search_box(search, 0)
+        if search_bbox is None:  # an empty region: the detector says so
+            ref_det = self.backend.detect(views, [DetectionRequest(ref, search)])[0]
+        else:
+            ref_det = self.backend.detect(views, [DetectionRequest(ref, search, None,
+                                                                   search_bbox)])[0]
         if not ref_det:
             return self._failed("no_highlight", f"{self._view(ref)}: {ref_det.reason}",
                                 detections=(ref_det,))
-        detections = self._detect_others(views, ref_det, search)
+        detections = self._detect_others(views, ref_det, search, search_bbox)
         centers = np.full((rig.n_cameras, 2), np.nan)
         for j, det in enumerate(detections):
             if det:
@@ -328,23 +338,36 @@ class SRDE:
         if r == 0:
             return mask
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        return cv2.erode(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
+        # Only the mask's box grown by r can change (erosion keeps the image border's
+        # outside as inside, on the crop as on the whole image): the same result.
+        box = search_box(mask, r)
+        out = np.zeros(mask.shape, dtype=bool)
+        if box is None:
+            return out
+        u0, v0, u1, v1 = box
+        crop = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
+        out[v0:v1, u0:u1] = cv2.erode(crop, kernel).view(bool)
+        return out
 
-    def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray
-                       ) -> list[HighlightDetection]:
-        """Every view's detection: the reference's as given, the others where it can appear."""
+    def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray,
+                       search_bbox: tuple[int, int, int, int]) -> list[HighlightDetection]:
+        """Every view's detection: the reference's as given, the others where it can appear.
+
+        ``search_bbox`` is the bounding box ``(u0, v0, u1, v1)`` of ``search``.
+        """
         rig = self.rig
         others = [j for j in range(rig.n_cameras) if j != rig.reference]
-        candidates = {j: self.search.candidates(j, ref_det, search) for j in others}
+        candidates = self.search.all_candidates(others, ref_det, search)
         reachable = [(j, c) for j, c in candidates.items() if c is not None]
         regions = {}
         if reachable:
             best = self.backend.brightest(views, reachable)
-            regions = {j: self.search.region_at(c, b, search)
+            regions = {j: self.search.region_box_at(c, b, search, search_bbox)
                        for (j, c), b in zip(reachable, best, strict=True)}
         # One level for all views: an asymmetric lobe's centroid depends on it.
         level = None if np.isnan(ref_det.level) else ref_det.level
-        requests = [DetectionRequest(j, r, level) for j, r in regions.items() if r.any()]
+        requests = [DetectionRequest(j, r, level, bbox) for j, (r, bbox) in regions.items()
+                    if bbox is not None]
         found = dict(zip([r.view for r in requests], self.backend.detect(views, requests),
                          strict=True))
         return [ref_det if j == rig.reference
@@ -474,8 +497,11 @@ class SRDE:
                 notes = (*notes, f"refinement: kept the geometric plane; {refinement.reason}")
         # Rays of the mask's bounding box are separable; a ray per mask pixel costs more.
         box, inside = _mask_box(mask)
-        angle = incidence_angle_deg(plane, rig, window=box)[inside]
-        steep = angle > self.max_incidence_deg
+        if self._grazing_possible(plane, box):
+            angle = incidence_angle_deg(plane, rig, window=box)[inside]
+            steep = angle > self.max_incidence_deg
+        else:
+            steep = np.zeros(0, dtype=bool)
         if steep.any():
             worst = int(np.argmax(angle))
             uv = _mask_uv(mask)
@@ -484,11 +510,27 @@ class SRDE:
                 f"than {self.max_incidence_deg:g} deg incidence (worst {angle[worst]:.1f} deg at "
                 f"pixel ({uv[worst, 0]:.0f}, {uv[worst, 1]:.0f}))", plane=plane, point=point,
                 **fail)
-        disparity = _in_box(plane_disparity(plane, rig, window=box)[inside], box, inside)
+        disparity = _plane_disparity_in_box(plane, rig, box, inside)
         return SRDEResult("ok", "", disparity, box, mask.shape, plane,
                           np.asarray(point, dtype=np.float64),
                           centers, used, residual, self.method, tuple(notes), detections,
                           refinement)
+
+    def _grazing_possible(self, plane, box) -> bool:
+        """Whether any pixel of the box ``(u0, v0, u1, v1)`` may see the plane too obliquely.
+
+        Rays within an angle below 90 deg of a direction form a convex cone, which meets
+        the image plane in a convex set: if the box's corner pixels lie in it, so does
+        every pixel of the box. The corners are checked with a margin far above the
+        angles' rounding, so a False here is exact; True asks for the per-pixel check.
+        """
+        if self.max_incidence_deg >= 90.0 - GRAZING_CHECK_MARGIN_DEG:
+            return True
+        u0, v0, u1, v1 = box
+        corners = np.array([[u0, v0], [u1 - 1, v0], [u0, v1 - 1], [u1 - 1, v1 - 1]],
+                           dtype=np.float64)
+        angle = incidence_angle_deg(plane, self.rig, corners)
+        return not bool(np.all(angle <= self.max_incidence_deg - GRAZING_CHECK_MARGIN_DEG))
 
     def _failed(self, status: str, reason: str, *, centers=None, used=None, detections=(),
                 plane=None, point=None) -> SRDEResult:
@@ -508,9 +550,7 @@ class SRDE:
 
 def _mask_box(mask: np.ndarray) -> tuple[tuple[int, int, int, int], np.ndarray]:
     """Return the mask's bounding box ``(u0, v0, u1, v1)`` and the mask cropped to it."""
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    v0, v1, u0, u1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    u0, v0, u1, v1 = search_box(mask, 0)
     return (u0, v0, u1, v1), mask[v0:v1, u0:u1]
 
 
@@ -522,6 +562,28 @@ def _in_box(values: np.ndarray, box, inside: np.ndarray) -> np.ndarray:
     return out
 
 
+def _plane_disparity_in_box(plane, rig, box, inside: np.ndarray) -> np.ndarray:
+    """``_in_box(plane_disparity(plane, rig, window=box)[inside], box, inside)``, in fewer passes.
+
+    The same arithmetic as :func:`~srde_fusion.geometry.plane.plane_depth` and
+    ``CameraRig.depth_to_disparity`` (``z = num / denom``, ``fx B / z`` where
+    ``0 < z < inf``), with the mask applied in the same pass instead of a gather and a
+    scatter: the same float32 values, NaN elsewhere.
+    """
+    u0, v0, u1, v1 = box
+    k = rig.intrinsics
+    n = plane.n
+    num = plane.offset_m - float(np.dot(n, rig.reference_center_m))
+    x = (np.arange(u0, u1, dtype=np.float64) - k.cx) / k.fx
+    y = (np.arange(v0, v1, dtype=np.float64) - k.cy) / k.fy
+    denom = n[0] * x[None, :] + n[1] * y[:, None] + n[2]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        z = num / denom
+        disparity = k.fx * rig.baseline_m / z
+    keep = (z > 0) & (z < np.inf) & inside
+    return np.where(keep, disparity, np.nan).astype(np.float32)
+
+
 def _mask_uv(mask: np.ndarray) -> np.ndarray:
     """Pixel coordinates ``(u, v)`` of the mask's pixels in row-major order, ``(M, 2)``."""
     vv, uu = np.nonzero(mask)
@@ -529,7 +591,14 @@ def _mask_uv(mask: np.ndarray) -> np.ndarray:
 
 
 def _rms_residual(rig, point, centers, used) -> float:
-    pred = np.stack([rig.project(point, j) for j in range(rig.n_cameras)])
+    # rig.project's arithmetic for every camera at once.
+    rel = np.asarray(point, dtype=np.float64) - rig.centers_m                       # (N, 3)
+    k = rig.intrinsics
+    z = rel[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.where(z > 0, k.fx * rel[:, 0] / z + k.cx, np.nan)
+        v = np.where(z > 0, k.fy * rel[:, 1] / z + k.cy, np.nan)
+    pred = np.stack([u, v], axis=-1)
     err = np.linalg.norm(pred - centers, axis=1)[used]
     return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
 

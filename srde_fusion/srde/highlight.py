@@ -51,9 +51,12 @@ __all__ = [
     "detect_highlight",
     "detect_in_view",
     "search_box",
+    "grown_box",
     "blob_rejection",
     "paper_rejection",
     "components",
+    "crop_luminance",
+    "median",
     "weighted_centroid",
     "lobe_center",
 ]
@@ -266,18 +269,29 @@ def search_box(region: np.ndarray, margin_px: int) -> tuple[int, int, int, int] 
     With the detector's margin (:attr:`DetectorConfig.margin_px`) the crop gives the same
     filter values as the whole image inside the region. None for an empty region.
     """
-    rows = np.flatnonzero(region.any(axis=1))
-    if rows.size == 0:
+    # OpenCV's box of the non-zero pixels: one pass, no per-axis reductions.
+    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(region).view(np.uint8))
+    if bw == 0:
         return None
-    cols = np.flatnonzero(region.any(axis=0))
-    h, w = region.shape
-    return (max(int(cols[0]) - margin_px, 0), max(int(rows[0]) - margin_px, 0),
-            min(int(cols[-1]) + 1 + margin_px, w), min(int(rows[-1]) + 1 + margin_px, h))
+    return grown_box((x, y, x + bw, y + bh), margin_px, region.shape)
+
+
+def grown_box(bbox: tuple[int, int, int, int], margin_px: int, shape: tuple[int, int]
+              ) -> tuple[int, int, int, int]:
+    """Grow a bounding box ``(u0, v0, u1, v1)`` by ``margin_px``, clipped to ``shape``.
+
+    :func:`search_box` of a region is ``grown_box`` of its bounding box.
+    """
+    u0, v0, u1, v1 = bbox
+    h, w = shape
+    return (max(u0 - margin_px, 0), max(v0 - margin_px, 0), min(u1 + margin_px, w),
+            min(v1 + margin_px, h))
 
 
 def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
-                   level: float | None = None, white_reference: np.ndarray | None = None
-                   ) -> HighlightDetection:
+                   level: float | None = None, white_reference: np.ndarray | None = None,
+                   region_bbox: tuple[int, int, int, int] | None = None,
+                   luminance_crop=None) -> HighlightDetection:
     """Detect the highlight of one validated view inside ``region`` (numpy and OpenCV).
 
     Only the region's bounding box plus the filters' margin is read.
@@ -292,17 +306,25 @@ def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig
         Blob detector: the level that delimits the blob (see :func:`detect_highlight`).
     white_reference : numpy.ndarray, optional
         The camera's white image, validated, same size.
+    region_bbox : (int, int, int, int), optional
+        ``region``'s bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive, if known;
+        found from ``region`` otherwise.
+    luminance_crop : ((int, int, int, int), numpy.ndarray), optional
+        ``(box, lum)``: the image's linear luminance over ``box = (u0, v0, u1, v1)``,
+        already computed; read where it overlaps the detection's crop instead of
+        converting those pixels again (see :func:`crop_luminance`).
 
     Returns
     -------
     HighlightDetection
     """
-    box = search_box(region, config.margin_px)
+    box = (search_box(region, config.margin_px) if region_bbox is None
+           else grown_box(region_bbox, config.margin_px, region.shape))
     if box is None:
         return HighlightDetection.missing("search region is empty")
     u0, v0, u1, v1 = box
     crop = (slice(v0, v1), slice(u0, u1))
-    lum = luminance(image[crop], config.encoding)
+    lum = crop_luminance(image, box, config.encoding, luminance_crop)
     if white_reference is not None:
         white = luminance(white_reference[crop], config.encoding)
         white = cv2.GaussianBlur(white, (0, 0), WHITE_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
@@ -315,6 +337,35 @@ def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig
         saturated = None if config.blob_center == "weighted" else saturation_mask(image[crop])
         det = _detect_blob(lum, saturated, sub_region, config, level)
     return det.shifted((u0, v0))
+
+
+def crop_luminance(image: np.ndarray, box: tuple[int, int, int, int], encoding: str,
+                   known=None) -> np.ndarray:
+    """Linear luminance of ``image`` over ``box = (u0, v0, u1, v1)``, ``(v1 - v0, u1 - u0)``.
+
+    ``known = (known_box, lum)``, the luminance already computed over another box, is
+    read where the boxes overlap (a slice when it holds ``box``); only the rest of the
+    pixels are converted. Luminance is per pixel, so the values are those of
+    ``luminance(image[v0:v1, u0:u1], encoding)``.
+    """
+    u0, v0, u1, v1 = box
+    if known is None:
+        return luminance(image[v0:v1, u0:u1], encoding)
+    (ku0, kv0, ku1, kv1), lum = known
+    if ku0 <= u0 and kv0 <= v0 and u1 <= ku1 and v1 <= kv1:
+        return lum[v0 - kv0:v1 - kv0, u0 - ku0:u1 - ku0]
+    # The overlap's rows span the box's width only if it does; the rest are strips.
+    ou0, ov0, ou1, ov1 = max(u0, ku0), max(v0, kv0), min(u1, ku1), min(v1, kv1)
+    if ou0 >= ou1 or ov0 >= ov1 or 2 * (ou1 - ou0) * (ov1 - ov0) < (u1 - u0) * (v1 - v0):
+        return luminance(image[v0:v1, u0:u1], encoding)  # too little to reuse
+    out = np.empty((v1 - v0, u1 - u0), dtype=np.float32)
+    out[ov0 - v0:ov1 - v0, ou0 - u0:ou1 - u0] = lum[ov0 - kv0:ov1 - kv0, ou0 - ku0:ou1 - ku0]
+    strips = [(u0, v0, u1, ov0), (u0, ov1, u1, v1), (u0, ov0, ou0, ov1), (ou1, ov0, u1, ov1)]
+    for su0, sv0, su1, sv1 in strips:  # above, below, left, right of the overlap
+        if su1 > su0 and sv1 > sv0:
+            out[sv0 - v0:sv1 - v0, su0 - u0:su1 - u0] = luminance(image[sv0:sv1, su0:su1],
+                                                                 encoding)
+    return out
 
 
 def components(binary: np.ndarray):
@@ -365,25 +416,43 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
     """Half-maximum blob on linear intensity and its sub-pixel centre, on a crop."""
     smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
     inside = lum[region]
-    background = float(np.median(inside))
+    background = median(inside)
     peak = float(smooth[region].max())
     contrast = peak - background
     if level is None:
         level = background + BLOB_LEVEL * contrast
-    excess = np.where(region, lum - level, 0.0).astype(np.float32)
-    n, labels, stats = components(excess > 0)
+    excess = np.where(region, lum - level, 0.0).astype(np.float32, copy=False)
+    above = excess > 0
+    # Components are labelled only over the box of the pixels above the level: outside
+    # it there is nothing to label, and inside it raster order is the crop's.
+    ax, ay, aw, ah = cv2.boundingRect(above.view(np.uint8))
+    ox, oy = ax, ay  # where the labelled box sits in the crop
+    above_box = np.ascontiguousarray(above[ay:ay + ah, ax:ax + aw])
+    n = 1
+    if aw:
+        n, labels = cv2.connectedComponents(above_box.view(np.uint8), connectivity=8)
     label = area = 0
-    if n > 1:
-        light = np.bincount(labels.ravel(), weights=np.maximum(excess, 0.0).ravel(), minlength=n)
+    blob_mask = above_box  # the brightest blob's pixels over the box, once it is known
+    if n == 2:
+        label = 1
+    elif n > 2:
+        # Only pixels above the level carry light (the rest weigh 0 in label 0); summing
+        # just them, in the same raster order, gives the same float sums.
+        light = np.bincount(labels[above_box],
+                            weights=excess[ay:ay + ah, ax:ax + aw][above_box], minlength=n)
         label = 1 + int(np.argmax(light[1:]))
-        area = int(stats[label, 4])
+        blob_mask = labels == label
+    if label:
+        area = cv2.countNonZero(blob_mask.view(np.uint8))
     reason = blob_rejection(config, background=background, peak=peak, level=level,
                             any_above=n > 1, area_px=area)
     if reason:
         return HighlightDetection.missing(reason)
-    x, y, bw, bh = (int(s) for s in stats[label, :4])
+    # connectedComponentsWithStats would give the box too, at several times the cost.
+    x, y, bw, bh = cv2.boundingRect(blob_mask.view(np.uint8))
+    blob = blob_mask[y:y + bh, x:x + bw]
+    x, y = x + ox, y + oy
     box = (slice(y, y + bh), slice(x, x + bw))
-    blob = labels[box] == label
     weights = np.where(blob, excess[box], 0.0)
     center_uv = weighted_centroid(weights) + np.array([x, y], dtype=np.float64)
     if config.blob_center == "core":
@@ -391,16 +460,41 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
         if int(core.sum()) >= MIN_CORE_PX:
             center_uv = weighted_centroid(core.astype(np.float64)) + np.array([x, y], np.float64)
     elif config.blob_center == "lobe":
-        fitted = lobe_center(lum, saturated, region, labels == label, background, contrast)
+        whole = np.zeros(lum.shape, dtype=bool)
+        whole[box] = blob
+        fitted = lobe_center(lum, saturated, region, whole, background, contrast)
         if fitted is not None:
             center_uv = fitted
-    return HighlightDetection(True, center_uv, area, bbox_of(stats[label]), contrast, "", level)
+    return HighlightDetection(True, center_uv, area, (x, y, x + bw, y + bh), contrast, "",
+                              level)
+
+
+def median(values: np.ndarray) -> float:
+    """``float(np.median(values))`` of a non-empty 1-D float array, bit for bit, faster.
+
+    One partition instead of numpy's two-index one; for an even count the lower middle
+    value is the largest of the lower half, and the two are averaged in the array's
+    precision as ``np.median`` does. NaN if any value is NaN, as ``np.median``.
+    """
+    n = values.size
+    half = n // 2
+    part = np.partition(values, half)
+    upper = part[half]
+    if np.isnan(part[-1]):  # partition moves NaN to the end
+        return float("nan")
+    if n % 2:
+        return float(upper)
+    lower = part[:half].max()
+    return float((lower + upper) / 2)
 
 
 def weighted_centroid(weights: np.ndarray) -> np.ndarray:
     """``(u, v)`` centroid of a non-negative weight image (pixel centres at integers)."""
     total = float(weights.sum())
-    vv, uu = np.indices(weights.shape, dtype=np.float64)
+    h, w = weights.shape
+    # Broadcast coordinates make the same products as full index grids, without them.
+    uu = np.arange(w, dtype=np.float64)[None, :]
+    vv = np.arange(h, dtype=np.float64)[:, None]
     return np.array([(weights * uu).sum() / total, (weights * vv).sum() / total])
 
 

@@ -11,7 +11,7 @@ reference blob's size around it, within the reference search region moved by V's
 (and, for the paper detector, also by the object's shift, so that object edges, which sit
 at the object's disparity and not at V's, stay out).
 
-Pure geometry: no pixel is read here.
+Pure geometry: no pixel of an image is read here.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..geometry import CameraRig
@@ -82,31 +83,57 @@ class BaselineSearch:
     def candidates(self, j: int, ref_det: HighlightDetection, search: np.ndarray
                    ) -> Candidates | None:
         """Where along its baseline view j can show the reference highlight; None if nowhere."""
+        return self.all_candidates([j], ref_det, search)[j]
+
+    def all_candidates(self, views, ref_det: HighlightDetection, search: np.ndarray
+                       ) -> dict[int, Candidates | None]:
+        """:meth:`candidates` of several views at once.
+
+        The reference ray's geometry is computed once, and the samples of every view go
+        through one set of array operations (each sample's arithmetic is the one a
+        single view's search does, so the candidates are the same bit for bit).
+
+        Returns
+        -------
+        dict
+            View index -> its Candidates, or None where it can show the highlight nowhere.
+        """
         rig = self.rig
         k = rig.intrinsics
         h, w = rig.height, rig.width
-        offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
         c = ref_det.center_uv
-        # Numbers no camera has (the rig refuses them) end here as "nowhere", not as
-        # overflow warnings or an allocation the size of fx * baseline.
+        ray = _RefRay(self, c)
+        w_lo, w_hi = ray.w_range
+        found: dict[int, Candidates | None] = {j: None for j in views}
+        segments = []                                  # (view, step, first, last, n)
+        for j in views:
+            offset = rig.centers_m[j, :2] - rig.reference_center_m[:2]
+            # Numbers no camera has (the rig refuses them) end here as "nowhere", not as
+            # overflow warnings or an allocation the size of fx * baseline.
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
+                span_px = float(np.hypot(*step)) * (w_hi - w_lo)
+            if not (span_px <= _MAX_SEGMENT_PX and np.all(np.isfinite(step))
+                    and math.isfinite(w_lo) and w_hi >= w_lo):
+                continue
+            # The samples are those of linspace(w_lo, w_hi, n), but only the ones whose
+            # centres can fall inside the image are made: the segment along the baseline
+            # grows with fx * baseline, the image does not.
+            n = int(math.ceil(span_px / REGION_SAMPLE_PX)) + 1
+            kept = _indices_in_image(c, step, w_lo, w_hi, n, (w, h))
+            if kept is not None:
+                segments.append((j, step, *kept, n))
+        if not segments:
+            return found
+        sizes = np.array([last - first + 1 for _, _, first, last, _ in segments])
+        ends = np.cumsum(sizes)
+        starts = ends - sizes
+        w_v = np.concatenate([_linspace_part(w_lo, w_hi, n, first, last)
+                              for _, _, first, last, n in segments])
+        step = np.repeat(np.stack([seg[1] for seg in segments]), sizes, axis=0)  # (M, 2)
+        centers = c + step * w_v[:, None]                                    # (M, 2) (u, v)
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
-            w_lo, w_hi = self.inverse_depth_range(c)
-            span_px = float(np.hypot(*step)) * (w_hi - w_lo)
-        if not (span_px <= _MAX_SEGMENT_PX and np.all(np.isfinite(step))
-                and math.isfinite(w_lo) and w_hi >= w_lo):
-            return None
-        # The samples are those of linspace(w_lo, w_hi, n), but only the ones whose
-        # centres can fall inside the image are made: the segment along the baseline
-        # grows with fx * baseline, the image does not.
-        n = int(math.ceil(span_px / REGION_SAMPLE_PX)) + 1
-        kept = _indices_in_image(c, step, w_lo, w_hi, n, (w, h))
-        if kept is None:
-            return None
-        w_v = _linspace_part(w_lo, w_hi, n, *kept)
-        centers = c + step * w_v[:, None]                                    # (n, 2) (u, v)
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            shift_px = step * self.mirror_inverse_depth(c, w_v)[:, None]
+            shift_px = step * ray.mirror_inverse_depth(w_v)[:, None]
         # A shift beyond the image size moves every pixel out of it, as NaN does; bounded
         # so that the cast to integers stays exact.
         bound = 4.0 * max(w, h)
@@ -116,37 +143,94 @@ class BaselineSearch:
         ok = ((pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
               & (src[:, 0] >= 0) & (src[:, 0] < w) & (src[:, 1] >= 0) & (src[:, 1] < h))
         ok[ok] = search[src[ok, 1], src[ok, 0]]
-        if not ok.any():
-            return None
+        # Per view: whether any sample is on the object, and the box of those that are.
+        any_ok = np.logical_or.reduceat(ok, starts)
+        big = np.iinfo(pix.dtype).max
+        low = np.minimum.reduceat(np.where(ok[:, None], pix, big), starts, axis=0)
+        high = np.maximum.reduceat(np.where(ok[:, None], pix, -big), starts, axis=0)
         u0, v0, u1, v1 = ref_det.bbox
         half_diagonal = 0.5 * math.hypot(u1 - u0, v1 - v0)
         sigma = max(1.0, 0.5 * half_diagonal)
         pad = int(math.ceil(3 * sigma))
-        lo = np.maximum(pix[ok].min(axis=0) - pad, 0)
-        hi = np.minimum(pix[ok].max(axis=0) + pad + 1, [w, h])
-        return Candidates(step, w_v, centers, pix, shift, ok, sigma, half_diagonal,
-                           (int(lo[0]), int(lo[1])), (int(hi[0]), int(hi[1])))
+        for i, (j, step_j, *_) in enumerate(segments):
+            if not any_ok[i]:
+                continue
+            part = slice(int(starts[i]), int(ends[i]))
+            lo = (max(int(low[i, 0]) - pad, 0), max(int(low[i, 1]) - pad, 0))
+            hi = (min(int(high[i, 0]) + pad + 1, w), min(int(high[i, 1]) + pad + 1, h))
+            found[j] = Candidates(step_j, w_v[part], centers[part], pix[part], shift[part],
+                                  ok[part], sigma, half_diagonal, lo, hi)
+        return found
 
-    def region_at(self, cand: Candidates, best: int, search: np.ndarray) -> np.ndarray:
-        """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool."""
+    def region_at(self, cand: Candidates, best: int, search: np.ndarray,
+                  search_bbox: tuple[int, int, int, int] | None = None) -> np.ndarray:
+        """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool.
+
+        ``search_bbox``, the bounding box ``(u0, v0, u1, v1)`` of ``search`` if known,
+        only saves work (see :meth:`region_box_at`).
+        """
+        return self.region_box_at(cand, best, search, search_bbox)[0]
+
+    def region_box_at(self, cand: Candidates, best: int, search: np.ndarray,
+                      search_bbox: tuple[int, int, int, int] | None = None
+                      ) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
+        """Return the search region around candidate ``best`` and its bounding box.
+
+        Parameters
+        ----------
+        cand : Candidates
+        best : int
+            Index of the chosen candidate.
+        search : numpy.ndarray, (H, W) bool
+            The reference view's search region.
+        search_bbox : (int, int, int, int), optional
+            ``(u0, v0, u1, v1)``, inclusive-exclusive, a box holding every pixel of
+            ``search`` (its bounding box). The region lies inside it moved with the
+            highlight, so only that part of the disc is computed; the region is the same.
+
+        Returns
+        -------
+        region : numpy.ndarray, (H, W) bool
+        bbox : (int, int, int, int) or None
+            The region's bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive; None if
+            the region is empty.
+        """
         h, w = self.rig.height, self.rig.width
         radius = CAPSULE_SCALE * cand.half_diagonal_px + CAPSULE_MARGIN_PX
         center = cand.centers[best]
         bu0, bv0 = np.maximum(np.floor(center - radius).astype(int), 0)
         bu1, bv1 = np.minimum(np.ceil(center + radius).astype(int) + 1, [w, h])
-        vv, uu = np.ogrid[bv0:bv1, bu0:bu1]
-        disc = (uu - center[0]) ** 2 + (vv - center[1]) ** 2 <= radius * radius
         # Moved with the highlight, the reference region clips the blob the same way in
         # every view, so the clip biases all centroids alike. The paper detector is also
         # kept inside the object as it appears in view j: its edges would be gradient rings.
         moves = [np.rint(cand.step * cand.w_v[best]).astype(int)]
         if self.paper_detector:
             moves.append(cand.shift[best])
+        if search_bbox is not None:
+            # Outside the moved search box every moved window is False: skip those pixels.
+            su0, sv0, su1, sv1 = search_bbox
+            for du, dv in moves:
+                bu0, bv0 = max(bu0, su0 + int(du)), max(bv0, sv0 + int(dv))
+                bu1, bv1 = min(bu1, su1 + int(du)), min(bv1, sv1 + int(dv))
+        region = np.zeros((h, w), dtype=bool)
+        if bu1 <= bu0 or bv1 <= bv0:
+            return region, None
+        du2 = (np.arange(bu0, bu1) - center[0]) ** 2                          # (w',)
+        dv2 = (np.arange(bv0, bv1) - center[1]) ** 2                          # (h',)
+        # Rounding keeps du2 + dv2 growing with |u - cu| and |v - cv|: if the box's
+        # farthest corner is in the disc, every pixel is.
+        if max(du2[0], du2[-1]) + max(dv2[0], dv2[-1]) <= radius * radius:
+            disc = shifted_window(search, moves[0], (bu0, bv0, bu1, bv1))
+            moves = moves[1:]
+        else:
+            disc = du2[None, :] + dv2[:, None] <= radius * radius
         for moved in moves:
             disc &= shifted_window(search, moved, (bu0, bv0, bu1, bv1))
-        region = np.zeros((h, w), dtype=bool)
+        x, y, bw, bh = cv2.boundingRect(disc.view(np.uint8))
+        if bw == 0:
+            return region, None
         region[bv0:bv1, bu0:bu1] = disc
-        return region
+        return region, (bu0 + x, bv0 + y, bu0 + x + bw, bv0 + y + bh)
 
     def inverse_depth_range(self, center_uv: np.ndarray) -> tuple[float, float]:
         """Range of ``w = 1 / z`` of a virtual light seen at ``center_uv`` in the reference view.
@@ -186,6 +270,31 @@ class BaselineSearch:
         return HighlightDetection.missing(
             f"no position along the baseline (object depth {self.object_depth_m[0]:g}-"
             f"{self.object_depth_m[1]:g} m) lies on the object")
+
+
+class _RefRay:
+    """The reference highlight's ray, computed once for every view's search.
+
+    The same arithmetic as :meth:`BaselineSearch.inverse_depth_range` and
+    :meth:`BaselineSearch.mirror_inverse_depth`, with what does not depend on the view
+    (or on ``w_v``) kept.
+    """
+
+    def __init__(self, search: BaselineSearch, center_uv: np.ndarray) -> None:
+        rig = search.rig
+        ray = rig.rays(center_uv)
+        self.unit = ray / np.linalg.norm(ray)
+        self.light = search.light_m - rig.reference_center_m
+        self.light_sq = self.light @ self.light
+        self.unit_light = self.unit @ self.light
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self.w_range = search.inverse_depth_range(center_uv)
+
+    def mirror_inverse_depth(self, w_v: np.ndarray) -> np.ndarray:
+        """``1 / z`` of the mirror point for virtual lights at inverse depths ``w_v``."""
+        distance = 1.0 / (w_v * self.unit[2])
+        t = (distance ** 2 - self.light_sq) / (2.0 * (distance - self.unit_light))
+        return 1.0 / (t * self.unit[2])
 
 
 def _indices_in_image(center_uv, step, w_lo: float, w_hi: float, n: int,

@@ -48,6 +48,7 @@ from .config import (
 from .highlight import (
     HighlightDetection,
     blob_rejection,
+    grown_box,
     lobe_center,
     paper_rejection,
     search_box,
@@ -281,7 +282,9 @@ class TorchBackend:
         if not requests:
             return []
         images = frame.tensors
-        boxes = [search_box(r.region, self.config.margin_px) for r in requests]
+        shape = (self.rig.height, self.rig.width)
+        boxes = [search_box(r.region, self.config.margin_px) if r.bbox is None
+                 else grown_box(r.bbox, self.config.margin_px, shape) for r in requests]
         crops = self.crops(images, [r.view for r in requests], boxes)
         b, hm, wm = crops.pixels.shape[:3]
         region_np = np.zeros((b, hm, wm), dtype=bool)

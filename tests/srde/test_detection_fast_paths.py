@@ -1,0 +1,283 @@
+"""The detection path's fast primitives give exactly what the straightforward ones give.
+
+Each primitive is compared, bit for bit, with the computation it replaces: block means
+against numpy's reshape-mean, the one-partition median against ``np.median``, the mask
+eroded on its box against the whole mask eroded, regions computed inside the moved search
+box against regions computed over the whole disc, the candidates of all views at once
+against one view at a time, the box-corner grazing test against the per-pixel angles,
+the plane's disparity in one pass against the gather-and-scatter, and a detection that
+reads the brightness search's luminance against one that converts the pixels itself.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from srde_fusion.geometry import CameraRig, Plane, incidence_angle_deg, plane_disparity
+from srde_fusion.imaging import luminance
+from srde_fusion.srde import SRDE
+from srde_fusion.srde.backends import DetectionRequest, HostFrame, NumpyBackend, block_means
+from srde_fusion.srde.config import DetectorConfig
+from srde_fusion.srde.estimator import _in_box, _mask_box, _plane_disparity_in_box
+from srde_fusion.srde.highlight import (
+    HighlightDetection,
+    crop_luminance,
+    detect_in_view,
+    median,
+    search_box,
+    weighted_centroid,
+)
+from srde_fusion.srde.search import BaselineSearch
+from srde_fusion.synthetic import RandomSceneConfig, random_scene, render
+
+
+def _blobs(rng, shape, n) -> np.ndarray:
+    """A bool mask of ``n`` random ellipses (some may touch or cross the border)."""
+    h, w = shape
+    mask = np.zeros(shape, np.uint8)
+    for _ in range(n):
+        center = (int(rng.integers(-5, w + 5)), int(rng.integers(-5, h + 5)))
+        axes = (int(rng.integers(1, w // 2 + 2)), int(rng.integers(1, h // 2 + 2)))
+        cv2.ellipse(mask, center, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+    return mask.view(bool)
+
+
+@given(st.integers(0, 7), st.integers(1, 30), st.integers(1, 30), st.integers(0, 2 ** 31))
+def test_block_means_are_numpys_reshape_mean_bit_for_bit(log_factor, rows, cols, seed):
+    factor = 2 ** log_factor
+    rng = np.random.default_rng(seed)
+    image = (rng.random((rows * factor, cols * factor), dtype=np.float32) ** 3).astype(np.float32)
+    want = image.reshape(rows, factor, cols, factor).mean(axis=(1, 3), dtype=np.float32)
+    np.testing.assert_array_equal(block_means(image, factor), want)
+
+
+@given(st.integers(1, 400), st.integers(0, 2 ** 31), st.booleans())
+def test_median_is_numpys_median(n, seed, few_values):
+    rng = np.random.default_rng(seed)
+    values = rng.random(n, dtype=np.float32)
+    if few_values:  # many ties, as 8-bit luminance has
+        values = np.round(values * 4).astype(np.float32) / 4
+    assert median(values) == float(np.median(values))
+
+
+def test_median_of_values_with_nan_is_nan():
+    assert np.isnan(median(np.array([0.2, np.nan, 0.1], np.float32)))
+
+
+@given(st.integers(0, 2 ** 31), st.integers(0, 3))
+def test_search_box_is_the_regions_bounding_box(seed, n_blobs):
+    rng = np.random.default_rng(seed)
+    region = _blobs(rng, (37, 53), n_blobs)
+    margin = int(rng.integers(0, 6))
+    got = search_box(region, margin)
+    if not region.any():
+        assert got is None
+        return
+    rows, cols = np.flatnonzero(region.any(axis=1)), np.flatnonzero(region.any(axis=0))
+    assert got == (max(cols[0] - margin, 0), max(rows[0] - margin, 0),
+                   min(cols[-1] + 1 + margin, 53), min(rows[-1] + 1 + margin, 37))
+
+
+@given(st.integers(0, 2 ** 31), st.integers(0, 5))
+def test_mask_eroded_on_its_box_is_the_whole_mask_eroded(seed, radius):
+    rng = np.random.default_rng(seed)
+    rig = CameraRig.stereo(0.1, fx=60.0, image_size=(64, 48))
+    mask = _blobs(rng, (48, 64), int(rng.integers(1, 4)))
+    srde = SRDE(rig, light=[0.1, -0.2, 0.0], mask_erosion_px=radius)
+    want = mask
+    if radius:
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        want = cv2.erode(mask.view(np.uint8), kernel).view(bool)
+    np.testing.assert_array_equal(srde._erode(mask), want)
+
+
+def test_weighted_centroid_is_the_index_grid_formula():
+    rng = np.random.default_rng(3)
+    weights = rng.random((17, 23), dtype=np.float32) * (rng.random((17, 23)) > 0.3)
+    vv, uu = np.indices(weights.shape, dtype=np.float64)
+    total = float(weights.sum())
+    want = np.array([(weights * uu).sum() / total, (weights * vv).sum() / total])
+    np.testing.assert_array_equal(weighted_centroid(weights), want)
+
+
+def _search_geometry(seed: int):
+    """A rig, a search region, a fake reference detection and its BaselineSearch."""
+    rng = np.random.default_rng(seed)
+    rig = (CameraRig.grid(3, 3, baseline_m=0.06, fx=200.0, image_size=(160, 120))
+           if seed % 2 else CameraRig.stereo(0.09, fx=220.0, image_size=(160, 120)))
+    search = _blobs(rng, (120, 160), 1 + seed % 2)
+    if not search.any():
+        search[60, 80] = True
+    vv, uu = np.nonzero(search)
+    pick = int(rng.integers(0, uu.size))
+    center = np.array([uu[pick] + rng.uniform(-0.5, 0.5), vv[pick] + rng.uniform(-0.5, 0.5)])
+    half = rng.integers(1, 40, size=2)
+    bbox = (int(center[0] - half[0]), int(center[1] - half[1]),
+            int(center[0] + half[0]), int(center[1] + half[1]))
+    det = HighlightDetection(True, center, 10, bbox, 1.0, "", 0.5)
+    light = [rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), rng.uniform(-0.1, 0.2)]
+    depth = ((0.2, 10.0), (0.4, 1.5), (0.05, 1e4))[seed % 3]
+    return rig, search, det, BaselineSearch(rig, np.asarray(light), depth, seed % 5 == 0)
+
+
+@given(st.integers(0, 2 ** 31))
+def test_candidates_of_all_views_are_each_views_own(seed):
+    rig, search, det, geometry = _search_geometry(seed)
+    others = [j for j in range(rig.n_cameras) if j != rig.reference]
+    together = geometry.all_candidates(others, det, search)
+    for j in others:
+        alone = geometry.all_candidates([j], det, search)[j]
+        assert (together[j] is None) == (alone is None)
+        if alone is None:
+            continue
+        for field in alone.__dataclass_fields__:
+            a, b = getattr(alone, field), getattr(together[j], field)
+            if isinstance(a, np.ndarray):
+                assert a.dtype == b.dtype
+                np.testing.assert_array_equal(a, b)
+            else:
+                assert a == b
+
+
+@given(st.integers(0, 2 ** 31))
+def test_region_inside_the_moved_search_box_is_the_whole_discs(seed):
+    rig, search, det, geometry = _search_geometry(seed)
+    others = [j for j in range(rig.n_cameras) if j != rig.reference]
+    for cand in geometry.all_candidates(others, det, search).values():
+        if cand is None:
+            continue
+        for best in np.flatnonzero(cand.ok)[::7]:
+            want, _ = geometry.region_box_at(cand, int(best), search)
+            got, bbox = geometry.region_box_at(cand, int(best), search, search_box(search, 0))
+            np.testing.assert_array_equal(got, want)
+            np.testing.assert_array_equal(geometry.region_at(cand, int(best), search), want)
+            assert bbox == search_box(want, 0)
+
+
+def _planes(seed: int, rig: CameraRig):
+    rng = np.random.default_rng(seed)
+    normal = rng.normal(size=3)
+    normal[2] = -abs(normal[2]) * rng.uniform(0.0, 3.0)  # some nearly edge-on
+    point = [rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(0.3, 3.0)]
+    return Plane.from_point_normal(point, normal, rig.reference_center_m)
+
+
+@given(st.integers(0, 2 ** 31))
+def test_grazing_corner_test_never_misses_a_steep_pixel(seed):
+    rig = CameraRig.stereo(0.1, fx=80.0, image_size=(96, 72))
+    rng = np.random.default_rng(seed)
+    plane = _planes(seed, rig)
+    u0, v0 = int(rng.integers(0, 90)), int(rng.integers(0, 66))
+    box = (u0, v0, int(rng.integers(u0 + 1, 97)), int(rng.integers(v0 + 1, 73)))
+    bound = float(rng.choice([30.0, 60.0, 85.0, 89.0]))
+    srde = SRDE(rig, light=[0.1, -0.2, 0.0], max_incidence_deg=bound)
+    if not srde._grazing_possible(plane, box):
+        assert np.all(incidence_angle_deg(plane, rig, window=box) <= bound)
+
+
+@given(st.integers(0, 2 ** 31))
+def test_disparity_in_box_is_plane_disparity_gathered_and_scattered(seed):
+    rig = CameraRig.stereo(0.1, fx=80.0, image_size=(96, 72))
+    rng = np.random.default_rng(seed)
+    mask = _blobs(rng, (72, 96), 2)
+    if not mask.any():
+        mask[3, 4] = True
+    box, inside = _mask_box(mask)
+    plane = _planes(seed, rig)
+    want = _in_box(plane_disparity(plane, rig, window=box)[inside], box, inside)
+    got = _plane_disparity_in_box(plane, rig, box, inside)
+    assert got.dtype == want.dtype == np.float32
+    np.testing.assert_array_equal(got, want)
+
+
+@given(st.integers(0, 2 ** 31), st.sampled_from(["rgb8", "grey8", "rgb32", "grey32"]),
+       st.sampled_from(["srgb", "linear"]))
+def test_crop_luminance_reuses_a_known_box_exactly(seed, kind, encoding):
+    rng = np.random.default_rng(seed)
+    shape = (40, 50, 3) if kind.startswith("rgb") else (40, 50)
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    if kind.endswith("32"):
+        image = (image / 255.0).astype(np.float32)
+
+    def random_box():
+        u0, v0 = int(rng.integers(0, 49)), int(rng.integers(0, 39))
+        return u0, v0, int(rng.integers(u0 + 1, 51)), int(rng.integers(v0 + 1, 41))
+
+    box, known_box = random_box(), random_box()
+    ku0, kv0, ku1, kv1 = known_box
+    known = (known_box, luminance(image[kv0:kv1, ku0:ku1], encoding))
+    u0, v0, u1, v1 = box
+    want = luminance(image[v0:v1, u0:u1], encoding)
+    got = crop_luminance(image, box, encoding, known)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(crop_luminance(image, box, encoding), want)
+
+
+def test_crop_luminance_fills_the_strips_around_a_partial_overlap():
+    rng = np.random.default_rng(5)
+    image = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    box = (10, 10, 40, 30)
+    for known_box in [(5, 0, 35, 35), (12, 12, 50, 40), (0, 14, 50, 25), (11, 0, 39, 40)]:
+        ku0, kv0, ku1, kv1 = known_box
+        known = (known_box, luminance(image[kv0:kv1, ku0:ku1]))
+        np.testing.assert_array_equal(crop_luminance(image, box, "srgb", known),
+                                      luminance(image[10:30, 10:40]))
+
+
+@pytest.fixture(scope="module")
+def harsh_scene():
+    rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=300.0, image_size=(320, 240))
+    config = RandomSceneConfig(roughness=(0.05, 0.08), clip_ratio=(4.0, 8.0),
+                               light_radius_m=0.015)
+    scene = random_scene(9001, rig, config=config)
+    out = render(scene, rig)
+    return rig.with_light(scene.light.position_m), out.views, out.object_masks[0]
+
+
+def test_detection_reading_the_searchs_luminance_is_the_same(harsh_scene):
+    rig, views, mask = harsh_scene
+    config = DetectorConfig()
+    image = views[0]
+    region = np.zeros(mask.shape, bool)
+    region[60:150, 80:200] = mask[60:150, 80:200]
+    bbox = search_box(region, 0)
+    want = detect_in_view(image, region, config, level=0.3)
+    box = (70, 40, 260, 200)            # holds the detection's crop
+    known = (box, luminance(image[box[1]:box[3], box[0]:box[2]]))
+    got = detect_in_view(image, region, config, level=0.3, region_bbox=bbox,
+                         luminance_crop=known)
+    assert want.found and got.found
+    np.testing.assert_array_equal(got.center_uv, want.center_uv)
+    assert (got.area_px, got.bbox, got.score, got.level) == (
+        want.area_px, want.bbox, want.score, want.level)
+    # A crop that does not hold the detection's is not used.
+    small = ((100, 80, 150, 120), np.zeros((40, 50), np.float32))
+    again = detect_in_view(image, region, config, level=0.3, luminance_crop=small)
+    np.testing.assert_array_equal(again.center_uv, want.center_uv)
+
+
+def test_the_numpy_backend_keeps_the_searchs_luminance_for_the_frame(harsh_scene):
+    rig, views, mask = harsh_scene
+    srde = SRDE(rig, refine=False)
+    frame = srde.backend.prepare(views)
+    assert isinstance(frame, HostFrame) and frame.luminance_crops == {}
+    result = srde._estimate(frame, mask, None)
+    assert result.ok
+    assert set(frame.luminance_crops) == set(range(rig.n_cameras)) - {rig.reference}
+    for j, ((u0, v0, u1, v1), lum) in frame.luminance_crops.items():
+        np.testing.assert_array_equal(lum, luminance(views[j][v0:v1, u0:u1]))
+    # A fresh frame per estimate: the same result from plain views.
+    again = srde.estimate(list(views), mask)
+    np.testing.assert_array_equal(again.highlight_centers, result.highlight_centers)
+    # Requests without a box find it; with one they skip the search: the same detection.
+    backend = NumpyBackend(rig, DetectorConfig())
+    region = srde._erode(mask)
+    plain = backend.detect(views, [DetectionRequest(rig.reference, region)])[0]
+    boxed = backend.detect(views, [DetectionRequest(rig.reference, region, None,
+                                                    search_box(region, 0))])[0]
+    np.testing.assert_array_equal(plain.center_uv, boxed.center_uv)
