@@ -302,3 +302,18 @@ def test_calibrate_light_writes_every_light_keeping_names_and_radii(capture_dirs
         run_cli(capsys, "calibrate-light", *dirs, "--board", root / "board.json", "--rig",
                 bare, "--lights", "none")
     assert "expected a positive number of lights or 'auto'" in capsys.readouterr().err
+
+
+def test_a_stereo_pair_that_cannot_tell_two_lamps_apart_says_so(board):
+    """Two lamps at the cameras' height: both highlights on one image row, 28 px apart
+    with about 30 px disparity, so each can pair with either in the other view, and
+    both pairings put a mirror image behind the plate. Reported, not guessed."""
+    stereo = CameraRig.stereo(0.1, fx=600.0, image_size=(640, 480))
+    lights = np.array([[0.35, 0.0, 0.1], [0.44, 0.0, 0.1]])
+    scene = plate_scene(board, stereo, lights, center_m=(0.05, 0.0, 0.9), roughness=0.0015,
+                        light_radius_m=0.001)
+    rendering = render(scene, stereo, supersample=2)
+    assert rendering.highlight_on_object.all()
+    with pytest.raises(LightError, match=r"capture 0: ambiguous highlights: two sets of 2 "
+                                         r"views share the highlights of"):
+        estimate_lights([rendering.views], stereo, board, n_lights=2)
