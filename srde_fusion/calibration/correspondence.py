@@ -187,6 +187,9 @@ def group_highlights(
     conflicts: list[str] = []
     for i, j in itertools.combinations(range(n), 2):
         for a, b in itertools.product(range(len(cands[i])), range(len(cands[j]))):
+            # A pair inside a set found before proposes that set again.
+            if any(key[i] == a and key[j] == b for key in proposals):
+                continue
             seed = np.full((n, 2), np.nan)
             seed[i], seed[j] = cands[i][a], cands[j][b]
             fit = triangulate_rectified(rig, seed)

@@ -224,6 +224,21 @@ def find_plate_highlights(
     return centers, tuple(reasons)
 
 
+def _reaches(center_uv: np.ndarray, area_px: int, distance_px: np.ndarray) -> bool:
+    """Whether a round blob of this area reaches where ``distance_px`` (a distance map to
+    blocked pixels, as :func:`cv2.distanceTransform` gives) is zero."""
+    h, w = distance_px.shape
+    u = int(np.clip(round(center_uv[0]), 0, w - 1))
+    v = int(np.clip(round(center_uv[1]), 0, h - 1))
+    return float(distance_px[v, u]) < math.sqrt(max(area_px, 1) / math.pi) + _CLIP_MARGIN_PX
+
+
+def _distance_to(blocked: np.ndarray) -> np.ndarray:
+    if not blocked.any():
+        return np.full(blocked.shape, np.inf, dtype=np.float32)
+    return cv2.distanceTransform((~blocked).astype(np.uint8), cv2.DIST_L2, 5)
+
+
 def _candidates_in_view(
     view: np.ndarray,
     rig: CameraRig,
@@ -237,10 +252,12 @@ def _candidates_in_view(
     name = rig.camera_names[camera]
     plate, labels = _plate_maps(rig, board, pose, camera)
     remaining = _free_region(plate, labels)
-    excluded = np.zeros_like(remaining)
+    to_marker, to_edge = _distance_to(labels > 0), _distance_to(~plate)
     h, w = remaining.shape
     vv, uu = np.mgrid[0:h, 0:w]
     centers, notes = [], []
+    # Left-out areas as (centre, radius, box), to measure a new blob's distance to them.
+    left_out: list[tuple[np.ndarray, float, tuple[int, int, int, int]]] = []
     # Up to one candidate more than wanted: it is reported, not dropped silently (a
     # highlight more than expected is for the caller to judge).
     for _ in range(_SEARCHES_PER_HIGHLIGHT * (max_candidates + 1)):
@@ -249,30 +266,40 @@ def _candidates_in_view(
             break
         center = np.asarray(det.center_uv, dtype=np.float64)
         radius = math.sqrt(max(det.area_px, 1) / math.pi)
-        if _clipped_by(center, det.area_px, labels > 0):
+        if _reaches(center, det.area_px, to_marker):
             notes.append(f"{name}: highlight at ({center[0]:.0f}, {center[1]:.0f}) partly under "
                          f"marker {_nearest_marker(center, labels, board)}")
-        elif _clipped_by(center, det.area_px, ~plate):
+        elif _reaches(center, det.area_px, to_edge):
             notes.append(f"{name}: highlight at ({center[0]:.0f}, {center[1]:.0f}) cut by the "
                          f"plate edge")
-        elif _clipped_by(center, det.area_px, excluded):
+        elif any(_gap_px(center, *area) < radius + _CLIP_MARGIN_PX for area in left_out):
             # The skirt of a highlight found before, or a highlight touching it: its
             # centre would be pulled either way.
             notes.append(f"{name}: blob at ({center[0]:.0f}, {center[1]:.0f}) touches a "
                          f"brighter highlight")
         else:
             centers.append(center)
-        disc = np.square(uu - center[0]) + np.square(vv - center[1]) <= np.square(
-            _EXCLUSION_RADII * radius + _EXCLUSION_MARGIN_PX)
+        reach = _EXCLUSION_RADII * radius + _EXCLUSION_MARGIN_PX
+        disc = np.square(uu - center[0]) + np.square(vv - center[1]) <= reach * reach
         # The blob's box too: it holds the peak the detector started from, which may lie
         # outside the disc around a lopsided blob's centre (and would be found again).
         u0, v0, u1, v1 = det.bbox
         disc[v0:v1, u0:u1] = True
         remaining &= ~disc
-        excluded |= disc
+        left_out.append((center, reach, det.bbox))
         if len(centers) > max_candidates:
             break
     return np.array(centers, dtype=np.float64).reshape(-1, 2), tuple(notes)
+
+
+def _gap_px(point_uv: np.ndarray, center_uv: np.ndarray, radius_px: float,
+            box: tuple[int, int, int, int]) -> float:
+    """Distance (pixels) from a point to a left-out area: a disc and a box of pixels."""
+    u0, v0, u1, v1 = box
+    du = max(u0 - point_uv[0], 0.0, point_uv[0] - (u1 - 1))
+    dv = max(v0 - point_uv[1], 0.0, point_uv[1] - (v1 - 1))
+    to_disc = float(np.hypot(*(point_uv - center_uv))) - radius_px
+    return max(min(to_disc, math.hypot(du, dv)), 0.0)
 
 
 def find_plate_highlight_candidates(
