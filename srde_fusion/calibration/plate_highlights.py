@@ -225,8 +225,10 @@ def find_plate_highlights(
 
 
 def _reaches(center_uv: np.ndarray, area_px: int, distance_px: np.ndarray) -> bool:
-    """Whether a round blob of this area reaches where ``distance_px`` (a distance map to
-    blocked pixels, as :func:`cv2.distanceTransform` gives) is zero."""
+    """Whether a round blob of this area reaches a blocked pixel.
+
+    ``distance_px`` is the distance map to the blocked pixels (:func:`_distance_to`).
+    """
     h, w = distance_px.shape
     u = int(np.clip(round(center_uv[0]), 0, w - 1))
     v = int(np.clip(round(center_uv[1]), 0, h - 1))
@@ -234,6 +236,7 @@ def _reaches(center_uv: np.ndarray, area_px: int, distance_px: np.ndarray) -> bo
 
 
 def _distance_to(blocked: np.ndarray) -> np.ndarray:
+    """Distance (pixels) of every pixel to the nearest blocked one (inf: none blocked)."""
     if not blocked.any():
         return np.full(blocked.shape, np.inf, dtype=np.float32)
     return cv2.distanceTransform((~blocked).astype(np.uint8), cv2.DIST_L2, 5)
