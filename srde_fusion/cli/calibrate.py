@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ..calibration import (
     DEFAULT_MATCH_TOLERANCE_PX,
@@ -126,7 +127,12 @@ def _calibrate_light_command(args) -> int:
         what = "the light" if n == 1 else f"{n} lights"
         print(f"wrote {what} into {args.rig} (previous file kept as {calibration.backup})")
     if args.figure is not None and calibration.lights is not None:
-        print("--figure draws one light; skipped for several lights")
+        board = Board.from_json(args.board)
+        for k, estimate in enumerate(calibration.estimates):
+            out = Path(args.figure) / f"light{k}"
+            files = write_calibration_figures(out, args.captures, estimate, calibration.rig,
+                                              board)
+            print(f"wrote {out}/: {', '.join(f.name for f in files)}")
     elif args.figure is not None:
         files = write_calibration_figures(args.figure, args.captures, calibration.estimate,
                                           calibration.rig, Board.from_json(args.board))
@@ -207,5 +213,6 @@ def _register_calibrate_light(subparsers) -> None:
     p.add_argument("--figure", default=None, metavar="DIR",
                    help="write capture_<c>.png per capture (each view: markers found and "
                    "reprojected, highlight centre and its residual) and light_3d.png (plate "
-                   "poses, rays, the light) into DIR")
+                   "poses, rays, the light) into DIR; with several lights, one DIR/light<k>/ "
+                   "per light")
     p.set_defaults(func=_calibrate_light_command)

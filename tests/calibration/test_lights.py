@@ -276,8 +276,11 @@ def test_calibrate_light_writes_every_light_keeping_names_and_radii(capture_dirs
                         RigLight((0.1, -0.3, 0.0), radius_m=0.004, name="left")]
                        ).to_json(rig_path)
     code, out, err = run_cli(capsys, "calibrate-light", *dirs, "--board", root / "board.json",
-                             "--rig", rig_path)
+                             "--rig", rig_path, "--figure", tmp_path / "fig")
     assert code == 0, err
+    for k in range(2):  # one figure folder per light
+        assert (tmp_path / "fig" / f"light{k}" / "light_3d.png").is_file()
+        assert (tmp_path / "fig" / f"light{k}" / "capture_0.png").is_file()
     assert "2 light(s) from 3 plate pose(s)" in out and "wrote 2 lights into" in out
     assert "the plate cannot measure it" in out
     written = CameraRig.from_json(rig_path)
