@@ -47,15 +47,19 @@ WRONG_M = 0.01
 SIGMA_RADII = tuple(float(np.sqrt(chi2.ppf(p, 3))) for p in (0.6827, 0.9545, 0.9973))
 
 
-def draw_lights(rng: np.random.Generator, k: int) -> np.ndarray:
+#: Lamp layouts: the range of distances between neighbouring lamps, metres.
+LAYOUTS = {"spread": (0.12, 0.2), "close": (0.04, 0.08)}
+
+
+def draw_lights(rng: np.random.Generator, k: int, spacing_m=LAYOUTS["spread"]) -> np.ndarray:
     first = np.array([rng.uniform(0.05, 0.25), rng.uniform(-0.42, -0.3), rng.uniform(0.0, 0.1)])
     lights = [first]
     while len(lights) < k:
         side = rng.choice([-1.0, 1.0])
-        step = np.array([side * rng.uniform(0.12, 0.2), rng.uniform(-0.04, 0.04),
+        step = np.array([side * rng.uniform(*spacing_m), rng.uniform(-0.04, 0.04),
                          rng.uniform(-0.04, 0.04)])
         cand = lights[rng.integers(len(lights))] + step
-        if min(np.linalg.norm(cand - p) for p in lights) >= 0.12:
+        if min(np.linalg.norm(cand - p) for p in lights) >= spacing_m[0]:
             lights.append(cand)
     return np.array(lights)
 
@@ -90,57 +94,59 @@ def score(estimates, truth) -> dict:
     return dict(lights=rows, wrong=bool(wrong))
 
 
-def run(trials: int, counts, physics_names) -> list[dict]:
+def run(trials: int, plan) -> list[dict]:
+    """``plan``: (physics, layout, number of lights) triples to run ``trials`` times each."""
     rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, fy=600.0, image_size=(640, 480))
     board = Board.corner_layout(plate_size_m=PLATE_SIZE_M)
     out = []
-    for physics_name in physics_names:
+    for physics_name, layout, k in plan:
         physics = Physics.faithful() if physics_name == "faithful" else None
-        for k in counts:
-            for trial in range(trials):
-                rng = np.random.default_rng([k, trial, 17])
-                truth = draw_lights(rng, k)
-                views = captures(rng, rig, board, truth, physics)
-                for mode in ("given", "counted") if k > 1 else ("single",):
-                    t0 = time.perf_counter()
-                    rec = dict(physics=physics_name, n_lights=k, trial=trial, mode=mode,
-                               truth_m=truth.tolist())
-                    try:
-                        if mode == "single":
-                            estimates = (estimate_light(views, rig, board),)
-                        else:
-                            found = estimate_lights(views, rig, board,
-                                                    n_lights=k if mode == "given" else None)
-                            estimates = found.lights
-                            if len(estimates) != k:
-                                raise SRDEError(f"counted {len(estimates)} lights, not {k}")
-                        rec.update(status="ok", **score(estimates, truth))
-                    except SRDEError as exc:
-                        rec.update(status="refused", reason=str(exc)[:300], wrong=False,
-                                   lights=[])
-                    rec["seconds"] = time.perf_counter() - t0
-                    out.append(rec)
-                    errs = ", ".join(f"{r['error_m'] * 1e3:.2f} mm ({r['mahalanobis']:.1f} s)"
-                                     for r in rec["lights"])
-                    print(f"{physics_name:8s} {k} lights {mode:7s} trial {trial}: "
-                          f"{rec['status']}{' WRONG' if rec['wrong'] else ''} {errs}"
-                          f"{' ' + rec.get('reason', '') if rec['status'] != 'ok' else ''}",
-                          flush=True)
+        for trial in range(trials):
+            seed = [k, trial, 17] if layout == "spread" else [k, trial, 17, 1]
+            rng = np.random.default_rng(seed)
+            truth = draw_lights(rng, k, LAYOUTS[layout])
+            views = captures(rng, rig, board, truth, physics)
+            for mode in ("given", "counted") if k > 1 else ("single",):
+                t0 = time.perf_counter()
+                rec = dict(physics=physics_name, layout=layout, n_lights=k, trial=trial,
+                           mode=mode, truth_m=truth.tolist())
+                try:
+                    if mode == "single":
+                        estimates = (estimate_light(views, rig, board),)
+                    else:
+                        found = estimate_lights(views, rig, board,
+                                                n_lights=k if mode == "given" else None)
+                        estimates = found.lights
+                        if len(estimates) != k:
+                            raise SRDEError(f"counted {len(estimates)} lights, not {k}")
+                    rec.update(status="ok", **score(estimates, truth))
+                except SRDEError as exc:
+                    rec.update(status="refused", reason=str(exc)[:300], wrong=False,
+                               lights=[])
+                rec["seconds"] = time.perf_counter() - t0
+                out.append(rec)
+                errs = ", ".join(f"{r['error_m'] * 1e3:.2f} mm ({r['mahalanobis']:.1f} s)"
+                                 for r in rec["lights"])
+                print(f"{physics_name:8s} {layout:6s} {k} lights {mode:7s} trial {trial}: "
+                      f"{rec['status']}{' WRONG' if rec['wrong'] else ''} {errs}"
+                      f"{' ' + rec.get('reason', '') if rec['status'] != 'ok' else ''}",
+                      flush=True)
     return out
 
 
 def summarise(records: list[dict]) -> list[dict]:
     rows = []
-    keys = sorted({(r["physics"], r["n_lights"], r["mode"]) for r in records},
-                  key=lambda t: (t[0], t[1], t[2]))
-    for physics, k, mode in keys:
-        recs = [r for r in records if (r["physics"], r["n_lights"], r["mode"]) ==
-                (physics, k, mode)]
+    keys = sorted({(r["physics"], r["layout"], r["n_lights"], r["mode"]) for r in records},
+                  key=lambda t: (t[0], -len(t[1]), t[2], t[3]))
+    for physics, layout, k, mode in keys:
+        recs = [r for r in records if (r["physics"], r["layout"], r["n_lights"], r["mode"]) ==
+                (physics, layout, k, mode)]
         lights = [light for r in recs if r["status"] == "ok" for light in r["lights"]]
         err = np.array([light["error_m"] for light in lights]) * 1e3
         maha = np.array([light["mahalanobis"] for light in lights])
         ratio = np.array([light["error_m"] / light["sigma_m"] for light in lights])
-        row = dict(physics=physics, n_lights=k, mode=mode, calibrations=len(recs),
+        row = dict(physics=physics, layout=layout, n_lights=k, mode=mode,
+                   calibrations=len(recs),
                    ok=sum(r["status"] == "ok" for r in recs),
                    refused=sum(r["status"] == "refused" for r in recs),
                    wrong=sum(bool(r["wrong"]) for r in recs), lights=len(lights),
@@ -161,17 +167,18 @@ def write(rows: list[dict], records: list[dict], args) -> None:
         "",
         f"3x3 array, A3 plate, {CAPTURES} random plate poses per calibration at 0.9-1.1 m, "
         f"{SUPERSAMPLE}x{SUPERSAMPLE} supersampling, lights of {LIGHT_RADIUS_M * 1e3:g} mm "
-        "radius 12-20 cm apart; `python benchmarks/light_calibration_multi.py "
-        f"--trials {args.trials}`. 'given': told the number of lights; 'counted': it counts "
-        "them; 'single': `estimate_light` with one light. Errors per light; sigma = "
+        "radius, 12-20 cm apart ('spread') or 4-8 cm apart ('close'); "
+        f"`python benchmarks/light_calibration_multi.py --trials {args.trials}`. 'given': "
+        "told the number of lights; 'counted': it counts them; 'single': `estimate_light` "
+        "with one light. Errors per light; sigma = "
         "sqrt(trace C) of the reported covariance; 'within k sigma': the true light inside "
         "the reported k-sigma ellipsoid (68.3 / 95.4 / 99.7 % for an honest Gaussian). "
         "'wrong': an estimate > 10 mm from every true light or two on one light.",
         "",
-        "| physics | lights | mode | calibrations | ok | refused | wrong | mean mm | "
+        "| physics | layout | lights | mode | calibrations | ok | refused | wrong | mean mm | "
         "median mm | max mm | median err/sigma | within 1 sigma | within 2 sigma | "
         "within 3 sigma | s per calibration |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         if "mean_mm" in r:
@@ -180,13 +187,15 @@ def write(rows: list[dict], records: list[dict], args) -> None:
                      f"{r['within_2sigma']:.0%} | {r['within_3sigma']:.0%}")
         else:
             stats = " | ".join(["-"] * 7)
-        lines.append(f"| {r['physics']} | {r['n_lights']} | {r['mode']} | {r['calibrations']} "
+        lines.append(f"| {r['physics']} | {r['layout']} | {r['n_lights']} | {r['mode']} | "
+                     f"{r['calibrations']} "
                      f"| {r['ok']} | {r['refused']} | {r['wrong']} | {stats} | "
                      f"{r['seconds']:.1f} |")
     refused = [r for r in records if r["status"] == "refused"]
     if refused:
         lines += ["", "Refusals (the reason each calibration gave):", ""]
-        lines += [f"- {r['physics']}, {r['n_lights']} lights, {r['mode']}, trial {r['trial']}: "
+        lines += [f"- {r['physics']}, {r['layout']}, {r['n_lights']} lights, {r['mode']}, "
+                  f"trial {r['trial']}: "
                   f"{r['reason']}" for r in refused]
     (RESULTS / "light_calibration_multi.md").write_text("\n".join(lines) + "\n")
     (RESULTS / "light_calibration_multi.json").write_text(
@@ -202,7 +211,9 @@ def main() -> None:
     if args.quick:
         args.trials = 2
     physics = ("model",) if args.quick else ("model", "faithful")
-    records = run(args.trials, (1, 2, 3), physics)
+    plan = [(p, "spread", k) for p in physics for k in (1, 2, 3)]
+    plan += [("model", "close", k) for k in (2, 3)]
+    records = run(args.trials, plan)
     write(summarise(records), records, args)
 
 
