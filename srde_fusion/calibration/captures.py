@@ -304,7 +304,9 @@ def estimate_lights(
     rig : CameraRig
     board : Board
     n_lights : int, optional
-        Number of lights; by default the most highlight sets any capture shows.
+        Number of lights; by default counted: then every capture must show the same
+        number of highlight sets (lamps whose highlights merge in some captures would
+        otherwise count as a phantom light between them).
     method, refine, min_views, min_marker_views, max_incidence_deg, max_residual_m,
     max_reprojection_px, **detector_options
         As for :func:`estimate_light` (``min_views``: per light and capture);
@@ -322,7 +324,8 @@ def estimate_lights(
         As :func:`estimate_light`; and highlights that cannot be sorted without a guess:
         two equally supported highlight sets sharing highlights, more highlight sets than
         lights, no capture showing every light, a capture whose sets fit no assignment
-        or two of them.
+        or two of them, a light seen in one capture only (of two or more), or, when
+        counting, captures that show different numbers of lights.
     """
     _check_calibration_inputs(captures, rig, board, min_views)
     if n_lights is not None and (isinstance(n_lights, bool) or not isinstance(n_lights, int)
@@ -352,10 +355,30 @@ def estimate_lights(
         raise LightError(
             f"highlights: expected one highlight of a light in at least {min_views} views of "
             f"a capture, got none{': ' + details if details else ''}")
+    counts = [len(g.sets) for g in groupings]
+    if n_lights is None and len(set(counts)) > 1:
+        # Highlights of lamps close together merge into one blob in some views or plate
+        # poses and not in others; the merged blob is consistent with a phantom light
+        # between them. A count that varies between captures is that, or a light lost
+        # under a marker: either way the count is not known.
+        raise LightError(
+            f"lights: expected every capture to show the same number of lights when counting "
+            f"them, got {counts} highlight sets per capture (highlights of lamps close "
+            f"together merge, or sit on a marker); give the number of lights")
     matches, reason = match_captures([g.sets for g in groupings], poses, rig, k,
                                      max_ray_distance_m=max_residual_m)
     if reason:
         raise LightError(reason)
+    if len(groupings) >= 2:
+        # A light seen in one capture only was never checked against another plate pose.
+        seen = [sum(light in m.lights for m in matches) for light in range(k)]
+        lonely = [light for light in range(k) if seen[light] < 2]
+        if lonely:
+            only = [c for c, m in enumerate(matches) if lonely[0] in m.lights]
+            raise LightError(
+                f"lights: expected every light in at least 2 of the {len(groupings)} captures "
+                f"(so that its rays are checked across plate poses), got a light seen only in "
+                f"capture {only[0]}; add captures that show it, or check the number of lights")
     estimates = []
     for light in range(k):
         centers, reasons = [], []

@@ -320,3 +320,33 @@ def test_a_stereo_pair_that_cannot_tell_two_lamps_apart_says_so(board):
     with pytest.raises(LightError, match=r"capture 0: ambiguous highlights: two sets of 2 "
                                          r"views share the highlights of"):
         estimate_lights([rendering.views], stereo, board, n_lights=2)
+
+
+@pytest.fixture(scope="module")
+def lamp0_only(rig3x3, board):
+    """Captures with only the first lamp on (the plates aimed as for two lamps)."""
+    out = []
+    for spec in PLATES[1:]:
+        kw = dict(spec)
+        kw["normal"] = highlight_normal(kw.pop("aim_m"), np.mean(LIGHTS_M[:2], axis=0))
+        out.append(render(plate_scene(board, rig3x3, LIGHTS_M[0], **kw), rig3x3,
+                          supersample=2).views)
+    return out
+
+
+def test_counting_refuses_captures_that_disagree_on_the_count(two, lamp0_only, rig3x3, board):
+    views = [two[0][0], *lamp0_only]
+    with pytest.raises(LightError, match=r"expected every capture to show the same number of "
+                                         r"lights when counting them, got \[2, 1, 1\]"):
+        estimate_lights(views, rig3x3, board)
+
+
+def test_a_light_seen_in_one_capture_only_is_not_trusted(two, lamp0_only, rig3x3, board):
+    views = [two[0][0], *lamp0_only]
+    with pytest.raises(LightError, match=r"expected every light in at least 2 of the 3 "
+                                         r"captures .* got a light seen only in capture 0"):
+        estimate_lights(views, rig3x3, board, n_lights=2)
+    # Seen in two captures, it is.
+    est = estimate_lights([two[0][0], two[1][0], lamp0_only[1]], rig3x3, board, n_lights=2)
+    for e in est.lights:
+        assert _nearest(e.position_m, LIGHTS_M[:2])[1] < DETECTED_TOL_M
