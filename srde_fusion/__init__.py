@@ -40,7 +40,7 @@ from .errors import (
 )
 from .evaluation import evaluate, evaluate_dataset, evaluate_scene
 from .fusion import FusionResult, HybridStereo, fuse, postprocess
-from .geometry import CameraRig, Plane
+from .geometry import CameraRig, Plane, RigLight
 from .io import read_disparity, read_image, read_mask, read_scene, write_disparity
 from .masks import HighlightSegmenter, OnnxMasker, UserMasks
 from .srde import SRDE, BatchedSRDE, SRDEResult, detect_highlight
@@ -66,6 +66,7 @@ __all__ = [
     "SceneError",
     # the rig and SRDE
     "CameraRig",
+    "RigLight",
     "Plane",
     "SRDE",
     "SRDEResult",

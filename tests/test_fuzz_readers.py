@@ -31,7 +31,7 @@ import pytest
 
 from srde_fusion.calibration import Board
 from srde_fusion.errors import RigError, SRDEError
-from srde_fusion.geometry import CameraRig
+from srde_fusion.geometry import CameraRig, RigLight
 from srde_fusion.io import (
     read_disparity,
     read_image,
@@ -147,6 +147,11 @@ def valid(tmp_path_factory, rig) -> dict[str, bytes]:
         "png": write_image(folder / "i.png", rng.integers(0, 256, (H, W, 3), np.uint8))
         .read_bytes(),
         "rig": rig.to_json().encode(),
+        # Several lights with the optional fields: radius, name.
+        "rig_lights": rig.with_lights([RigLight((0.05, -0.3, 0.0), radius_m=0.004, name="a"),
+                                       RigLight((-0.2, -0.3, 0.1), name="b"),
+                                       RigLight((0.0, 0.4, 0.0), radius_m=0.0)])
+        .to_json().encode(),
         "board": board.to_json().encode(),
         "mask_png": cv2.imencode(".png", labels)[1].tobytes(),
         "mask_png16": cv2.imencode(".png", labels16)[1].tobytes(),
@@ -201,6 +206,7 @@ READERS: dict[str, tuple[str, str, Callable]] = {
     "read_disparity (KITTI PNG)": ("kitti", ".png", read_disparity),
     "read_disparity (.npy)": ("npy", ".npy", read_disparity),
     "CameraRig.from_json (rig.json)": ("rig", ".json", CameraRig.from_json),
+    "CameraRig.from_json (several lights)": ("rig_lights", ".json", CameraRig.from_json),
     "Board.from_json (board.json)": ("board", ".json", Board.from_json),
     "read_middlebury_calib": ("calib", ".txt", read_middlebury_calib),
     "JSON (any rig source)": ("json", ".json", CameraRig.from_json),

@@ -25,6 +25,8 @@ def _cli_render(args: argparse.Namespace) -> int:
         supersample=args.supersample,
         physics=Physics.faithful() if args.physics == "faithful" else None,
         lobe=args.lobe,
+        n_lights=args.lights[0] if len(args.lights) == 1 else tuple(args.lights),
+        all_highlights_on_objects=args.all_highlights,
         progress=not args.quiet,
         overwrite=args.force,
     )
@@ -57,6 +59,14 @@ def register(subparsers: Any) -> None:
         help="rig.json of the camera array (default: 3x3, 85 mm, 640x480, fx 600)",
     )
     p.add_argument("--objects", type=int, default=1, help="objects per scene (default 1)")
+    p.add_argument(
+        "--lights", type=int, nargs="+", default=[1], metavar="N",
+        help="lights per scene: N, or MIN MAX drawn per scene (default 1); rig.json lists "
+        "them all, scene.json holds each light's virtual lights and highlight centres")
+    p.add_argument(
+        "--all-highlights", action="store_true",
+        help="with several lights, put every light's highlight inside every object in every "
+        "view (by default only the first light's is guaranteed)")
     p.add_argument("--lobe", choices=LOBES, default="ggx", help="specular lobe (default ggx)")
     p.add_argument(
         "--supersample", type=int, default=1, help="k: average k x k samples per pixel (default 1)"

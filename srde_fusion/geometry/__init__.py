@@ -15,10 +15,12 @@ from .plane import (
     plane_from_lights,
 )
 from .rig import (
+    MAX_LIGHTS,
     RIG_FORMAT,
     Camera,
     CameraRig,
     Intrinsics,
+    RigLight,
     project_points,
 )
 from .rotations import (
@@ -44,7 +46,9 @@ __all__ = [
     "Intrinsics",
     "Camera",
     "CameraRig",
+    "RigLight",
     "RIG_FORMAT",
+    "MAX_LIGHTS",
     "project_points",
     "rotation_from_vector",
     "rotation_to_vector",

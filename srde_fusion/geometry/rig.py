@@ -25,12 +25,16 @@ __all__ = [
     "Intrinsics",
     "Camera",
     "CameraRig",
+    "RigLight",
     "RIG_FORMAT",
     "project_points",
     "MAX_FOCAL_PX",
     "MAX_PRINCIPAL_OFFSET",
     "MAX_POSITION_M",
     "MIN_BASELINE_M",
+    "MAX_LIGHTS",
+    "MAX_LIGHT_RADIUS_M",
+    "MIN_LIGHT_SEPARATION_M",
 ]
 
 RIG_FORMAT = "srde-rig/1"
@@ -48,6 +52,14 @@ MAX_PRINCIPAL_OFFSET = 10.0
 MAX_POSITION_M = 1e3
 #: Shortest stereo baseline, metres.
 MIN_BASELINE_M = 1e-6
+#: Most lights a rig may list (a lamp rack, not a light field).
+MAX_LIGHTS = 16
+#: Largest light radius, metres: beyond it the "small light" of the method is a room.
+MAX_LIGHT_RADIUS_M = 1.0
+#: Lights closer than this are one light listed twice (their highlights coincide).
+MIN_LIGHT_SEPARATION_M = 1e-3
+#: Longest light name, characters.
+_MAX_NAME_CHARS = 128
 
 
 def _number(value: Any, field_name: str, *, positive: bool = False) -> float:
@@ -131,6 +143,102 @@ class Camera:
     center_m: tuple[float, float, float]
 
 
+def _light_fields(position: Any, radius_m: Any, name: Any, where: str,
+                  error: type[SRDEError]) -> tuple[tuple[float, float, float], float | None,
+                                                   str | None]:
+    """Validate one light's fields; ``where`` names it in messages (``light[1]``)."""
+    pos = _vector3(position, f"{where}.position", error)
+    if radius_m is not None:
+        radius_m = check_number(radius_m, f"{where}.radius_m", error)
+        if not 0.0 <= radius_m <= MAX_LIGHT_RADIUS_M:
+            raise error(
+                f"{where}.radius_m: expected a radius in [0, {MAX_LIGHT_RADIUS_M:g}] m "
+                f"(metres, not millimetres), got {radius_m:g}"
+            )
+    if name is not None and (
+        not isinstance(name, str) or not name.strip() or len(name) > _MAX_NAME_CHARS
+    ):
+        raise error(
+            f"{where}.name: expected a non-empty string of at most {_MAX_NAME_CHARS} "
+            f"characters, got {name!r:.80}"
+        )
+    return pos, radius_m, name
+
+
+@dataclass(frozen=True)
+class RigLight:
+    """One known light of the rig.
+
+    Parameters
+    ----------
+    position_m : (float, float, float)
+        Centre of the light in the array frame, metres.
+    radius_m : float or None
+        Radius of a spherical light, metres (0 = a point); None when not known.
+    name : str or None
+        A label for messages and reports ("left lamp"); None when unnamed.
+
+    Examples
+    --------
+    >>> RigLight((0.1, -0.4, 0.2), radius_m=0.005).to_dict()
+    {'position': [0.1, -0.4, 0.2], 'radius_m': 0.005}
+    """
+
+    position_m: tuple[float, float, float]
+    radius_m: float | None = None
+    name: str | None = None
+
+    def __post_init__(self) -> None:
+        pos, radius, name = _light_fields(self.position_m, self.radius_m, self.name, "light",
+                                          LightError)
+        object.__setattr__(self, "position_m", pos)
+        object.__setattr__(self, "radius_m", radius)
+        object.__setattr__(self, "name", name)
+
+    @property
+    def position(self) -> np.ndarray:
+        """The position as ``(3,)`` float64, metres."""
+        return np.array(self.position_m)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the light's entry in ``rig.json``: its position, then the optional fields."""
+        out: dict[str, Any] = {"position": list(self.position_m)}
+        if self.radius_m is not None:
+            out["radius_m"] = self.radius_m
+        if self.name is not None:
+            out["name"] = self.name
+        return out
+
+
+def _check_lights(lights: Any, error: type[SRDEError]) -> tuple[RigLight, ...]:
+    """Validate a rig's lights as a whole: a tuple of RigLight, distinct, uniquely named."""
+    if lights is None:
+        return ()
+    if isinstance(lights, RigLight):
+        lights = (lights,)
+    if not isinstance(lights, (tuple, list)):
+        raise error(f"lights: expected a sequence of RigLight, got {type(lights).__name__}")
+    if len(lights) > MAX_LIGHTS:
+        raise error(f"lights: expected at most {MAX_LIGHTS} lights, got {len(lights)}")
+    for i, light in enumerate(lights):
+        if not isinstance(light, RigLight):
+            raise error(f"lights[{i}]: expected a RigLight, got {type(light).__name__}")
+    positions = np.array([light.position_m for light in lights]).reshape(-1, 3)
+    for i in range(len(lights)):
+        for j in range(i):
+            gap = float(np.linalg.norm(positions[i] - positions[j]))
+            if gap < MIN_LIGHT_SEPARATION_M:
+                raise error(
+                    f"light[{i}].position: expected a light at least "
+                    f"{MIN_LIGHT_SEPARATION_M * 1000:g} mm from every other, got "
+                    f"{gap * 1000:.3g} mm from light[{j}] (one light listed twice?)"
+                )
+    names = [light.name for light in lights if light.name is not None]
+    if len(set(names)) != len(names):
+        raise error(f"light names: expected unique names, got {names}")
+    return tuple(lights)
+
+
 @dataclass(frozen=True)
 class CameraRig:
     """A rectified multi-camera rig with an optional known light position.
@@ -150,7 +258,12 @@ class CameraRig:
     image_encoding : {"srgb", "linear"}
         How 8-bit images encode intensity.
     light_position_m : (float, float, float) or None
-        The point light in the array frame, metres.
+        The (first) light in the array frame, metres; what single-light code reads.
+    lights : tuple of RigLight
+        Every known light (position, optional radius and name); the first is the one
+        ``light_position_m`` and :attr:`light` give. Either field may be given: a
+        position alone makes one point light, lights alone set the position. Given
+        together, the position must be the first light's.
 
     Examples
     --------
@@ -169,6 +282,7 @@ class CameraRig:
     stereo_pair: tuple[int, int] = (0, 1)
     image_encoding: str = "srgb"
     light_position_m: tuple[float, float, float] | None = None
+    lights: tuple[RigLight, ...] = ()
     _centers: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -274,12 +388,20 @@ class CameraRig:
                 f"image_encoding: expected one of {list(IMAGE_ENCODINGS)}, "
                 f"got {self.image_encoding!r}"
             )
+        lights = _check_lights(self.lights, LightError)
         if self.light_position_m is not None:
-            object.__setattr__(
-                self,
-                "light_position_m",
-                _vector3(self.light_position_m, "light.position", LightError),
-            )
+            position = _vector3(self.light_position_m, "light.position", LightError)
+            if not lights:
+                lights = (RigLight(position),)
+            elif lights[0].position_m != position:
+                raise LightError(
+                    f"light_position_m: expected the first light's position "
+                    f"{list(lights[0].position_m)} (or None), got {list(position)}"
+                )
+            object.__setattr__(self, "light_position_m", position)
+        elif lights:
+            object.__setattr__(self, "light_position_m", lights[0].position_m)
+        object.__setattr__(self, "lights", lights)
         centers.setflags(write=False)
         object.__setattr__(self, "_centers", centers)
 
@@ -300,6 +422,7 @@ class CameraRig:
         pixel_size_um: float | None = None,
         light_position_m: Any = None,
         image_encoding: str = "srgb",
+        lights: Any = None,
     ) -> CameraRig:
         """Build a ``rows x cols`` array with equal horizontal and vertical baselines.
 
@@ -328,7 +451,8 @@ class CameraRig:
         )
         ref = r0 * cols + c0
         return cls(
-            tuple(image_size), intr, cameras, ref, (ref, ref + 1), image_encoding, light_position_m
+            tuple(image_size), intr, cameras, ref, (ref, ref + 1), image_encoding, light_position_m,
+            _as_lights(lights),
         )
 
     @classmethod
@@ -346,12 +470,14 @@ class CameraRig:
         light_position_m: Any = None,
         image_encoding: str = "srgb",
         names: tuple[str, str] = ("left", "right"),
+        lights: Any = None,
     ) -> CameraRig:
         """Build a rectified two-camera rig: reference (left) at the origin, partner at ``+x``."""
         baseline_m = _number(baseline_m, "baseline_m", positive=True)
         intr = _make_intrinsics(fx, fy, cx, cy, image_size, focal_length_mm, pixel_size_um)
         cameras = (Camera(names[0], (0.0, 0.0, 0.0)), Camera(names[1], (baseline_m, 0.0, 0.0)))
-        return cls(tuple(image_size), intr, cameras, 0, (0, 1), image_encoding, light_position_m)
+        return cls(tuple(image_size), intr, cameras, 0, (0, 1), image_encoding, light_position_m,
+                   _as_lights(lights))
 
     # ------------------------------------------------------------------ properties
     @property
@@ -392,8 +518,13 @@ class CameraRig:
 
     @property
     def light(self) -> np.ndarray | None:
-        """The light position as ``(3,)`` float64, or None."""
+        """The (first) light's position as ``(3,)`` float64, or None."""
         return None if self.light_position_m is None else np.array(self.light_position_m)
+
+    @property
+    def light_positions_m(self) -> np.ndarray:
+        """Every light's position, ``(L, 3)`` float64, metres (``(0, 3)`` without lights)."""
+        return np.array([light.position_m for light in self.lights]).reshape(-1, 3)
 
     # ------------------------------------------------------------------ geometry helpers
     def project(self, points_m: Any, camera: int | None = None) -> np.ndarray:
@@ -458,13 +589,25 @@ class CameraRig:
 
     # ------------------------------------------------------------------ derived rigs
     def with_light(self, light_position_m: Any) -> CameraRig:
-        """Return a copy of the rig with the given light position (or None)."""
-        return replace(
-            self,
-            light_position_m=None
-            if light_position_m is None
-            else _vector3(light_position_m, "light_position_m", LightError),
-        )
+        """Return a copy of the rig with one point light at the given position (or none)."""
+        if light_position_m is None:
+            return replace(self, light_position_m=None, lights=())
+        position = _vector3(light_position_m, "light_position_m", LightError)
+        return replace(self, light_position_m=position, lights=(RigLight(position),))
+
+    def with_lights(self, lights: Any) -> CameraRig:
+        """Return a copy of the rig with these lights (RigLight or ``(3,)`` positions, metres).
+
+        Examples
+        --------
+        >>> rig = CameraRig.stereo(0.1, fx=500.0)
+        >>> lit = rig.with_lights([(0.3, -0.2, 0.0), RigLight((-0.3, -0.2, 0.0), name="b")])
+        >>> len(lit.lights), lit.light.tolist(), lit.lights[1].name
+        (2, [0.3, -0.2, 0.0], 'b')
+        """
+        lights = _as_lights(lights)
+        return replace(self, light_position_m=lights[0].position_m if lights else None,
+                       lights=lights)
 
     def scaled(self, factor: float) -> CameraRig:
         """Return the rig for images resized by ``factor`` (intrinsics follow the pixel grid)."""
@@ -514,8 +657,11 @@ class CameraRig:
             "stereo_pair": list(self.stereo_pair),
             "image_encoding": self.image_encoding,
         }
-        if self.light_position_m is not None:
-            out["light"] = {"position": list(self.light_position_m)}
+        # One light keeps the single-light form, so older files round-trip byte for byte.
+        if len(self.lights) == 1:
+            out["light"] = self.lights[0].to_dict()
+        elif self.lights:
+            out["light"] = [light.to_dict() for light in self.lights]
         return out
 
     @classmethod
@@ -584,10 +730,7 @@ class CameraRig:
         pair = data["stereo_pair"]
         if not isinstance(pair, list):
             raise RigError(f"stereo_pair: expected a list of two camera indices, got {pair!r}")
-        light = None
-        if "light" in data:
-            _check_keys(data["light"], {"position"}, {"position"}, "light")
-            light = _vector3(data["light"]["position"], "light.position")
+        lights = _lights_from_json(data.get("light"))
         return cls(
             tuple(size),
             intr,
@@ -595,7 +738,8 @@ class CameraRig:
             data["reference"],
             tuple(pair),
             data.get("image_encoding", "srgb"),
-            light,
+            None,
+            lights,
         )
 
     def to_json(self, path: str | os.PathLike | None = None) -> str:
@@ -604,9 +748,66 @@ class CameraRig:
 
     @classmethod
     def from_json(cls, source: str | os.PathLike) -> CameraRig:
-        """Read a rig from a ``rig.json`` path or from a JSON string."""
+        """Read a rig from a ``rig.json`` path or from a JSON string.
+
+        Errors in a file's content name the file (``path: field: expected X, got Y``).
+        """
         data = load_json_source(source, "rig", RigError)
-        return cls.from_dict(data)
+        is_path = isinstance(source, os.PathLike) or not str(source).lstrip().startswith("{")
+        try:
+            return cls.from_dict(data)
+        except RigError as exc:
+            if not is_path:
+                raise
+            raise RigError(f"{source}: {exc}") from None
+
+
+def _as_lights(lights: Any) -> tuple[RigLight, ...]:
+    """Lights given in code: None, RigLights and/or ``(3,)`` positions in metres."""
+    if lights is None:
+        return ()
+    if isinstance(lights, RigLight):
+        return (lights,)
+    if isinstance(lights, np.ndarray):
+        lights = list(lights.reshape(-1, 3)) if lights.size else []
+    if not isinstance(lights, (tuple, list)):
+        raise LightError(
+            f"lights: expected a sequence of RigLight or (3,) positions, got "
+            f"{type(lights).__name__}"
+        )
+    out = tuple(
+        light if isinstance(light, RigLight)
+        else RigLight(_vector3(light, f"lights[{i}]", LightError))
+        for i, light in enumerate(lights)
+    )
+    return _check_lights(out, LightError)
+
+
+def _lights_from_json(value: Any) -> tuple[RigLight, ...]:
+    """Read the ``light`` entry of ``rig.json``: one object (one light) or a list of them."""
+    if value is None:
+        return ()
+    if isinstance(value, dict):
+        entries, names = [value], ["light"]
+    elif isinstance(value, list):
+        if not value:
+            raise RigError("light: expected one light object or a non-empty list of them "
+                           "(or no 'light' key), got []")
+        if len(value) > MAX_LIGHTS:
+            raise RigError(f"light: expected at most {MAX_LIGHTS} lights, got {len(value)}")
+        entries, names = value, [f"light[{i}]" for i in range(len(value))]
+    else:
+        raise RigError(
+            f"light: expected an object {{position, radius_m?, name?}} or a list of them, "
+            f"got {type(value).__name__}"
+        )
+    lights = []
+    for entry, where in zip(entries, names, strict=True):
+        _check_keys(entry, {"position", "radius_m", "name"}, {"position"}, where)
+        pos, radius, name = _light_fields(entry["position"], entry.get("radius_m"),
+                                          entry.get("name"), where, RigError)
+        lights.append(RigLight(pos, radius, name))
+    return _check_lights(tuple(lights), RigError)
 
 
 def _make_intrinsics(fx, fy, cx, cy, image_size, focal_length_mm, pixel_size_um) -> Intrinsics:

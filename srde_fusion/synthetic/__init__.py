@@ -23,6 +23,7 @@ from .random_scenes import (
     random_scene,
 )
 from .render import (
+    highlights_on_objects,
     render,
 )
 from .scene import (
@@ -33,6 +34,7 @@ from .scene import (
     PlanarObject,
     Rendering,
     Scene,
+    rig_lights,
 )
 from .shading import (
     LOBES,
@@ -58,6 +60,8 @@ __all__ = [
     "RandomSceneConfig",
     "random_scene",
     "render",
+    "highlights_on_objects",
+    "rig_lights",
     "Physics",
     "Material",
     "PlanarObject",

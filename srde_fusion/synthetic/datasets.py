@@ -18,7 +18,7 @@ from ..io import write_scene
 from .physics import Physics
 from .random_scenes import random_scene
 from .render import render
-from .scene import Light, Material, PlanarObject, Scene, check_rig
+from .scene import Light, Material, PlanarObject, Scene, check_rig, rig_lights
 
 __all__ = [
     "default_rig",
@@ -56,21 +56,27 @@ def scene_to_dict(scene: Scene) -> dict[str, Any]:
             "textured": o.texture is not None,
         }
 
-    light = scene.light
-    return {
-        "objects": [obj_dict(o) for o in scene.objects],
-        "light": {
+    def light_dict(light: Light) -> dict[str, Any]:
+        return {
             "position_m": list(light.position_m),
             "radius_m": light.radius_m,
             "color_rgb": list(light.color_rgb),
             "intensity": light.intensity,
-        },
+        }
+
+    out = {
+        "objects": [obj_dict(o) for o in scene.objects],
+        "light": light_dict(scene.light),
         "ambient": scene.ambient,
         "background": scene.background,
         "background_seed": scene.background_seed,
         "exposure": scene.exposure,
         "noise_std": scene.noise_std,
     }
+    # "light" stays the first light, as single-light readers expect; "lights" lists all.
+    if len(scene.lights) > 1:
+        out["lights"] = [light_dict(light) for light in scene.lights]
+    return out
 
 
 def scene_from_dict(data: Any) -> Scene:
@@ -103,15 +109,15 @@ def scene_from_dict(data: Any) -> Scene:
             )
             for o in data["objects"]
         )
-        light = data["light"]
+        def light_from(entry: dict) -> Light:
+            return Light(tuple(entry["position_m"]), entry["radius_m"],
+                         tuple(entry["color_rgb"]), entry["intensity"])
+
+        lights = tuple(light_from(e) for e in data.get("lights", [data["light"]]))
         return Scene(
             objects,
-            Light(
-                tuple(light["position_m"]),
-                light["radius_m"],
-                tuple(light["color_rgb"]),
-                light["intensity"],
-            ),
+            light_from(data["light"]),
+            lights=lights,
             ambient=data["ambient"],
             background=data["background"],
             background_seed=data["background_seed"],
@@ -141,9 +147,11 @@ def render_dataset(
 ) -> list[Path]:
     """Render ``n_scenes`` random scenes into scene folders ``scene_0000``, ... (DESIGN §5).
 
-    Each folder holds the views, ``rig.json`` with the scene's light, ``mask.png``
+    Each folder holds the views, ``rig.json`` with the scene's lights, ``mask.png``
     (instance labels), ``gt_disparity.pfm`` and ``scene.json`` (the scene description,
-    virtual lights and highlight centres).
+    virtual lights and highlight centres; with several lights also, per light, the
+    virtual lights, highlight centres and whether each highlight is on its object in
+    each view: ``lights_ground_truth``).
 
     Parameters
     ----------
@@ -204,7 +212,7 @@ def render_dataset(
             scene = random_scene(
                 scene_seed, rig, n_objects=n_objects, background=background, **scene_options
             )
-            scene_rig = rig.with_light(scene.light.position_m)
+            scene_rig = rig.with_lights(rig_lights(scene))
             result = render(scene, scene_rig, supersample=supersample, physics=physics)
             metadata = {
                 "generator": "srde_fusion.synthetic.random_scene",
@@ -217,6 +225,13 @@ def render_dataset(
                 "planes": [{"normal": list(p.normal), "offset_m": p.offset_m}
                            for p in result.planes],
             }
+            if len(scene.lights) > 1:
+                metadata["lights_ground_truth"] = {
+                    "virtual_lights_m": result.virtual_lights_by_light_m.tolist(),
+                    "highlight_uv": np.nan_to_num(result.highlight_uv_by_light,
+                                                  nan=-1.0).tolist(),
+                    "highlight_on_object": result.highlight_on_object.tolist(),
+                }
             folders.append(
                 write_scene(
                     target / f"scene_{i:04d}",

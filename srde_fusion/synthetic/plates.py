@@ -1,8 +1,9 @@
 """Rendered captures of the light-calibration plate, for tests and benchmarks.
 
 ``plate_scene`` poses an ArUco plate (:class:`~srde_fusion.calibration.Board`) so that the
-light's highlight falls on its free centre for the reference camera, and returns a
-:class:`~srde_fusion.synthetic.Scene` the renderer can draw.
+light's highlight falls on its free centre for the reference camera (with several lights,
+the highlight of their mean position: the highlights then lie around the centre), and
+returns a :class:`~srde_fusion.synthetic.Scene` the renderer can draw.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from ..calibration import (
     render_board_image,
 )
 from ..errors import LightError
-from ..geometry import CameraRig
+from ..geometry import MAX_LIGHTS, CameraRig
 from .scene import Light, Material, PlanarObject, Scene
 
 __all__ = [
@@ -56,6 +57,17 @@ def highlight_normal(point_m: Any, light_m: Any, camera_m: Any = (0.0, 0.0, 0.0)
     return half / norm
 
 
+def _light_positions(value: Any) -> np.ndarray:
+    """``(L, 3)`` light positions from one ``(3,)`` position or a list of them."""
+    array = np.asarray(value, dtype=object)
+    if array.ndim == 2:
+        if not 1 <= len(array) <= MAX_LIGHTS:
+            raise LightError(f"light_position_m: expected 1 to {MAX_LIGHTS} lights, got "
+                             f"{len(array)}")
+        return np.array([check_point3(p, f"light_position_m[{i}]") for i, p in enumerate(value)])
+    return check_point3(value, "light_position_m")[None]
+
+
 #: Linear level of the white plate (diffuse, at its centre) that ``plate_scene`` exposes for.
 PLATE_WHITE_LEVEL = 0.3
 
@@ -87,13 +99,14 @@ def plate_scene(
     ----------
     board : Board
     rig : CameraRig
-    light_position_m : array_like, (3,)
-        The light, array frame, metres.
+    light_position_m : array_like, (3,) or (L, 3)
+        The light, or several lights (one highlight each), array frame, metres.
     center_m : array_like, (3,)
         Plate centre, array frame, metres.
     normal : array_like, (3,), optional
         Normal of the printed side; by default the one that puts the highlight at the
-        plate centre as seen from the reference camera (:func:`highlight_normal`).
+        plate centre as seen from the reference camera (:func:`highlight_normal`); with
+        several lights, the highlight of a light at their mean position.
     rotation_rad : float
         In-plane rotation of the plate.
     texture_dpi : float
@@ -103,7 +116,7 @@ def plate_scene(
     roughness : float
         Specular lobe width (GGX alpha).
     light_radius_m : float
-        Radius of the spherical light.
+        Radius of the spherical light (of each light).
     ambient : float
         Ambient radiance per unit albedo, relative to the plate's direct light.
     noise_std : float
@@ -113,7 +126,8 @@ def plate_scene(
     -------
     srde_fusion.synthetic.Scene
     """
-    light = check_point3(light_position_m, "light_position_m")
+    positions = _light_positions(light_position_m)
+    light = positions.mean(axis=0) if len(positions) > 1 else positions[0]
     center = check_point3(center_m, "center_m")
     n = (
         highlight_normal(center, light, rig.reference_center_m)
@@ -130,15 +144,18 @@ def plate_scene(
         material=Material(diffuse_rgb=(albedo,) * 3, roughness=roughness),
         texture=texture,
     )
-    to_light = light - center
-    dist2 = float(to_light @ to_light)
-    cos_l = abs(float(to_light @ np.asarray(plate.normal))) / math.sqrt(dist2)
-    # Diffuse radiance of the white plate per unit exposure (the renderer's Lambert term).
-    direct = albedo / math.pi * cos_l / dist2
+    direct = 0.0
+    for position in positions:
+        to_light = position - center
+        dist2 = float(to_light @ to_light)
+        cos_l = abs(float(to_light @ np.asarray(plate.normal))) / math.sqrt(dist2)
+        # Diffuse radiance of the white plate per unit exposure (the renderer's Lambert term).
+        direct += albedo / math.pi * cos_l / dist2
     exposure = PLATE_WHITE_LEVEL / (direct * (1.0 + ambient))
+    lights = tuple(Light(tuple(p), radius_m=light_radius_m) for p in positions)
     return Scene(
         (plate,),
-        Light(tuple(light), radius_m=light_radius_m),
+        lights=lights,
         ambient=ambient * direct,
         exposure=exposure,
         noise_std=noise_std,

@@ -1,8 +1,9 @@
 """Random scenes under the paper's conditions (Methods, synthetic data).
 
-Textureless objects of random shape, colour, size and pose; one light of random size,
-colour and intensity that no camera sees directly; every object's highlight inside the
-object in every view. Deterministic from a seed.
+Textureless objects of random shape, colour, size and pose; one light (or several) of
+random size, colour and intensity that no camera sees directly; every object's highlight
+of the first light inside the object in every view (optionally every light's).
+Deterministic from a seed.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import SceneError
-from ..geometry import CameraRig
+from ..geometry import MAX_LIGHTS, CameraRig
 from ..imaging import REC709_LUMA
 from .render import cast_rays, shade_points
 from .scene import (
@@ -175,6 +176,17 @@ class RandomSceneConfig:
         Sensor noise of the scene (linear units).
     max_attempts : int
         Light placements to try before giving up.
+    n_lights : int or (int, int)
+        Number of lights, fixed or drawn uniformly from ``[min, max]`` (at most
+        :data:`~srde_fusion.geometry.MAX_LIGHTS`). The first light places the objects as
+        above; the others are drawn around it.
+    light_spacing_m : (float, float)
+        Range of the distance from each further light to the first, metres; lights are
+        never closer to each other than its minimum.
+    all_highlights_on_objects : bool
+        Require every light's highlight inside every object (with the margin, unhidden)
+        in every view; otherwise only the first light's is guaranteed and the others
+        land wherever geometry puts them (``Rendering.highlight_on_object`` says where).
 
     Raises
     ------
@@ -197,6 +209,9 @@ class RandomSceneConfig:
     diffuse_level: tuple[float, float] | float = (0.03, 0.12)
     noise_std: float = 0.002
     max_attempts: int = 2000
+    n_lights: tuple[int, int] | int = 1
+    light_spacing_m: tuple[float, float] = (0.1, 0.4)
+    all_highlights_on_objects: bool = False
 
     def __post_init__(self) -> None:
         n_objects, max_attempts = self.n_objects, self.max_attempts
@@ -237,7 +252,22 @@ class RandomSceneConfig:
             or max_attempts < 1
         ):
             raise SceneError(f"max_attempts: expected a positive integer, got {max_attempts!r}")
-        normalised.update(shapes=shapes, n_objects=int(n_objects), max_attempts=int(max_attempts))
+        lights = self.n_lights
+        lights = tuple(lights) if isinstance(lights, (tuple, list)) else (lights, lights)
+        if len(lights) != 2 or not all(
+            isinstance(n, (int, np.integer)) and not isinstance(n, bool) and 1 <= n <= MAX_LIGHTS
+            for n in lights
+        ) or lights[1] < lights[0]:
+            raise SceneError(f"n_lights: expected an integer in [1, {MAX_LIGHTS}] or (min, max) "
+                             f"of them, got {self.n_lights!r}")
+        if not isinstance(self.all_highlights_on_objects, bool):
+            raise SceneError(f"all_highlights_on_objects: expected a bool, got "
+                             f"{self.all_highlights_on_objects!r}")
+        normalised.update(
+            shapes=shapes, n_objects=int(n_objects), max_attempts=int(max_attempts),
+            n_lights=(int(lights[0]), int(lights[1])),
+            light_spacing_m=check_range(self.light_spacing_m, "light_spacing_m", low=0.0),
+        )
         for name, value in normalised.items():
             object.__setattr__(self, name, value)
 
@@ -272,7 +302,8 @@ def random_scene(seed: int, rig: CameraRig, *, config: RandomSceneConfig | None 
     Returns
     -------
     Scene
-        Build the rig that knows the light with ``rig.with_light(scene.light.position_m)``.
+        Build the rig that knows the lights with ``rig.with_lights(rig_lights(scene))``
+        (``rig.with_light(scene.light.position_m)`` for the first alone).
 
     Raises
     ------
@@ -422,10 +453,13 @@ def random_scene(seed: int, rig: CameraRig, *, config: RandomSceneConfig | None 
             "widen size_m, distance_m or max_tilt_deg, or lower highlight_margin_m"
         )
 
+    extra = _further_lights(rng, config, rig, light, placed)
+    lights = (light, *extra)
     ambient = 0.02
     base = Scene(
         tuple(placed),
         light,
+        lights=lights,
         ambient=ambient,
         background=background,
         background_seed=int(rng.integers(0, 2**31 - 1)),
@@ -436,7 +470,7 @@ def random_scene(seed: int, rig: CameraRig, *, config: RandomSceneConfig | None 
         o.to_world(_mirror_points_local(o, np.asarray(light.position_m), rig)[ref]) for o in placed
     ]
     direct_o, amb_o = np.mean(
-        [_diffuse_unit(o, p, light, 1.0) for o, p in zip(placed, mirror_points, strict=True)],
+        [_diffuse_unit_all(o, p, lights) for o, p in zip(placed, mirror_points, strict=True)],
         axis=0,
     )
     if background == "textured":
@@ -444,7 +478,7 @@ def random_scene(seed: int, rig: CameraRig, *, config: RandomSceneConfig | None 
         # background around 1.5-3x brighter: a stereo network needs to see its texture.
         wall = background_surfaces(base, rig, with_textures=False)[0]
         wall_obj = replace(wall.shape, material=Material(diffuse_rgb=(0.5, 0.5, 0.5), specular=0.0))
-        direct_b, amb_b = _diffuse_unit(wall_obj, wall.center_m, light, 1.0)
+        direct_b, amb_b = _diffuse_unit_all(wall_obj, wall.center_m, lights)
         target_b = target * rng.uniform(1.5, 3.0)
         system = np.array([[direct_o, amb_o], [direct_b, amb_b]])
         exposure, exposed_ambient = np.linalg.solve(system, [target, target_b])
@@ -463,6 +497,72 @@ def random_scene(seed: int, rig: CameraRig, *, config: RandomSceneConfig | None 
         peak = _specular_peak(obj, light, rig) * exposure
         scaled.append(replace(obj, material=replace(obj.material, specular=float(ratio / peak))))
     return replace(scene, objects=tuple(scaled))
+
+
+def _diffuse_unit_all(obj: PlanarObject, point_m: np.ndarray, lights: Sequence[Light]
+                      ) -> tuple[float, float]:
+    """:func:`_diffuse_unit` with the direct light of every light added up."""
+    direct, ambient = _diffuse_unit(obj, point_m, lights[0], 1.0)
+    for light in lights[1:]:
+        direct = direct + _diffuse_unit(obj, point_m, light, 1.0)[0]
+    return direct, ambient
+
+
+def _further_lights(rng: np.random.Generator, config: RandomSceneConfig, rig: CameraRig,
+                    first: Light, placed: list[PlanarObject]) -> tuple[Light, ...]:
+    """Draw the lights after the first: around it, unseen, apart from each other.
+
+    With ``all_highlights_on_objects`` each must also put its highlight inside every
+    object (with the margin) in every view, unhidden by the other objects.
+    """
+    low, high = config.n_lights
+    if high == 1:
+        return ()  # one light: no draws, so single-light scenes stay what they were
+    count = int(rng.integers(low, high + 1)) - 1
+    spacing = config.light_spacing_m
+    first_m = np.asarray(first.position_m)
+    positions = [first_m]
+    extra: list[Light] = []
+    for _ in range(count):
+        for _ in range(config.max_attempts):
+            direction = rng.normal(size=3)
+            direction /= np.linalg.norm(direction)
+            pos = first_m + rng.uniform(*spacing) * direction
+            r = rng.uniform(*config.light_radius_m)
+            if (
+                min(np.linalg.norm(p - pos) for p in positions) < spacing[0]
+                or _light_visible(pos, r, rig)
+                or np.min(np.linalg.norm(rig.centers_m - pos, axis=1)) < 0.05
+            ):
+                continue
+            if config.all_highlights_on_objects and not _highlights_inside(
+                    pos, placed, rig, config.highlight_margin_m):
+                continue
+            tint = rng.uniform(0.75, 1.0, size=3)
+            extra.append(Light(tuple(pos), r, tuple(tint / tint.max()), rng.uniform(0.5, 2.0)))
+            positions.append(pos)
+            break
+        else:
+            raise SceneError(
+                f"random_scene: expected to place light {len(extra) + 2} of {count + 1} in "
+                f"{config.max_attempts} attempts, got none; widen light_spacing_m or, with "
+                f"all_highlights_on_objects, lower highlight_margin_m or enlarge size_m")
+    return tuple(extra)
+
+
+def _highlights_inside(light_m: np.ndarray, objects: Sequence[PlanarObject], rig: CameraRig,
+                       margin_m: float) -> bool:
+    """Whether a light's highlight lies inside every object, with the margin, unhidden."""
+    mirrors = []
+    for obj in objects:
+        local = _mirror_points_local(obj, light_m, rig)
+        if local is None or obj.inner_distance_m(local).min() < margin_m:
+            return False
+        mirrors.append(obj.to_world(local))
+    for a, mirror in zip(objects, mirrors, strict=True):
+        if any(_occludes(b, rig.centers_m, mirror) for b in objects if b is not a):
+            return False
+    return True
 
 
 def _occludes(obj: PlanarObject, centers_m: np.ndarray, points_m: np.ndarray) -> bool:

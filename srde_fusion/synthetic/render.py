@@ -27,6 +27,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -35,7 +36,7 @@ from ..errors import SceneError
 from ..geometry import CameraRig, Plane
 from ..imaging import linear_to_srgb
 from .physics import Physics
-from .scene import Material, Rendering, Scene, check_rig, inside_outline
+from .scene import Light, Material, Rendering, Scene, check_rig, inside_outline
 from .shading import disc_samples, fresnel_exact, ior_from_f0, specular_brdf, widened_roughness
 from .surfaces import SKY_ALBEDO, TexturedSurface, background_surfaces, object_surface
 
@@ -245,7 +246,7 @@ def _hemispherical_fresnel(ior: float, extinction: float) -> float:
 
 
 def _sampled_specular(
-    mat: Material, scene: Scene, physics: Physics, point_m: tuple[np.ndarray, ...],
+    mat: Material, light: Light, physics: Physics, point_m: tuple[np.ndarray, ...],
     normal: np.ndarray, view: tuple[np.ndarray, ...], cos_v: np.ndarray,
 ) -> np.ndarray:
     """Specular radiance ``(M,)`` of a spherical light integrated over its disc.
@@ -259,7 +260,6 @@ def _sampled_specular(
     z)`` component arrays ``(M,)``.
     """
     f32 = np.float32
-    light = scene.light
     centre = np.asarray(light.position_m, dtype=f32)
     offsets = disc_samples(physics.light_samples) * f32(light.radius_m)  # (S, 2)
     px, py, pz = point_m
@@ -301,6 +301,39 @@ def _sampled_specular(
     return share * np.sum(brdf * irradiance, axis=1, dtype=f32)
 
 
+@dataclass(frozen=True)
+class _LightAtPoints:
+    """One light as seen from a batch of surface points (all arrays ``(M,)`` float32)."""
+
+    light: Light
+    to_light_m: tuple[np.ndarray, np.ndarray, np.ndarray]  # light centre minus the point
+    dist_m: np.ndarray
+    irradiance: np.ndarray  # intensity * cos_l / d^2 (0 where unlit)
+    height_m: float  # the light's height above the plane, n . L - c
+    lit: bool  # light and eye both in front of the plane
+
+
+def _light_at_points(light: Light, surf: TexturedSurface, x: np.ndarray, y: np.ndarray,
+                     t: np.ndarray, eye_m: np.ndarray, height_v: float) -> _LightAtPoints:
+    """Distances and irradiance of one light at the points ``eye + t (x, y, 1)``."""
+    f32 = np.float32
+    lpos = np.asarray(light.position_m)
+    # Surface point relative to the light's centre, and distance to it: (M,) each.
+    to_lx = f32(lpos[0] - eye_m[0]) - t * x
+    to_ly = f32(lpos[1] - eye_m[1]) - t * y
+    to_lz = f32(lpos[2] - eye_m[2]) - t
+    dist2 = to_lx * to_lx + to_ly * to_ly + to_lz * to_lz
+    dist = np.sqrt(dist2)
+    # n . (L - P) = n . L - c on the plane: the light's height above it.
+    height_l = float(surf.normal @ lpos) - surf.offset_m
+    if height_l <= 0.0 or height_v <= 0.0:
+        irradiance = np.zeros_like(t)
+    else:
+        irradiance = f32(light.intensity * height_l) / (dist2 * dist)
+    return _LightAtPoints(light, (to_lx, to_ly, to_lz), dist, irradiance, height_l,
+                          height_l > 0.0 and height_v > 0.0)
+
+
 def shade_points(
     surf: TexturedSurface,
     ray_x: np.ndarray,
@@ -316,29 +349,17 @@ def shade_points(
     The points are ``eye + depth * (ray_x, ray_y, 1)`` (all ``(M,)``). Components are
     kept as separate arrays and the plane's constants folded in (``n . P = c`` on the
     plane), which keeps the per-pixel work to a few dozen element-wise float32 passes.
-    ``sample_angle_rad`` is the angular spacing of the image samples (texture filtering);
-    ``physics`` says which effects are simulated (:class:`Physics`).
+    Every light of the scene adds its diffuse and specular terms; the ambient term is
+    counted once. ``sample_angle_rad`` is the angular spacing of the image samples
+    (texture filtering); ``physics`` says which effects are simulated (:class:`Physics`).
     """
     f32 = np.float32
-    light = scene.light
     n = surf.normal
-    lpos = np.asarray(light.position_m)
     x = ray_x.astype(f32, copy=False)
     y = ray_y.astype(f32, copy=False)
     t = depth_m.astype(f32, copy=False)
-    # Surface point relative to the light's centre, and distance to it: (M,) each.
-    to_lx = f32(lpos[0] - eye_m[0]) - t * x
-    to_ly = f32(lpos[1] - eye_m[1]) - t * y
-    to_lz = f32(lpos[2] - eye_m[2]) - t
-    dist2 = to_lx * to_lx + to_ly * to_ly + to_lz * to_lz
-    dist = np.sqrt(dist2)
-    # n . (L - P) = n . L - c on the plane: the light's height above it.
-    height_l = float(n @ lpos) - surf.offset_m
     height_v = float(n @ eye_m) - surf.offset_m
-    if height_l <= 0.0 or height_v <= 0.0:
-        irradiance = np.zeros_like(t)
-    else:
-        irradiance = f32(light.intensity * height_l) / (dist2 * dist)
+    seen = [_light_at_points(light, surf, x, y, t, eye_m, height_v) for light in scene.lights]
     # Local texture coordinates: e . (P - center) = e . (eye - center) + t e . ray.
     rel = eye_m - surf.center_m
     local = np.stack(
@@ -355,45 +376,67 @@ def shade_points(
         distance2 = np.square(t[::step]) * (np.square(x[::step]) + np.square(y[::step]) + 1.0)
         footprint_m = float(np.median(distance2)) / height_v * sample_angle_rad
     albedo = _albedo(surf, local, footprint_m)
-    color = np.asarray(light.color_rgb, dtype=f32)
     mat = surf.shape.material
-    direct, ambient = irradiance[:, None] * (color / f32(np.pi)), f32(scene.ambient)
-    lit = height_l > 0.0 and height_v > 0.0  # light and eye both in front of the plane
-    if lit and (mat.specular > 0.0 or physics.diffuse_transmittance):
+    ambient = f32(scene.ambient)
+    any_lit = any(s.lit for s in seen)
+    if any_lit and (mat.specular > 0.0 or physics.diffuse_transmittance):
         ray_len = np.sqrt(x * x + y * y + f32(1.0))
-        cos_l = f32(height_l) / dist
         cos_v = f32(height_v) / (t * ray_len)
-    if physics.diffuse_transmittance and lit:
+    if physics.diffuse_transmittance and any_lit:
         # A coating lets (1 - F) of the light in and (1 - F) of the scattered light out;
         # ambient light comes from everywhere, so it enters with the hemispherical mean.
         ior = _ior(mat)
         out = f32(1.0) - fresnel_exact(cos_v, ior, mat.extinction).astype(f32)
-        into = f32(1.0) - fresnel_exact(cos_l, ior, mat.extinction).astype(f32)
-        direct = direct * (into * out)[:, None]
         ambient = (ambient * f32(1.0 - _hemispherical_fresnel(ior, mat.extinction))) * out[:, None]
+    direct = None
+    for s in seen:
+        color = np.asarray(s.light.color_rgb, dtype=f32)
+        term = s.irradiance[:, None] * (color / f32(np.pi))
+        if physics.diffuse_transmittance and s.lit:
+            into = f32(1.0) - fresnel_exact(f32(s.height_m) / s.dist_m, ior,
+                                            mat.extinction).astype(f32)
+            term = term * (into * out)[:, None]
+        direct = term if direct is None else direct + term
     radiance = albedo * (direct + ambient)
-    if mat.specular > 0.0 and lit:
-        # l . v with v = -ray / |ray|; then h = (l + v) / |l + v|.
-        cos_lv = -(to_lx * x + to_ly * y + to_lz) / (dist * ray_len)
-        half_len = np.sqrt(np.maximum(f32(2.0) + f32(2.0) * cos_lv, f32(1e-12)))
-        cos_h = (cos_l + cos_v) / half_len
-        cos_vh = (cos_lv + f32(1.0)) / half_len
-        alpha = widened_roughness(mat.roughness, light.radius_m, dist).astype(f32)
-        brdf = specular_brdf(cos_l, cos_v, cos_h, cos_vh, alpha, lobe=mat.lobe, f0=mat.f0,
-                             fresnel=_fresnel(mat, cos_vh, physics), masking=physics.masking)
-        specular = brdf * irradiance
-        if physics.light == "sampled" and light.radius_m > 0.0 and specular.size:
-            # The widened lobe says where the highlight is; integrate the light there.
-            near = np.flatnonzero(specular > f32(_SAMPLED_LIGHT_MIN) * specular.max())
-            view = (-x / ray_len, -y / ray_len, f32(-1.0) / ray_len)
-            point = (f32(eye_m[0]) + t * x, f32(eye_m[1]) + t * y, f32(eye_m[2]) + t)
-            for start in range(0, near.size, _SAMPLED_BLOCK):
-                idx = near[start:start + _SAMPLED_BLOCK]
-                specular[idx] = _sampled_specular(
-                    mat, scene, physics, tuple(c[idx] for c in point), n,
-                    tuple(c[idx] for c in view), cos_v[idx])
-        radiance += (f32(mat.specular) * specular)[:, None] * color
+    if mat.specular > 0.0:
+        for s in seen:
+            if s.lit:
+                specular = _specular(surf, s, x, y, t, eye_m, ray_len, cos_v, physics)
+                color = np.asarray(s.light.color_rgb, dtype=f32)
+                radiance += (f32(mat.specular) * specular)[:, None] * color
     return radiance.astype(f32, copy=False)
+
+
+def _specular(surf: TexturedSurface, seen: _LightAtPoints, x: np.ndarray, y: np.ndarray,
+              t: np.ndarray, eye_m: np.ndarray, ray_len: np.ndarray, cos_v: np.ndarray,
+              physics: Physics) -> np.ndarray:
+    """Specular radiance ``(M,)`` of one lit light before the material's scale and colour."""
+    f32 = np.float32
+    mat = surf.shape.material
+    light = seen.light
+    to_lx, to_ly, to_lz = seen.to_light_m
+    dist = seen.dist_m
+    cos_l = f32(seen.height_m) / dist
+    # l . v with v = -ray / |ray|; then h = (l + v) / |l + v|.
+    cos_lv = -(to_lx * x + to_ly * y + to_lz) / (dist * ray_len)
+    half_len = np.sqrt(np.maximum(f32(2.0) + f32(2.0) * cos_lv, f32(1e-12)))
+    cos_h = (cos_l + cos_v) / half_len
+    cos_vh = (cos_lv + f32(1.0)) / half_len
+    alpha = widened_roughness(mat.roughness, light.radius_m, dist).astype(f32)
+    brdf = specular_brdf(cos_l, cos_v, cos_h, cos_vh, alpha, lobe=mat.lobe, f0=mat.f0,
+                         fresnel=_fresnel(mat, cos_vh, physics), masking=physics.masking)
+    specular = brdf * seen.irradiance
+    if physics.light == "sampled" and light.radius_m > 0.0 and specular.size:
+        # The widened lobe says where the highlight is; integrate the light there.
+        near = np.flatnonzero(specular > f32(_SAMPLED_LIGHT_MIN) * specular.max())
+        view = (-x / ray_len, -y / ray_len, f32(-1.0) / ray_len)
+        point = (f32(eye_m[0]) + t * x, f32(eye_m[1]) + t * y, f32(eye_m[2]) + t)
+        for start in range(0, near.size, _SAMPLED_BLOCK):
+            idx = near[start:start + _SAMPLED_BLOCK]
+            specular[idx] = _sampled_specular(
+                mat, light, physics, tuple(c[idx] for c in point), surf.normal,
+                tuple(c[idx] for c in view), cos_v[idx])
+    return specular
 
 
 def _render_view(
@@ -546,9 +589,51 @@ def render(
     disparity[finite] = rig.intrinsics.fx * rig.baseline_m / ref_depth[finite]
     ref_center = rig.reference_center_m
     planes = tuple(Plane.from_point_normal(o.center_m, o.normal, ref_center) for o in scene.objects)
-    light = np.asarray(scene.light.position_m)
-    virtual = np.array([p.mirror(light) for p in planes])
-    uv = np.stack([rig.project(virtual, camera=i) for i in range(rig.n_cameras)], axis=1)
+    virtual = np.array([[p.mirror(np.asarray(light.position_m)) for p in planes]
+                        for light in scene.lights])  # (L, K, 3)
+    uv = np.stack([rig.project(virtual, camera=i) for i in range(rig.n_cameras)], axis=2)
     return Rendering(
-        tuple(views), disparity, ref_depth.astype(np.float32), instance, planes, virtual, uv
+        tuple(views), disparity, ref_depth.astype(np.float32), instance, planes, virtual[0],
+        uv[0], virtual, uv, highlights_on_objects(scene, rig),
     )
+
+
+def highlights_on_objects(scene: Scene, rig: CameraRig) -> np.ndarray:
+    """Whether each light's highlight on each object is seen in each view, ``(L, K, N)`` bool.
+
+    The highlight of light ``l`` on object ``k`` in camera ``i`` is where the segment from
+    the camera centre to the virtual light (the light mirrored across the plane) crosses
+    the plane: it is seen when light and camera are both in front of the object (objects
+    are single-sided), the crossing lies inside the outline, and no other object cuts the
+    segment before it. The renderer casts no shadows, so none are checked.
+    """
+    centers = rig.centers_m  # (N, 3)
+    out = np.zeros((len(scene.lights), len(scene.objects), len(centers)), dtype=bool)
+    for l_idx, light in enumerate(scene.lights):
+        light_m = np.asarray(light.position_m)
+        for k, obj in enumerate(scene.objects):
+            plane = obj.plane
+            n, c = plane.n, plane.offset_m
+            if float(n @ light_m) - c <= 0.0:
+                continue
+            virtual = light_m - 2.0 * (float(n @ light_m) - c) * n
+            toward = virtual - centers  # (N, 3)
+            front = centers @ n - c > 0.0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = (c - centers @ n) / (toward @ n)
+            crossing = centers + s[:, None] * toward
+            seen = front & np.isfinite(s) & (s > 0.0) & (s < 1.0)
+            seen &= obj.contains(crossing)
+            for j, other in enumerate(scene.objects):
+                if j == k or not seen.any():
+                    continue
+                # Another object cutting the sight line camera -> highlight hides it.
+                o_plane = other.plane
+                ray = crossing - centers
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    s_o = (o_plane.offset_m - centers @ o_plane.n) / (ray @ o_plane.n)
+                cut = np.isfinite(s_o) & (s_o > 0.0) & (s_o < 1.0)
+                hit = centers + np.where(cut, s_o, 0.0)[:, None] * ray
+                seen &= ~(cut & other.contains(hit))
+            out[l_idx, k] = seen
+    return out

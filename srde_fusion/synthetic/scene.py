@@ -1,4 +1,4 @@
-"""What a synthetic scene is: planar glossy objects, their materials, one light.
+"""What a synthetic scene is: planar glossy objects, their materials, one or more lights.
 
 Objects are planar (rectangles, ellipses, convex polygons) and single-sided: they show
 the side their normal points to. Every value is validated once, here, with "expected X,
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import LightError, RigError, SceneError, SRDEError
-from ..geometry import CameraRig, Plane
+from ..geometry import MAX_LIGHTS, CameraRig, Plane, RigLight
 from .shading import LOBES
 
 __all__ = [
@@ -408,13 +408,17 @@ class Light:
 
 @dataclass(frozen=True)
 class Scene:
-    """Objects, one light, and how the cameras expose them.
+    """Objects, their lights, and how the cameras expose them.
 
     Parameters
     ----------
     objects : tuple of PlanarObject
         At least one; ``instance_mask`` value k means ``objects[k - 1]``.
-    light : Light
+    light : Light, optional
+        The (first) light; what single-light code reads. Optional when ``lights`` is given.
+    lights : tuple of Light
+        Every light (each a point or a sphere, by its radius); by default ``(light,)``.
+        Given together with ``light``, its first entry must be ``light``.
     ambient : float
         White ambient radiance per unit albedo (linear, before exposure).
     background : {"none", "textured"}
@@ -431,12 +435,13 @@ class Scene:
     """
 
     objects: tuple[PlanarObject, ...]
-    light: Light
+    light: Light | None = None
     ambient: float = 0.02
     background: str = "none"
     background_seed: int = 0
     exposure: float = 1.0
     noise_std: float = 0.0
+    lights: tuple[Light, ...] = ()
 
     def __post_init__(self) -> None:
         objects = self.objects
@@ -450,8 +455,27 @@ class Scene:
             if not isinstance(obj, PlanarObject):
                 raise SceneError(f"objects[{i}]: expected a PlanarObject, got {type(obj).__name__}")
         object.__setattr__(self, "objects", tuple(objects))
-        if not isinstance(self.light, Light):
-            raise LightError(f"light: expected a Light, got {type(self.light).__name__}")
+        lights = self.lights
+        if isinstance(lights, Light):
+            lights = (lights,)
+        if not isinstance(lights, (tuple, list)) or len(lights) > MAX_LIGHTS:
+            raise LightError(f"lights: expected a sequence of at most {MAX_LIGHTS} Light, "
+                             f"got {lights!r:.80}")
+        for i, light in enumerate(lights):
+            if not isinstance(light, Light):
+                raise LightError(f"lights[{i}]: expected a Light, got {type(light).__name__}")
+        light = self.light
+        if light is None and lights:
+            light = lights[0]
+        if not isinstance(light, Light):
+            raise LightError(f"light: expected a Light, got {type(light).__name__}")
+        if not lights:
+            lights = (light,)
+        elif lights[0] != light:
+            raise LightError(f"light: expected the first of lights ({lights[0]}) or None, "
+                             f"got {light}")
+        object.__setattr__(self, "light", light)
+        object.__setattr__(self, "lights", tuple(lights))
         object.__setattr__(self, "ambient", check_finite(self.ambient, "ambient", low=0.0))
         if self.background not in BACKGROUNDS:
             raise SceneError(
@@ -489,6 +513,17 @@ class Rendering:
     highlight_uv : numpy.ndarray, (K, N, 2) float64
         Projection of each virtual light into each view: the highlight centre where the
         mirror point lies on the object (NaN where the virtual light is behind a camera).
+        The first light's (``scene.light``).
+    virtual_lights_by_light_m : numpy.ndarray, (L, K, 3) float64
+        Every light ``l`` of the scene mirrored across each object's plane.
+    highlight_uv_by_light : numpy.ndarray, (L, K, N, 2) float64
+        Projection of each of those virtual lights into each view.
+    highlight_on_object : numpy.ndarray, (L, K, N) bool
+        Whether light ``l``'s highlight on object ``k`` is seen in view ``i``: its mirror
+        point (where the ray to the virtual light crosses the plane) lies inside the
+        object's outline, both light and camera are in front of the plane, and no other
+        object hides it. Where True, ``highlight_uv_by_light[l, k, i]`` is that highlight's
+        centre, the pixel that belongs to light ``l``.
     """
 
     views: tuple[np.ndarray, ...]
@@ -498,11 +533,27 @@ class Rendering:
     planes: tuple[Plane, ...]
     virtual_lights_m: np.ndarray
     highlight_uv: np.ndarray
+    virtual_lights_by_light_m: np.ndarray | None = None
+    highlight_uv_by_light: np.ndarray | None = None
+    highlight_on_object: np.ndarray | None = None
+
+    @property
+    def n_lights(self) -> int:
+        """Number of lights the ground truth covers."""
+        return 1 if self.virtual_lights_by_light_m is None else len(self.virtual_lights_by_light_m)
 
     @property
     def object_masks(self) -> list[np.ndarray]:
         """One ``(H, W)`` bool mask per object, in scene order."""
         return [self.instance_mask == k for k in range(1, len(self.planes) + 1)]
+
+
+def rig_lights(scene: Scene) -> tuple[RigLight, ...]:
+    """Return the scene's light positions as a rig knows them (no radius, no name).
+
+    ``rig.with_lights(rig_lights(scene))`` is the rig that knows every light.
+    """
+    return tuple(RigLight(light.position_m) for light in scene.lights)
 
 
 def check_rig(rig: Any) -> CameraRig:
