@@ -15,9 +15,20 @@ from .board import (
     write_board,
 )
 from .captures import (
+    LightCalibration,
+    LightsEstimate,
     calibrate_light_files,
     estimate_light,
+    estimate_lights,
     read_capture,
+)
+from .correspondence import (
+    DEFAULT_MATCH_TOLERANCE_PX,
+    CaptureMatch,
+    HighlightGrouping,
+    HighlightSet,
+    group_highlights,
+    match_captures,
 )
 from .figures import (
     capture_figure,
@@ -39,6 +50,7 @@ from .markers import (
     detect_markers,
 )
 from .plate_highlights import (
+    find_plate_highlight_candidates,
     find_plate_highlights,
     plate_highlight_region,
 )
@@ -56,6 +68,16 @@ __all__ = [
     "render_board_image",
     "write_board",
     "estimate_light",
+    "estimate_lights",
+    "LightsEstimate",
+    "LightCalibration",
+    "DEFAULT_MATCH_TOLERANCE_PX",
+    "HighlightSet",
+    "HighlightGrouping",
+    "CaptureMatch",
+    "group_highlights",
+    "match_captures",
+    "find_plate_highlight_candidates",
     "read_capture",
     "calibrate_light_files",
     "DEFAULT_MAX_INCIDENCE_DEG",

@@ -1,27 +1,43 @@
-"""The whole light calibration, from capture folders to the light written into a rig.
+"""The whole light calibration, from capture folders to the lights written into a rig.
 
 ``estimate_light`` reads one folder per plate pose (one image per camera), finds the
 plate's pose and the highlight in every view, and solves for the light;
-``calibrate_light_files`` does the same from files and writes the light into
+``estimate_lights`` does the same for several lights, each showing its own highlight,
+sorted to their lights by geometry (:mod:`~srde_fusion.calibration.correspondence`);
+``calibrate_light_files`` does either from files and writes the lights into
 ``rig.json``, keeping the previous file as a backup.
+
+The plate cannot measure a light's radius: a highlight's size is the plate's roughness
+and the light's extent together, and the roughness of a printed, laminated plate is not
+known well enough to separate them. ``radius_m`` stays what ``rig.json`` says (the user
+measures the lamp).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from .._atomic import backup_path, write_atomic
 from .._checks import check_views
 from ..errors import FileFormatError, LightError, RigError
-from ..geometry import CameraRig
+from ..geometry import MAX_LIGHTS, CameraRig, RigLight
 from ..io import IMAGE_EXTENSIONS, read_image
 from .board import Board
+from .correspondence import (
+    DEFAULT_MATCH_TOLERANCE_PX,
+    CaptureMatch,
+    HighlightGrouping,
+    group_highlights,
+    match_captures,
+)
 from .light import (
     DEFAULT_MAX_INCIDENCE_DEG,
     DEFAULT_MAX_RESIDUAL_M,
@@ -31,15 +47,19 @@ from .light import (
     incidence_check,
     light_from_reflections,
 )
-from .plate_highlights import find_plate_highlights
+from .plate_highlights import find_plate_highlight_candidates, find_plate_highlights
 from .plate_pose import DEFAULT_MAX_REPROJECTION_PX, estimate_plate_pose
 
 __all__ = [
     "estimate_light",
+    "estimate_lights",
+    "LightsEstimate",
     "read_capture",
     "calibrate_light_files",
     "LightCalibration",
 ]
+
+_log = logging.getLogger(__name__)
 
 # ---------------------------------------------------------------------- the whole calibration
 def read_capture(folder: str | os.PathLike, rig: CameraRig) -> list[np.ndarray]:
@@ -128,41 +148,13 @@ def estimate_light(
     ImageError, FileFormatError
         Views that do not fit the rig, or unreadable capture folders.
     """
-    if not isinstance(rig, CameraRig):
-        raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
-    if not isinstance(board, Board):
-        raise LightError(f"board: expected a Board, got {type(board).__name__}")
-    if (
-        isinstance(captures, (str, os.PathLike))
-        or not isinstance(captures, Sequence)
-        or not captures
-    ):
-        raise LightError(
-            f"captures: expected a non-empty list of captures (each a list of views "
-            f"or a folder), got {type(captures).__name__} {captures!r:.80}"
-        )
-    if isinstance(min_views, bool) or not isinstance(min_views, int) or min_views < 1:
-        raise LightError(f"min_views: expected a positive integer, got {min_views!r}")
+    _check_calibration_inputs(captures, rig, board, min_views)
     max_incidence_deg = check_positive(max_incidence_deg, "max_incidence_deg")
     max_residual_m = check_positive(max_residual_m, "max_residual_m")
     poses, centers, reasons = [], [], []
     for c, capture in enumerate(captures):
-        label = f"capture {c}" + (
-            f" ({capture})" if isinstance(capture, (str, os.PathLike)) else ""
-        )
-        views = read_capture(capture, rig) if isinstance(capture, (str, os.PathLike)) else capture
-        views = check_views(views, rig.n_cameras, rig.image_size)
-        try:
-            pose = estimate_plate_pose(
-                views,
-                rig,
-                board,
-                min_views=min_marker_views,
-                max_reprojection_px=max_reprojection_px,
-            )
-        except LightError as exc:
-            raise LightError(f"{label}: {exc}") from None
-        incidence_check(pose, rig, pose.views_used, max_incidence_deg, label)
+        label, views, pose = _capture_pose(c, capture, rig, board, min_marker_views,
+                                           max_reprojection_px, max_incidence_deg)
         found, why = find_plate_highlights(
             views, rig, board, pose, method=method, **detector_options
         )
@@ -187,6 +179,232 @@ def estimate_light(
     )
 
 
+def _check_calibration_inputs(captures: Any, rig: Any, board: Any, min_views: Any) -> None:
+    if not isinstance(rig, CameraRig):
+        raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
+    if not isinstance(board, Board):
+        raise LightError(f"board: expected a Board, got {type(board).__name__}")
+    if (
+        isinstance(captures, (str, os.PathLike))
+        or not isinstance(captures, Sequence)
+        or not captures
+    ):
+        raise LightError(
+            f"captures: expected a non-empty list of captures (each a list of views "
+            f"or a folder), got {type(captures).__name__} {captures!r:.80}"
+        )
+    if isinstance(min_views, bool) or not isinstance(min_views, int) or min_views < 1:
+        raise LightError(f"min_views: expected a positive integer, got {min_views!r}")
+
+
+def _capture_pose(c: int, capture: Any, rig: CameraRig, board: Board, min_marker_views: int,
+                  max_reprojection_px: float, max_incidence_deg: float):
+    """Read one capture and find its plate: ``(label, views, pose)``."""
+    label = f"capture {c}" + (
+        f" ({capture})" if isinstance(capture, (str, os.PathLike)) else ""
+    )
+    views = read_capture(capture, rig) if isinstance(capture, (str, os.PathLike)) else capture
+    views = check_views(views, rig.n_cameras, rig.image_size)
+    try:
+        pose = estimate_plate_pose(
+            views,
+            rig,
+            board,
+            min_views=min_marker_views,
+            max_reprojection_px=max_reprojection_px,
+        )
+    except LightError as exc:
+        raise LightError(f"{label}: {exc}") from None
+    incidence_check(pose, rig, pose.views_used, max_incidence_deg, label)
+    return label, views, pose
+
+
+@dataclass(frozen=True, eq=False)
+class LightsEstimate:
+    """Several lights found from plate captures, and how their highlights were sorted.
+
+    Attributes
+    ----------
+    lights : tuple of LightEstimate
+        One per light, ordered by x (left to right in the array frame); each with its
+        own residuals and uncertainty, exactly as a single light's.
+    groupings : tuple of HighlightGrouping
+        Per capture, its highlights sorted into sets, one per light seen (the evidence:
+        virtual lights and reprojection residuals).
+    matches : tuple of CaptureMatch
+        Per capture, which light each of its sets was assigned to (indices into
+        ``lights``), with the ray distances of that assignment and of the runner-up.
+    view_notes : tuple of tuple of tuple of str
+        Per capture and view, the highlights found but not used, and why.
+    """
+
+    lights: tuple[LightEstimate, ...]
+    groupings: tuple[HighlightGrouping, ...]
+    matches: tuple[CaptureMatch, ...]
+    view_notes: tuple[tuple[tuple[str, ...], ...], ...]
+
+    @property
+    def n_lights(self) -> int:
+        """Number of lights found."""
+        return len(self.lights)
+
+    @property
+    def positions_m(self) -> np.ndarray:
+        """Light positions, ``(L, 3)`` float64, metres."""
+        return np.array([est.position_m for est in self.lights])
+
+    def summary(self) -> str:
+        """Describe every light and the evidence of the assignment, in a few lines each."""
+        lines = [f"{self.n_lights} light(s) from {len(self.groupings)} plate pose(s)"]
+        for c, (grouping, match) in enumerate(zip(self.groupings, self.matches, strict=True)):
+            sets = ", ".join(
+                f"light {k}: {len(s.views)} views, {s.residual_px:.2f} px"
+                for s, k in zip(grouping.sets, match.lights, strict=True))
+            runner = ("" if not np.isfinite(match.runner_up_distance_m) else
+                      f"; next best assignment {match.runner_up_distance_m * 1000:.1f} mm")
+            lines.append(f"capture {c}: {sets} (rays meet within "
+                         f"{match.ray_distance_m * 1000:.1f} mm{runner})")
+        for k, est in enumerate(self.lights):
+            lines.append(f"light {k}:")
+            lines += ["  " + line for line in est.summary().splitlines()]
+        return "\n".join(lines)
+
+
+def estimate_lights(
+    captures: Sequence[Any],
+    rig: CameraRig,
+    board: Board,
+    *,
+    n_lights: int | None = None,
+    method: str = "blob",
+    refine: bool = True,
+    min_views: int = DEFAULT_MIN_VIEWS,
+    min_marker_views: int = 1,
+    max_incidence_deg: float = DEFAULT_MAX_INCIDENCE_DEG,
+    max_residual_m: float = DEFAULT_MAX_RESIDUAL_M,
+    max_reprojection_px: float = DEFAULT_MAX_REPROJECTION_PX,
+    match_tolerance_px: float = DEFAULT_MATCH_TOLERANCE_PX,
+    **detector_options: Any,
+) -> LightsEstimate:
+    """Calibrate several lights from captures of the ArUco plate showing several highlights.
+
+    For each capture: the plate pose from the markers; every highlight on the plate in
+    every view (:func:`find_plate_highlight_candidates`); the highlights sorted into one
+    set per light by triangulating their virtual lights (:func:`group_highlights`). The
+    sets of all captures are assigned to the lights by their reflected rays
+    (:func:`match_captures`: each light is one point the rays of its sets must meet).
+    Then each light is solved as :func:`estimate_light` solves one
+    (:func:`light_from_reflections`), with the same residuals and uncertainty.
+
+    Parameters
+    ----------
+    captures : sequence of (sequence of images, or folder path)
+        As for :func:`estimate_light`. At least one capture must show every light in
+        ``min_views`` views; others may show some of them.
+    rig : CameraRig
+    board : Board
+    n_lights : int, optional
+        Number of lights; by default counted: then every capture must show the same
+        number of highlight sets (lamps whose highlights merge in some captures would
+        otherwise count as a phantom light between them).
+    method, refine, min_views, min_marker_views, max_incidence_deg, max_residual_m,
+    max_reprojection_px, **detector_options
+        As for :func:`estimate_light` (``min_views``: per light and capture);
+        ``max_residual_m`` also bounds the ray distance of an accepted assignment.
+    match_tolerance_px : float
+        Largest distance of a highlight from the image of the virtual light it joins.
+
+    Returns
+    -------
+    LightsEstimate
+
+    Raises
+    ------
+    LightError
+        As :func:`estimate_light`; and highlights that cannot be sorted without a guess:
+        two equally supported highlight sets sharing highlights, more highlight sets than
+        lights, no capture showing every light, a capture whose sets fit no assignment
+        or two of them, a light seen in one capture only (of two or more), or, when
+        counting, captures that show different numbers of lights.
+    """
+    _check_calibration_inputs(captures, rig, board, min_views)
+    if n_lights is not None and (isinstance(n_lights, bool) or not isinstance(n_lights, int)
+                                 or not 1 <= n_lights <= MAX_LIGHTS):
+        raise LightError(f"n_lights: expected an integer in [1, {MAX_LIGHTS}] or None "
+                         f"(detect), got {n_lights!r}")
+    max_incidence_deg = check_positive(max_incidence_deg, "max_incidence_deg")
+    max_residual_m = check_positive(max_residual_m, "max_residual_m")
+    match_tolerance_px = check_positive(match_tolerance_px, "match_tolerance_px")
+    poses, groupings, notes = [], [], []
+    for c, capture in enumerate(captures):
+        label, views, pose = _capture_pose(c, capture, rig, board, min_marker_views,
+                                           max_reprojection_px, max_incidence_deg)
+        candidates, why = find_plate_highlight_candidates(
+            views, rig, board, pose, max_per_view=n_lights or MAX_LIGHTS, method=method,
+            **detector_options)
+        grouping = group_highlights(candidates, rig, pose, min_views=min_views,
+                                    tolerance_px=match_tolerance_px)
+        if not grouping:
+            raise LightError(f"{label}: {grouping.reason}")
+        poses.append(pose)
+        groupings.append(grouping)
+        notes.append(why)
+    k = n_lights or max(len(g.sets) for g in groupings)
+    if k == 0:
+        details = "; ".join(n for per_view in notes for note in per_view for n in [note])
+        raise LightError(
+            f"highlights: expected one highlight of a light in at least {min_views} views of "
+            f"a capture, got none{': ' + details if details else ''}")
+    counts = [len(g.sets) for g in groupings]
+    if n_lights is None and len(set(counts)) > 1:
+        # Highlights of lamps close together merge into one blob in some views or plate
+        # poses and not in others; the merged blob is consistent with a phantom light
+        # between them. A count that varies between captures is that, or a light lost
+        # under a marker: either way the count is not known.
+        raise LightError(
+            f"lights: expected every capture to show the same number of lights when counting "
+            f"them, got {counts} highlight sets per capture (highlights of lamps close "
+            f"together merge, or sit on a marker); give the number of lights")
+    matches, reason = match_captures([g.sets for g in groupings], poses, rig, k,
+                                     max_ray_distance_m=max_residual_m)
+    if reason:
+        raise LightError(reason)
+    if len(groupings) >= 2:
+        # A light seen in one capture only was never checked against another plate pose.
+        seen = [sum(light in m.lights for m in matches) for light in range(k)]
+        lonely = [light for light in range(k) if seen[light] < 2]
+        if lonely:
+            only = [c for c, m in enumerate(matches) if lonely[0] in m.lights]
+            raise LightError(
+                f"lights: expected every light in at least 2 of the {len(groupings)} captures "
+                f"(so that its rays are checked across plate poses), got a light seen only in "
+                f"capture {only[0]}; add captures that show it, or check the number of lights")
+    estimates = []
+    for light in range(k):
+        centers, reasons = [], []
+        for grouping, match, per_view in zip(groupings, matches, notes, strict=True):
+            found = [s for s, j in zip(grouping.sets, match.lights, strict=True) if j == light]
+            cc = found[0].centers_px if found else np.full((rig.n_cameras, 2), np.nan)
+            centers.append(cc)
+            reasons.append(tuple(
+                "" if np.all(np.isfinite(cc[v])) else
+                "; ".join((f"{rig.camera_names[v]}: no highlight of this light",) + per_view[v])
+                for v in range(rig.n_cameras)))
+        try:
+            estimates.append(light_from_reflections(
+                poses, centers, rig, refine=refine, view_reasons=reasons,
+                max_incidence_deg=max_incidence_deg, max_residual_m=max_residual_m))
+        except LightError as exc:
+            raise LightError(f"light {light}: {exc}") from None
+    # Lights left to right (then top to bottom): an order that does not depend on which
+    # capture happened to fix the numbering.
+    order = sorted(range(k), key=lambda j: tuple(estimates[j].position_m[:2]))
+    new_index = {old: new for new, old in enumerate(order)}
+    matches = tuple(replace(m, lights=tuple(new_index[j] for j in m.lights)) for m in matches)
+    return LightsEstimate(tuple(estimates[j] for j in order), tuple(groupings), matches,
+                          tuple(notes))
+
+
 @dataclass(frozen=True)
 class LightCalibration:
     """What :func:`calibrate_light_files` found and wrote.
@@ -194,16 +412,47 @@ class LightCalibration:
     Attributes
     ----------
     estimate : LightEstimate
-        The light and its residuals.
+        The (first) light and its residuals.
     rig : CameraRig
-        The rig with the light set.
+        The rig with the lights set.
     backup : pathlib.Path or None
         Where the previous ``rig.json`` was kept; None when nothing was written.
+    lights : LightsEstimate or None
+        With several lights, all of them and how their highlights were sorted; None when
+        one light was calibrated the single-light way.
     """
 
     estimate: LightEstimate
     rig: CameraRig
     backup: Path | None = None
+    lights: LightsEstimate | None = None
+
+    @property
+    def estimates(self) -> tuple[LightEstimate, ...]:
+        """Every light's estimate, in the order of ``rig.lights``."""
+        return (self.estimate,) if self.lights is None else self.lights.lights
+
+
+def _calibrated_lights(rig: CameraRig, positions_m: np.ndarray) -> tuple[tuple[RigLight, ...],
+                                                                        list[int]]:
+    """Move the rig's lights to calibrated positions; say which estimate each one took.
+
+    When the rig already lists as many lights, each keeps its name and radius (which the
+    plate cannot measure) and takes the nearest estimate (a one-to-one assignment of
+    least total distance); otherwise the lights are new, unnamed, radius unknown.
+    """
+    k = len(positions_m)
+    if len(rig.lights) != k:
+        if rig.lights:
+            _log.warning("rig lists %d light(s), the calibration found %d: names and radii "
+                         "are dropped", len(rig.lights), k)
+        return tuple(RigLight(tuple(p)) for p in positions_m), list(range(k))
+    old = rig.light_positions_m
+    cost = np.linalg.norm(old[:, None] - positions_m[None], axis=2)
+    rows, cols = linear_sum_assignment(cost)
+    take = [int(cols[list(rows).index(i)]) for i in range(k)]
+    return tuple(replace(light, position_m=tuple(float(v) for v in positions_m[j]))
+                 for light, j in zip(rig.lights, take, strict=True)), take
 
 
 def calibrate_light_files(
@@ -212,6 +461,7 @@ def calibrate_light_files(
     rig_path: str | os.PathLike,
     *,
     write: bool = True,
+    n_lights: int | str | None = None,
     **options: Any,
 ) -> LightCalibration:
     """Calibrate from capture folders and store the light in ``rig.json``.
@@ -229,18 +479,41 @@ def calibrate_light_files(
         The rig's ``rig.json``; rewritten with the light when ``write`` is true.
     write : bool
         Whether to write the light into ``rig_path``.
+    n_lights : int, "auto" or None
+        Lights to calibrate: a number, ``"auto"`` (as many as the captures show), or
+        None: as many as ``rig.json`` lists (one if none). One light is calibrated with
+        :func:`estimate_light`, several with :func:`estimate_lights`; lights already in
+        ``rig.json`` keep their names and radii.
     **options
-        Keyword options of :func:`estimate_light`.
+        Keyword options of :func:`estimate_light` / :func:`estimate_lights`.
 
     Returns
     -------
     LightCalibration
-        The estimate, the rig with the light set, and the backup of the old file.
+        The estimates, the rig with the lights set, and the backup of the old file.
     """
     rig = CameraRig.from_json(rig_path)
     board = Board.from_json(board_path)
-    estimate = estimate_light(list(capture_dirs), rig, board, **options)
-    new_rig = rig.with_light(estimate.position_m)
+    if n_lights is None:
+        n_lights = max(len(rig.lights), 1)
+    elif n_lights != "auto" and (isinstance(n_lights, bool) or not isinstance(n_lights, int)):
+        raise LightError(f"n_lights: expected a number of lights, 'auto' or None, got "
+                         f"{n_lights!r}")
+    if n_lights == 1:
+        # One light has no highlights to sort: the matching tolerance does not apply.
+        options.pop("match_tolerance_px", None)
+        estimate = estimate_light(list(capture_dirs), rig, board, **options)
+        lights, found = _calibrated_lights(rig, estimate.position_m[None])
+        multi = None
+    else:
+        multi = estimate_lights(list(capture_dirs), rig, board,
+                                n_lights=None if n_lights == "auto" else n_lights, **options)
+        lights, take = _calibrated_lights(rig, multi.positions_m)
+        multi = replace(multi, lights=tuple(multi.lights[j] for j in take),
+                        matches=tuple(replace(m, lights=tuple(take.index(j) for j in m.lights))
+                                      for m in multi.matches))
+        estimate = multi.lights[0]
+    new_rig = rig.with_lights(lights)
     backup = None
     if write:
         path = Path(rig_path)
@@ -252,4 +525,4 @@ def calibrate_light_files(
         # The backup is written like every other file: whole or not at all.
         write_atomic(backup, old)
         new_rig.to_json(path)
-    return LightCalibration(estimate, new_rig, backup)
+    return LightCalibration(estimate, new_rig, backup, multi)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
+from pathlib import Path
+
 from ..calibration import (
+    DEFAULT_MATCH_TOLERANCE_PX,
     DEFAULT_MAX_INCIDENCE_DEG,
     DEFAULT_MAX_RESIDUAL_M,
     DEFAULT_MIN_VIEWS,
@@ -77,24 +81,59 @@ def _register_make_board(subparsers) -> None:
     p.set_defaults(func=_make_board_command)
 
 
+def _lights_arg(text: str) -> int | str:
+    """``--lights``: a positive number of lights or "auto"."""
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number of lights or 'auto', "
+                                         f"got {text!r}")
+    return value
+
+
 def _calibrate_light_command(args) -> int:
+    options = {} if args.match_tolerance_px is None else {
+        "match_tolerance_px": args.match_tolerance_px}
     calibration = calibrate_light_files(
         args.captures,
         args.board,
         args.rig,
         write=not args.dry_run,
+        n_lights=args.lights,
         method=args.method,
         refine=not args.no_refine,
         min_views=args.min_views,
         max_incidence_deg=args.max_incidence_deg,
         max_residual_m=args.max_residual_mm / 1000.0,
+        **options,
     )
-    print(calibration.estimate.summary())
+    if calibration.lights is None:
+        print(calibration.estimate.summary())
+    else:
+        print(calibration.lights.summary())
+        for k, light in enumerate(calibration.rig.lights):
+            label = f" ({light.name})" if light.name else ""
+            radius = ("radius unknown" if light.radius_m is None
+                      else f"radius {light.radius_m * 1000:g} mm, from {args.rig}")
+            print(f"rig light {k}{label}: {radius}; the plate cannot measure it")
     if args.dry_run:
         print(f"{args.rig} left unchanged (--dry-run)")
     else:
-        print(f"wrote the light into {args.rig} (previous file kept as {calibration.backup})")
-    if args.figure is not None:
+        n = len(calibration.rig.lights)
+        what = "the light" if n == 1 else f"{n} lights"
+        print(f"wrote {what} into {args.rig} (previous file kept as {calibration.backup})")
+    if args.figure is not None and calibration.lights is not None:
+        board = Board.from_json(args.board)
+        for k, estimate in enumerate(calibration.estimates):
+            out = Path(args.figure) / f"light{k}"
+            files = write_calibration_figures(out, args.captures, estimate, calibration.rig,
+                                              board)
+            print(f"wrote {out}/: {', '.join(f.name for f in files)}")
+    elif args.figure is not None:
         files = write_calibration_figures(args.figure, args.captures, calibration.estimate,
                                           calibration.rig, Board.from_json(args.board))
         print(f"wrote {args.figure}/: {', '.join(f.name for f in files)}")
@@ -121,6 +160,24 @@ def _register_calibrate_light(subparsers) -> None:
     )
     p.add_argument("--board", required=True, help="the plate's board.json")
     p.add_argument("--rig", required=True, help="rig.json to read, and to write the light into")
+    p.add_argument(
+        "--lights",
+        type=_lights_arg,
+        default=None,
+        metavar="N|auto",
+        help="number of lights the plate shows (one highlight each), or 'auto' to count "
+        "them; default: as many as rig.json lists, one if none. Highlights are sorted to "
+        "lights by geometry; an ambiguous sorting is an error, never a guess. Lights "
+        "already in rig.json keep their names and radius_m (the plate cannot measure a "
+        "radius)",
+    )
+    p.add_argument(
+        "--match-tolerance-px",
+        type=float,
+        default=None,
+        help="with several lights: largest distance of a highlight from the image of the "
+        f"virtual light it joins (default {DEFAULT_MATCH_TOLERANCE_PX:g})",
+    )
     p.add_argument(
         "--method",
         choices=("blob", "paper"),
@@ -156,5 +213,6 @@ def _register_calibrate_light(subparsers) -> None:
     p.add_argument("--figure", default=None, metavar="DIR",
                    help="write capture_<c>.png per capture (each view: markers found and "
                    "reprojected, highlight centre and its residual) and light_3d.png (plate "
-                   "poses, rays, the light) into DIR")
+                   "poses, rays, the light) into DIR; with several lights, one DIR/light<k>/ "
+                   "per light")
     p.set_defaults(func=_calibrate_light_command)

@@ -1,0 +1,381 @@
+"""Which highlight on the plate belongs to which light: geometry decides, never brightness.
+
+With several lights a plate shows several highlights in every view. Two geometric facts
+sort them:
+
+*Within one capture* the highlights of one light in all views are images of one point,
+the light's mirror image in the plate (its virtual light). So every pair of highlights in
+two views proposes a point; the views whose highlight lies where that point projects
+join it; the sets that most views agree on are the lights' highlight sets
+(:func:`group_highlights`). A highlight set must lie behind the plate (a mirror image),
+and no highlight may serve two sets.
+
+*Across captures* each light is one 3-D point: the reflected rays of its highlight sets
+from every plate pose must meet there. Each capture's sets are matched to the lights by
+trying every assignment and keeping the one whose rays meet
+(:func:`match_captures`); two assignments that both fit are an ambiguity.
+
+Nothing is guessed: two competing sets with the same support, a capture whose sets fit
+two assignments, or more highlight sets than lights are failures with their reasons and
+numbers.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import CameraRig, triangulate_rectified
+from .light import closest_point_to_rays, reflect_highlights
+from .plate_pose import PlatePose
+
+__all__ = [
+    "DEFAULT_MATCH_TOLERANCE_PX",
+    "AMBIGUITY_RATIO",
+    "HighlightSet",
+    "HighlightGrouping",
+    "CaptureMatch",
+    "group_highlights",
+    "match_captures",
+]
+
+#: Largest distance (pixels) between a highlight centre and the projection of the virtual
+#: light it is taken to belong to. Detected centres on a plate are good to a few hundredths
+#: of a pixel on renders and a few tenths on real images; another light's highlight lies
+#: tens of pixels away.
+DEFAULT_MATCH_TOLERANCE_PX = 1.5
+
+
+#: A capture's assignment of highlight sets to lights is accepted only if the next best
+#: one has at least this many times its sum of squared ray distances.
+AMBIGUITY_RATIO = 4.0
+
+
+# A light cannot be assigned more captures' sets than this many at once (the number of
+# assignments tried per capture grows as L! / (L - m)!).
+_MAX_ASSIGNMENTS = 50_000
+
+
+@dataclass(frozen=True, eq=False)
+class HighlightSet:
+    """The highlights of one light in one capture: images of one virtual light.
+
+    Attributes
+    ----------
+    centers_px : numpy.ndarray, (N, 2) float64
+        The highlight centre in each view; NaN where this light's highlight was not found.
+    candidates : numpy.ndarray, (N,) int
+        Which of the view's candidates it is (-1 where none).
+    virtual_light_m : numpy.ndarray, (3,) float64
+        The point triangulated from the centres, array frame, metres.
+    residual_px : float
+        RMS reprojection distance of the centres to it, pixels.
+    """
+
+    centers_px: np.ndarray
+    candidates: np.ndarray
+    virtual_light_m: np.ndarray
+    residual_px: float
+
+    @property
+    def views(self) -> tuple[int, ...]:
+        """Views in which the set has a highlight."""
+        return tuple(int(v) for v in np.flatnonzero(self.candidates >= 0))
+
+
+@dataclass(frozen=True, eq=False)
+class HighlightGrouping:
+    """One capture's highlights sorted into sets, one set per light seen.
+
+    Falsy when the grouping failed; ``reason`` then says why, with the numbers.
+
+    Attributes
+    ----------
+    sets : tuple of HighlightSet
+        Most views first.
+    unmatched_px : tuple of numpy.ndarray, each (M_i, 2)
+        Per view, the candidates no set took (reflections of something else, or a
+        light seen in too few views).
+    reason : str
+        ``""`` on success.
+    """
+
+    sets: tuple[HighlightSet, ...]
+    unmatched_px: tuple[np.ndarray, ...]
+    reason: str = ""
+
+    def __bool__(self) -> bool:
+        return not self.reason
+
+
+def _set_from(rig: CameraRig, candidates: Sequence[np.ndarray], point_m: np.ndarray,
+              tolerance_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each view, the one candidate within ``tolerance_px`` of the point's image.
+
+    Returns the candidate index per view (-1: none, -2: more than one) and the centres.
+    """
+    n = rig.n_cameras
+    index = np.full(n, -1)
+    centers = np.full((n, 2), np.nan)
+    for view, cands in enumerate(candidates):
+        if cands.shape[0] == 0:
+            continue
+        dist = np.linalg.norm(cands - rig.project(point_m, view), axis=1)
+        close = np.flatnonzero(dist <= tolerance_px)
+        if close.size == 1:
+            index[view] = close[0]
+            centers[view] = cands[close[0]]
+        elif close.size > 1:
+            index[view] = -2
+    return index, centers
+
+
+def group_highlights(
+    candidates: Sequence[np.ndarray],
+    rig: CameraRig,
+    pose: PlatePose,
+    *,
+    min_views: int,
+    tolerance_px: float = DEFAULT_MATCH_TOLERANCE_PX,
+) -> HighlightGrouping:
+    """Sort one capture's highlight candidates into per-light sets by triangulation.
+
+    Every pair of candidates in two views proposes a virtual light; it collects, in every
+    view, the one candidate within ``tolerance_px`` of its image, and is refitted to them
+    until the set no longer changes. Proposals that lie in front of the plate (no mirror
+    image does) or gather fewer than ``min_views`` views are dropped. The sets are then
+    taken most views first (smaller residual first); a set sharing a highlight with one
+    taken before is dropped when it has fewer views and is an ambiguity when it has as
+    many.
+
+    Parameters
+    ----------
+    candidates : sequence of numpy.ndarray, each (M_i, 2)
+        Per view, the highlight centres found (pixels).
+    rig : CameraRig
+    pose : PlatePose
+        The plate of this capture.
+    min_views : int
+        Fewest views a set must span.
+    tolerance_px : float
+        Largest distance of a centre from its virtual light's image.
+
+    Returns
+    -------
+    HighlightGrouping
+        Falsy with a reason for an ambiguity, or two candidates of one view both fitting
+        one set.
+
+    Examples
+    --------
+    >>> from srde_fusion.calibration import PlatePose
+    >>> rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, image_size=(640, 480))
+    >>> pose = PlatePose.from_center_normal((0.0, 0.0, 1.0), (0.0, 0.0, -1.0))
+    >>> virtual = [(0.3, 0.2, 2.0), (-0.2, -0.25, 2.1)]   # two lights mirrored in z = 1
+    >>> cands = [np.array([rig.project(v, i) for v in virtual]) for i in range(9)]
+    >>> grouping = group_highlights(cands, rig, pose, min_views=2)
+    >>> len(grouping.sets), [np.round(s.virtual_light_m, 6).tolist() for s in grouping.sets]
+    (2, [[0.3, 0.2, 2.0], [-0.2, -0.25, 2.1]])
+    """
+    cands = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in candidates]
+    n = rig.n_cameras
+    n_plane, c_plane = pose.plane.n, pose.plane.offset_m
+    proposals: dict[tuple[int, ...], HighlightSet] = {}
+    conflicts: list[str] = []
+    for i, j in itertools.combinations(range(n), 2):
+        for a, b in itertools.product(range(len(cands[i])), range(len(cands[j]))):
+            # A pair inside a set found before proposes that set again.
+            if any(key[i] == a and key[j] == b for key in proposals):
+                continue
+            seed = np.full((n, 2), np.nan)
+            seed[i], seed[j] = cands[i][a], cands[j][b]
+            fit = triangulate_rectified(rig, seed)
+            if not (np.all(np.isfinite(fit.point_m)) and fit.inverse_depth_per_m > 0
+                    and np.nanmax(fit.residuals_px) <= tolerance_px):
+                continue
+            index, centers = None, None
+            point = fit.point_m
+            for _ in range(5):  # refit until the set stops changing
+                new_index, new_centers = _set_from(rig, cands, point, tolerance_px)
+                if index is not None and np.array_equal(new_index, index):
+                    break
+                index, centers = new_index, new_centers
+                refit = triangulate_rectified(rig, centers)
+                if not np.all(np.isfinite(refit.point_m)) or refit.inverse_depth_per_m <= 0:
+                    break
+                point, fit = refit.point_m, refit
+            if index is None or np.sum(index >= 0) < min_views:
+                continue
+            # A virtual light is the light's mirror image: it lies behind the plate.
+            if float(n_plane @ point) - c_plane >= 0.0:
+                continue
+            if np.any(index == -2):
+                views = [rig.camera_names[v] for v in np.flatnonzero(index == -2)]
+                conflicts.append(f"two highlights within {tolerance_px:g} px of one virtual "
+                                 f"light's image in {views}")
+                continue
+            key = tuple(int(k) for k in index)
+            if key not in proposals:
+                used = index >= 0
+                residual = float(np.sqrt(np.nanmean(fit.residuals_px[used] ** 2)))
+                proposals[key] = HighlightSet(centers, index, np.asarray(point, float),
+                                              residual)
+    if conflicts:
+        return HighlightGrouping((), tuple(cands), f"ambiguous highlights: {conflicts[0]}")
+    ranked = sorted(proposals.values(), key=lambda s: (-len(s.views), s.residual_px))
+    taken: list[HighlightSet] = []
+    for candidate in ranked:
+        rivals = [s for s in taken if np.any((s.candidates >= 0)
+                                             & (s.candidates == candidate.candidates))]
+        if not rivals:
+            taken.append(candidate)
+            continue
+        rival = rivals[0]
+        if len(rival.views) == len(candidate.views):
+            where = [rig.camera_names[v] for v in
+                     np.flatnonzero((rival.candidates >= 0)
+                                    & (rival.candidates == candidate.candidates))]
+            return HighlightGrouping(
+                (), tuple(cands),
+                f"ambiguous highlights: two sets of {len(rival.views)} views share the "
+                f"highlights of {where} (virtual lights at "
+                f"{np.round(rival.virtual_light_m, 3).tolist()} and "
+                f"{np.round(candidate.virtual_light_m, 3).tolist()} m, residuals "
+                f"{rival.residual_px:.2f} and {candidate.residual_px:.2f} px)")
+    unmatched = []
+    for view, c in enumerate(cands):
+        used = {int(s.candidates[view]) for s in taken if s.candidates[view] >= 0}
+        unmatched.append(c[[k for k in range(len(c)) if k not in used]])
+    return HighlightGrouping(tuple(taken), tuple(unmatched))
+
+
+@dataclass(frozen=True, eq=False)
+class CaptureMatch:
+    """How one capture's highlight sets were assigned to the lights, and the evidence.
+
+    Attributes
+    ----------
+    lights : tuple of int
+        Per highlight set of the capture, the light it was assigned to.
+    ray_distance_m : float
+        Largest mean distance, over the lights, of the reflected rays assigned so far to
+        their common point (metres) under this assignment.
+    runner_up_distance_m : float
+        The same for the next best assignment (inf if there was none): how far from
+        fitting the alternative was.
+    """
+
+    lights: tuple[int, ...]
+    ray_distance_m: float
+    runner_up_distance_m: float
+
+
+def _ray_cost(origins: list[np.ndarray], directions: list[np.ndarray]
+              ) -> tuple[float, float]:
+    """(largest mean ray distance over lights, total squared distance) of ray bundles."""
+    worst, total = 0.0, 0.0
+    for o, d in zip(origins, directions, strict=True):
+        if o.shape[0] < 2:
+            continue
+        try:
+            _, dist = closest_point_to_rays(o, d)
+        except ValueError:  # parallel rays: they fix no point, so they cannot disagree
+            continue
+        worst = max(worst, float(dist.mean()))
+        total += float(np.sum(dist**2))
+    return worst, total
+
+
+def match_captures(
+    groupings: Sequence[Sequence[HighlightSet]],
+    poses: Sequence[PlatePose],
+    rig: CameraRig,
+    n_lights: int,
+    *,
+    max_ray_distance_m: float,
+) -> tuple[tuple[CaptureMatch, ...], str]:
+    """Assign every capture's highlight sets to ``n_lights`` lights by their rays.
+
+    The first capture that shows all lights fixes their numbering; every other capture
+    tries each injective assignment of its sets to the lights, and keeps the one under
+    which the reflected rays of each light (all captures so far) meet best. It must fit
+    (every light's rays within ``max_ray_distance_m`` of their common point, on average)
+    and be clearly better than any other that fits (:data:`AMBIGUITY_RATIO`).
+
+    Parameters
+    ----------
+    groupings : sequence of sequence of HighlightSet
+        Per capture, its highlight sets (:func:`group_highlights`).
+    poses : sequence of PlatePose
+        Per capture, the plate.
+    rig : CameraRig
+    n_lights : int
+        Number of lights.
+    max_ray_distance_m : float
+        Largest accepted mean distance of a light's rays to their common point.
+
+    Returns
+    -------
+    matches : tuple of CaptureMatch
+        Per capture (empty when the matching failed).
+    reason : str
+        ``""`` on success, else why no assignment could be trusted.
+    """
+    counts = [len(g) for g in groupings]
+    too_many = [c for c, k in enumerate(counts) if k > n_lights]
+    if too_many:
+        c = too_many[0]
+        return (), (f"capture {c}: expected at most {n_lights} lights, got {counts[c]} "
+                    f"consistent highlight sets")
+    full = [c for c, k in enumerate(counts) if k == n_lights]
+    if not full:
+        return (), (f"expected a capture showing all {n_lights} lights in enough views, got "
+                    f"{counts} highlight sets per capture")
+    rays = []
+    for pose, sets in zip(poses, groupings, strict=True):
+        rays.append([reflect_highlights(pose, s.centers_px, rig) for s in sets])
+    first = full[0]
+    origins = [[rays[first][k][0]] for k in range(n_lights)]
+    directions = [[rays[first][k][1]] for k in range(n_lights)]
+    matches: dict[int, CaptureMatch] = {
+        first: CaptureMatch(tuple(range(n_lights)), _ray_cost(
+            [o[0] for o in origins], [d[0] for d in directions])[0], np.inf)}
+    order = sorted((c for c in range(len(groupings)) if c != first), key=lambda c: -counts[c])
+    for c in order:
+        m = counts[c]
+        if m == 0:
+            matches[c] = CaptureMatch((), 0.0, np.inf)
+            continue
+        scored = []
+        for n_tried, assignment in enumerate(itertools.permutations(range(n_lights), m)):
+            if n_tried >= _MAX_ASSIGNMENTS:
+                return (), (f"capture {c}: expected at most {_MAX_ASSIGNMENTS} assignments "
+                            f"of {m} highlight sets to {n_lights} lights to try, got more")
+            o = [np.concatenate(origins[k]) for k in range(n_lights)]
+            d = [np.concatenate(directions[k]) for k in range(n_lights)]
+            for s, k in enumerate(assignment):
+                o[k] = np.concatenate([o[k], rays[c][s][0]])
+                d[k] = np.concatenate([d[k], rays[c][s][1]])
+            worst, total = _ray_cost(o, d)
+            scored.append((total, worst, assignment))
+        scored.sort(key=lambda t: t[0])
+        total, worst, best = scored[0]
+        runner_up = scored[1] if len(scored) > 1 else (np.inf, np.inf, None)
+        if worst > max_ray_distance_m:
+            return (), (f"capture {c}: expected its {m} highlight sets to fit the lights "
+                        f"(mean ray distance <= {max_ray_distance_m * 1000:g} mm), got "
+                        f"{worst * 1000:.1f} mm at best: these highlights do not triangulate "
+                        f"with the other captures' as one light each")
+        if runner_up[1] <= max_ray_distance_m and runner_up[0] < AMBIGUITY_RATIO * total:
+            return (), (f"capture {c}: ambiguous assignment of highlight sets to lights: "
+                        f"{list(best)} and {list(runner_up[2])} both fit (mean ray distance "
+                        f"{worst * 1000:.1f} and {runner_up[1] * 1000:.1f} mm); the lights "
+                        f"are too close together for these plate poses")
+        matches[c] = CaptureMatch(tuple(best), worst, float(runner_up[1]))
+        for s, k in enumerate(best):
+            origins[k].append(rays[c][s][0])
+            directions[k].append(rays[c][s][1])
+    return tuple(matches[c] for c in range(len(groupings))), ""
