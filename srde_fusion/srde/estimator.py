@@ -36,7 +36,7 @@ import warnings
 import cv2
 import numpy as np
 
-from .._checks import Views, check_mask, check_point3, check_views
+from .._checks import Views, check_mask, check_views
 from ..errors import LightError, RigError, SRDEError
 from ..geometry import (
     CameraRig,
