@@ -487,9 +487,11 @@ class SRDE:
         residual = _rms_residual(rig, point, centers, used)
         refinement = None
         if views is not None and self.refine:
+            others = [m for m in self.lights_m if not np.array_equal(m, light)]
             refinement = refine_plane(views, rig, light, mask, plane,
                                       centers_uv=np.where(used[:, None], centers, np.nan),
-                                      lobe=self.refine_lobe)
+                                      lobe=self.refine_lobe,
+                                      other_lights_m=np.array(others) if others else None)
             if refinement.ok:
                 plane = refinement.plane
                 point = plane.mirror(light)

@@ -93,6 +93,11 @@ BLEND_RADII = 3.0
 UNEXPLAINED_RATIO = 2.0
 
 
+#: A refined plane (one light's lobe) is kept only if every light's assigned highlight
+#: stays within this many times the assignment tolerance of where it puts it.
+REFINED_AGREEMENT = 1.0
+
+
 #: Rounds of "refit the plane to what it explains, then match again".
 _REFIT_ROUNDS = 3
 
@@ -809,4 +814,36 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         for j in range(rig.n_cameras))
     result = srde._finish(mask, point, w, used, main.centers_uv, detections, notes,
                           views=views, light=srde.lights_m[main.light])
+    refinement = result.refinement
+    if result.ok and refinement is not None and refinement.ok:
+        # The refinement sees one light; every light's assigned highlights must still
+        # agree with its plane, else the joint geometric plane stands.
+        worst_px = _worst_reprojection_px(rig, srde.lights_m, solution, result.plane)
+        limit_px = REFINED_AGREEMENT * 2.0 * srde.max_residual_px
+        if worst_px > limit_px:
+            note = (f"refinement: kept the joint plane; the refined plane misses light "
+                    f"highlights by up to {worst_px:.1f} px (limit {limit_px:g} px)")
+            saved, srde.refine = srde.refine, False
+            try:
+                result = srde._finish(mask, point, w, used, main.centers_uv, detections,
+                                      (*notes, note), views=views,
+                                      light=srde.lights_m[main.light])
+            finally:
+                srde.refine = saved
+            result = dataclasses.replace(result, refinement=refinement)
     return dataclasses.replace(result, lights=solution)
+
+
+def _worst_reprojection_px(rig: CameraRig, lights: np.ndarray, solution: LightsSolution,
+                           plane: Plane) -> float:
+    """Largest distance between an assigned highlight and where ``plane`` puts it, px."""
+    virtual = plane.mirror(lights)
+    offsets = rig.centers_m - rig.reference_center_m
+    worst = 0.0
+    for a in solution.assignments:
+        views = np.flatnonzero(np.isfinite(a.centers_uv[:, 0]))
+        if views.size:
+            predicted = rig.project(virtual[a.light] - offsets[views])
+            worst = max(worst, float(np.max(np.linalg.norm(predicted - a.centers_uv[views],
+                                                           axis=1))))
+    return worst

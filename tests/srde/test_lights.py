@@ -159,3 +159,26 @@ def test_srde_with_three_rendered_lights_solves_the_plane_and_reports_the_assign
     epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
     assert epe < 0.05
     assert "lights" in result.to_dict()
+
+
+def test_refinement_windows_leave_out_the_other_lights_highlights():
+    from srde_fusion.srde.refine.samples import sample_windows
+
+    rig = default_rig()
+    scene = random_scene(7003, rig, config=RandomSceneConfig(n_lights=3))
+    out = render(scene, rig)
+    mask = out.object_masks[0]
+    plane = out.planes[0]
+    lights = np.array([light.position_m for light in scene.lights])
+    virtual = plane.mirror(lights[0])
+    centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
+    alone = sample_windows(out.views, rig, mask, plane, centers)
+    apart = sample_windows(out.views, rig, mask, plane, centers, other_lights_m=lights[1:])
+    assert apart.n_samples < alone.n_samples
+    # No sample of the reference view sits on another light's highlight.
+    uv = apart.ray[:, :2] * [rig.intrinsics.fx, rig.intrinsics.fy] + [rig.intrinsics.cx,
+                                                                      rig.intrinsics.cy]
+    at_ref = np.all(np.isclose(apart.camera_m, rig.reference_center_m), axis=1)
+    for light in lights[1:]:
+        seen = rig.project(plane.mirror(light))
+        assert np.min(np.linalg.norm(uv[at_ref] - seen, axis=1)) > apart.half_window_px - 2

@@ -155,6 +155,7 @@ def refine_plane(
     f0: float = DEFAULT_F0,
     fresnel: str = "exact",
     max_iterations: int = 20,
+    other_lights_m=None,
 ) -> PlaneRefinement:
     """Refine a plane so that a specular lobe model explains the highlight in every view.
 
@@ -189,6 +190,9 @@ def refine_plane(
         angles).
     max_iterations : int
         Cap on the steps of each Levenberg-Marquardt stage.
+    other_lights_m : array_like, (M, 3), metres, optional
+        Further known lights. Their highlights (where each sampled plane puts them) are
+        left out of the fitting windows: the lobe model renders one light.
 
     Returns
     -------
@@ -267,8 +271,13 @@ def refine_plane(
     if centers is None:
         virtual = initial_plane.mirror(light)
         centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
+    others = None
+    if other_lights_m is not None:
+        others = np.asarray(other_lights_m, dtype=np.float64).reshape(-1, 3)
+        if not np.all(np.isfinite(others)):
+            raise SRDEError(f"other_lights_m: expected (M, 3) finite metres, got {others!r}")
     setup = _Setup(views, rig, mask, mask_bbox(mask), light, initial_plane, centers, lobe, f0,
-                   fresnel, foreshortening, max_iterations)
+                   fresnel, foreshortening, max_iterations, others)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
         return kept(attempt)
@@ -313,6 +322,7 @@ class _Setup:
     fresnel: str
     foreshortening: float | None
     max_iterations: int
+    other_lights: np.ndarray | None = None
 
     def model(self, samples: HighlightSamples, plane: Plane) -> LobeModel:
         return LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
@@ -348,7 +358,7 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     ``photometry``: parameters whose lobe shape to start from instead of a grid search.
     """
     samples = sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers,
-                              box=setup.box)
+                              box=setup.box, other_lights_m=setup.other_lights)
     if isinstance(samples, str):
         return samples
     model = setup.model(samples, sample_plane)

@@ -89,10 +89,12 @@ class HighlightSamples:
 
 
 def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray,
-                    *, box=None) -> HighlightSamples | str:
+                    *, box=None, other_lights_m=None) -> HighlightSamples | str:
     """Block samples around each view's highlight on the object, or why there are none.
 
-    ``box``: the mask's bounding box, if known.
+    ``box``: the mask's bounding box, if known. ``other_lights_m`` ``(M, 3)``: further
+    lights whose highlights (where ``plane`` puts them) are left out of the windows, over
+    the radius the window spans around its own highlight.
     """
     box = mask_bbox(mask) if box is None else box
     eroded = _erode(mask, MASK_MARGIN_PX, box)
@@ -136,12 +138,23 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
     block = max(1, math.ceil((2 * half + 1) / SAMPLES_PER_SIDE))
 
     block_mask = _erode(mask, MASK_MARGIN_PX + block // 2, box)
+    others = None
+    if other_lights_m is not None and len(other_lights_m):
+        others = plane.mirror(np.asarray(other_lights_m, dtype=np.float64).reshape(-1, 3))
+        exclude_px = half - 2 + block
     uvs, lum, sat, used, counts = [], [], [], [], []
     for i in usable:
         window = _block_window(views[i], rig, block_mask, to_ref[i], centers[i], half, block)
         if window is None or not window[3].any():
             continue
         uv, y, clipped, inside = window
+        if others is not None:
+            # Other lights' highlights are not the fitted light's lobe.
+            seen = rig.project(others - (rig.centers_m[i] - rig.reference_center_m))
+            gaps = np.linalg.norm(uv[:, None, :] - seen[None, :, :], axis=2)
+            inside = inside & np.all(gaps > exclude_px, axis=1)
+            if not inside.any():
+                continue
         uvs.append(uv[inside])
         lum.append(y[inside])
         sat.append(clipped[inside])
