@@ -2,7 +2,7 @@
 
 The project's default renderer shares the refinement's assumptions (Schlick's Fresnel, a
 spherical light folded into a wider lobe, Lambertian diffuse), so fits on its images are
-exact by construction. Here every scene is rendered twice from the same description:
+exact by construction. Here every scene is rendered three times from the same description:
 
 * ``own model``: the default :class:`~srde_fusion.synthetic.physics.Physics`;
 * ``faithful``: ``Physics.faithful()`` -- exact dielectric Fresnel (IOR 1.49, acrylic),
