@@ -19,8 +19,10 @@ from srde_fusion.adapters import (  # noqa: E402
 )
 from srde_fusion.adapters.standin.network import (  # noqa: E402
     STANDIN_SIZES,
+    SoftCensus,
     StandinConfig,
     build_standin,
+    sample_along_rows,
 )
 from srde_fusion.adapters.standin.procedural import random_stereo_pair  # noqa: E402
 from srde_fusion.adapters.standin.training import (  # noqa: E402
@@ -35,7 +37,8 @@ from srde_fusion.errors import BackboneError  # noqa: E402
 PARITY_PX = 1e-3
 # Smaller than "tiny": trains in seconds on one CPU thread.
 MICRO = StandinConfig(feature_channels=8, max_disparity_px=32, correlation_groups=2,
-                      volume_channels=2, hidden_channels=8, lookup_radius=1, iterations=1)
+                      volume_channels=2, hidden_channels=8, lookup_radius=1, iterations=1,
+                      census_radius=1, refine_channels=4, refine_radius=1)
 MICRO_TRAINING = TrainingConfig(size=MICRO, steps=80, batch_size=4, crop_hw=(32, 64),
                                 max_train_disparity_px=16.0, learning_rate=3e-3,
                                 validation_pairs=8)
@@ -90,8 +93,49 @@ def test_forward_all_returns_every_iterate():
     x = torch.rand(2, 3, 64, 96) * 255
     out = net.forward_all(x, x)
     assert out.initial.shape == (2, 1, 64, 96)
-    assert len(out.refined) == STANDIN_SIZES["tiny"].iterations
+    # every 1/4-resolution iterate, then the full-resolution step (the output)
+    assert len(out.refined) == STANDIN_SIZES["tiny"].iterations + 1
     assert torch.equal(net(x, x), out.refined[-1])
+
+
+def test_soft_census_ignores_monotonic_intensity_changes():
+    census = SoftCensus(radius=2)
+    grey = torch.rand(1, 1, 24, 32) * 2 - 1
+    bits = census(grey)
+    assert bits.shape == (1, 24, 24, 32) and census.channels == 24
+    # a gain and an offset change the differences' scale, not their signs: the clear
+    # bits (well above the softness) keep their sign
+    brighter = census(grey * 1.5 + 0.2)
+    clear = bits.abs() > 0.9
+    assert clear.float().mean() > 0.5
+    assert torch.equal(torch.sign(bits[clear]), torch.sign(brighter[clear]))
+    # a flat image has no bits
+    assert census(torch.full((1, 1, 8, 8), 0.3)).abs().max() == 0
+
+
+def test_sample_along_rows_interpolates_and_zeroes_outside():
+    image = torch.arange(12, dtype=torch.float32).view(1, 1, 2, 6).expand(1, 2, 2, 6)
+    x = torch.tensor([[0.0, 0.5, 2.25, 5.0, -1.0, 7.0], [1.0] * 6]).view(1, 1, 2, 6)
+    out = sample_along_rows(image, x)
+    assert torch.allclose(out[0, 0, 0], torch.tensor([0.0, 0.5, 2.25, 5.0, 0.0, 0.0]))
+    assert torch.allclose(out[0, 1, 1], torch.full((6,), 7.0))
+
+
+def test_full_resolution_step_reads_the_census_costs():
+    net = build_standin("tiny").eval()
+    step = net.full_resolution
+    sample = random_stereo_pair(3, height=64, width=96, max_disparity_px=16)
+    left, right = (torch.from_numpy(v).permute(2, 0, 1)[None].float() * (2 / 255) - 1
+                   for v in (sample.left, sample.right))
+    census_l, census_r = (net.census(v.mean(dim=1, keepdim=True)) for v in (left, right))
+    truth = torch.from_numpy(sample.disparity_px)[None, None]
+    # freshly built, it starts as (almost) the identity
+    assert (step(left, census_l, census_r, truth) - truth).abs().max() < 0.1
+    # its census cost at offset 0 is higher at the true disparity than 3 px off
+    columns = torch.cumsum(torch.ones_like(truth), dim=3) - 1
+    right_at = (census_l * sample_along_rows(census_r, columns - truth)).mean()
+    right_off = (census_l * sample_along_rows(census_r, columns - truth - 3)).mean()
+    assert right_at > right_off + 0.05  # measured 0.15 against 0.05 (seed 3)
 
 
 def test_bundled_default_fulfils_the_contract():
