@@ -233,6 +233,7 @@ class SoftCensus(nn.Module):
 
     @property
     def channels(self) -> int:
+        """Number of comparisons, ``(2 r + 1)^2 - 1``."""
         return self.weight.shape[0]
 
     def forward(self, grey: torch.Tensor) -> torch.Tensor:
