@@ -24,7 +24,10 @@ Both methods are counted the same way, over the pixels with finite ground truth:
 * bad-1, bad-2 and D1: every pixel of the raw maps, a hole counted as wrong;
 * ``invalid``: the share of holes.
 
-Times are the median of three runs per pair after one warm-up.
+Times are the median of three runs per pair after one warm-up (the 640x480 time on the
+first rendered scene). The targets section checks the stand-in against SGBM on the
+full-size Motorcycle pair under every counting above, and its time per 640x480 pair
+(<= 1 s) and ONNX size (<= 5 MB).
 
     python benchmarks/backbone_accuracy.py [--scenes 6] [--model default]
 """
@@ -40,7 +43,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 from skimage import data as skdata
-from srde_fusion.adapters import SGBMSpec, default_model_info, load_backbone
+from srde_fusion.adapters import (
+    SGBMSpec,
+    default_model_info,
+    default_weights_path,
+    load_backbone,
+)
 
 from srde_fusion.evaluation import evaluate, fill_holes_background, summarize
 from srde_fusion.synthetic import default_rig, random_scene, render
@@ -50,6 +58,8 @@ KEYS = ("epe_filled", "epe_both", "bad1", "bad2", "d1", "invalid")
 METHODS = ("stand-in", "SGBM")
 SGBM = SGBMSpec()
 TIMING_RUNS = 3
+TARGET_SECONDS_640X480 = 1.0
+TARGET_ONNX_MB = 5.0
 
 
 def timed(run, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, float]:
@@ -100,12 +110,13 @@ def table(rows: list[tuple[str, str, dict]], first: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict]:
+def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict, dict]:
     rig = default_rig()
     pair_rig = rig.subset(list(rig.stereo_pair))
     per = {(region, method): [] for region in ("all", "textured", "glossy")
            for method in METHODS}
     seconds = {method: [] for method in METHODS}
+    seconds_640 = {}  # median of TIMING_RUNS on the first scene
     for seed in range(n_scenes):
         scene = random_scene(seed, rig, background="textured")
         rendering = render(scene, pair_rig)
@@ -118,11 +129,13 @@ def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict]:
             t0 = time.perf_counter()
             preds[method] = run(left, right)
             seconds[method].append(time.perf_counter() - t0)
+            if seed == 0:
+                _, seconds_640[method] = timed(run, left, right)
         for region, mask in regions.items():
             for method, values in score(preds, gt, mask).items():
                 per[(region, method)].append(values)
     rows = [(region, method, summarize(values)) for (region, method), values in per.items()]
-    return rows, {m: float(np.mean(s)) for m, s in seconds.items()}
+    return rows, {m: float(np.mean(s)) for m, s in seconds.items()}, seconds_640
 
 
 def motorcycle(backbone, sgbm) -> tuple[list, dict]:
@@ -153,10 +166,29 @@ def main() -> None:
     args = parser.parse_args()
     backbone = load_backbone(args.model, "igev")
     sgbm = load_backbone("sgbm", SGBM)
-    scene_rows, scene_seconds = rendered_scenes(backbone, sgbm, args.scenes)
+    scene_rows, scene_seconds, seconds_640 = rendered_scenes(backbone, sgbm, args.scenes)
     moto_rows, moto_seconds = motorcycle(backbone, sgbm)
     full = "741x500 (full)"
     ratio = moto_seconds[f"stand-in {full}"] / moto_seconds[f"SGBM {full}"]
+    ratio_640 = seconds_640["stand-in"] / seconds_640["SGBM"]
+    model_path = default_weights_path() if args.model == "default" else Path(args.model)
+    onnx_mb = model_path.stat().st_size / 1e6
+    moto = {m: v for s, m, v in moto_rows if s == full}
+    checks = [(f"Motorcycle {full}: {name}", moto["stand-in"][key], moto["SGBM"][key],
+               moto["stand-in"][key] < moto["SGBM"][key])
+              for key, name in (("epe_filled", "EPE filled (px)"), ("epe_both", "EPE both (px)"),
+                                ("bad2", "bad-2"))]
+    checks += [("seconds per 640x480 pair", seconds_640["stand-in"], seconds_640["SGBM"],
+                seconds_640["stand-in"] <= TARGET_SECONDS_640X480),
+               ("ONNX size (MB)", onnx_mb, None, onnx_mb <= TARGET_ONNX_MB)]
+    target_lines = ["| check | stand-in | SGBM | target | met |", "|---|---|---|---|---|"]
+    for name, mine, theirs, met in checks:
+        goal = ("< SGBM" if "Motorcycle" in name else
+                f"<= {TARGET_SECONDS_640X480:g} s" if "seconds" in name else
+                f"<= {TARGET_ONNX_MB:g} MB")
+        theirs_text = "-" if theirs is None else f"{theirs:.3f}"
+        target_lines.append(f"| {name} | {mine:.3f} | {theirs_text} | {goal} | "
+                            f"{'yes' if met else 'no'} |")
 
     info = default_model_info() if args.model == "default" else {}
     name = "bundled stand-in" if args.model == "default" else f"`{Path(args.model).name}`"
@@ -183,6 +215,11 @@ def main() -> None:
         + "\nTime per pair (median of 3 after a warm-up): "
         + ", ".join(f"{m} {s:.3f} s" for m, s in moto_seconds.items())
         + f"; stand-in / SGBM at full size: {ratio:.1f}x\n"
+        + "\n## Targets\n\n"
+        + "\n".join(target_lines)
+        + f"\n\nTime per 640x480 pair (first rendered scene, median of {TIMING_RUNS} after a "
+        f"warm-up): stand-in {seconds_640['stand-in']:.3f} s, SGBM {seconds_640['SGBM']:.3f} s "
+        f"({ratio_640:.1f}x).\n"
     )
     print(text)
     RESULTS.mkdir(exist_ok=True)
@@ -193,6 +230,11 @@ def main() -> None:
         "motorcycle": [{"size": s, "method": m, **v} for s, m, v in moto_rows],
         "seconds": {**scene_seconds, **moto_seconds},
         "standin_over_sgbm_time_full": ratio,
+        "seconds_640x480": seconds_640,
+        "standin_over_sgbm_time_640x480": ratio_640,
+        "onnx_mb": onnx_mb,
+        "targets": [{"check": n, "standin": a, "sgbm": b, "met": bool(m)}
+                    for n, a, b, m in checks],
         "sgbm_spec": {f: getattr(SGBM, f) for f in SGBM.__dataclass_fields__},
         "model": info.get("validation"),
         "platform": platform.platform(),
