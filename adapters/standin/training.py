@@ -109,7 +109,7 @@ class TrainingConfig:
     """
 
     size: Any = "default"
-    steps: int = 2400
+    steps: int = 3000
     seed: int = 0
     batch_size: int = 3
     crop_hw: tuple[int, int] = (128, 256)
