@@ -192,9 +192,12 @@ def main() -> None:
 
     info = default_model_info() if args.model == "default" else {}
     name = "bundled stand-in" if args.model == "default" else f"`{Path(args.model).name}`"
+    training = info.get("training", {})
+    stages = [training.get("first_stage", {}).get("steps"), training.get("steps")]
+    steps = " + ".join(str(n) for n in stages if n is not None) or "?"
     text = (
         "# Stand-in backbone accuracy\n\n"
-        f"The {name} (trained {info.get('training', {}).get('steps', '?')} steps on "
+        f"The {name} (trained {steps} steps on "
         "procedural pairs, igev preset) beside "
         f"OpenCV StereoSGBM as `load_backbone(\"sgbm\")` (block {SGBM.block_size}, "
         f"{'colour' if SGBM.colour else 'luminance'}, width / 8 disparities rounded up to 16, "
