@@ -25,9 +25,10 @@ _DEFAULT_MODEL = "standin.onnx"
 _DEFAULT_INFO = "standin.json"
 # The stand-in follows IGEV's conventions (RGB 0..255, pad to 32, positive disparity).
 _DEFAULT_PRESET = "igev"
-#: Peak memory of the bundled stand-in per input pixel on a CPU (onnxruntime): 238 MB
-#: more at 1280x960 than at 640x480 (0.92 MP more), about 0.26 GB per megapixel.
-STANDIN_BYTES_PER_PX = 260.0
+#: Peak memory of the bundled stand-in per input pixel on a CPU (onnxruntime): 624 MB
+#: more at 1280x960 than at 640x480 (0.92 MP more), about 0.68 GB per megapixel (most of
+#: it the full-resolution census step).
+STANDIN_BYTES_PER_PX = 680.0
 
 
 def default_weights_path() -> Path:

@@ -158,7 +158,7 @@ class StereoSpec:
         coarse stages are skipped).
     bytes_per_px : float, optional
         Peak memory of one run per input pixel, if measured (the bundled stand-in: about
-        260 B/px on CPU). Sets the adapters' default ``max_pixels``; ``None``: unknown.
+        680 B/px on CPU). Sets the adapters' default ``max_pixels``; ``None``: unknown.
 
     Examples
     --------

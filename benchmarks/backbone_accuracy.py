@@ -14,9 +14,20 @@ Two data sets:
 
 SGBM is the library's backbone with its documented defaults (``SGBMSpec()``: block 5,
 colour, width / 8 disparities rounded up to 16, P1/P2 = 8/32 * 3 * 25, 3-way). It leaves
-pixels empty (failed uniqueness or left-right checks); ``evaluate`` leaves them out of EPE
-and counts them as wrong for bad-2 and D1, and the ``invalid`` column gives their share.
-Times are the median of three runs per pair after one warm-up.
+pixels empty (failed uniqueness or left-right checks); the stand-in fills every pixel.
+Both methods are counted the same way, over the pixels with finite ground truth:
+
+* ``EPE filled``: every pixel, each method's holes first filled by the KITTI devkit's
+  background interpolation (``fill_holes_background``: a hole takes the smaller of its
+  row's nearest valid disparities left and right);
+* ``EPE both``: only the pixels where both methods gave a value;
+* bad-1, bad-2 and D1: every pixel of the raw maps, a hole counted as wrong;
+* ``invalid``: the share of holes.
+
+Times are the median of three runs per pair after one warm-up (the 640x480 time on the
+first rendered scene). The targets section checks the stand-in against SGBM on the
+full-size Motorcycle pair under every counting above, and its time per 640x480 pair
+(<= 1 s) and ONNX size (<= 5 MB).
 
     python benchmarks/backbone_accuracy.py [--scenes 6] [--model default]
 """
@@ -32,15 +43,23 @@ from pathlib import Path
 import cv2
 import numpy as np
 from skimage import data as skdata
-from srde_fusion.adapters import SGBMSpec, default_model_info, load_backbone
+from srde_fusion.adapters import (
+    SGBMSpec,
+    default_model_info,
+    default_weights_path,
+    load_backbone,
+)
 
-from srde_fusion.evaluation import evaluate, summarize
+from srde_fusion.evaluation import evaluate, fill_holes_background, summarize
 from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
-KEYS = ("epe", "bad1", "bad2", "d1", "invalid")
+KEYS = ("epe_filled", "epe_both", "bad1", "bad2", "d1", "invalid")
+METHODS = ("stand-in", "SGBM")
 SGBM = SGBMSpec()
 TIMING_RUNS = 3
+TARGET_SECONDS_640X480 = 1.0
+TARGET_ONNX_MB = 5.0
 
 
 def timed(run, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, float]:
@@ -54,16 +73,26 @@ def timed(run, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, float]:
     return pred, float(np.median(seconds))
 
 
-def score(pred: np.ndarray, gt: np.ndarray, region: np.ndarray | None = None) -> dict:
-    result = evaluate(pred, gt, region)
+def score(preds: dict[str, np.ndarray], gt: np.ndarray,
+          region: np.ndarray | None = None) -> dict[str, dict]:
+    """The KEYS of every method's prediction, counted the same way (see the module text)."""
     valid = np.isfinite(gt) if region is None else np.isfinite(gt) & region
-    result["invalid"] = float((~np.isfinite(pred[valid])).mean()) if valid.any() else np.nan
-    return {k: result[k] for k in KEYS}
+    both = valid & np.logical_and.reduce([np.isfinite(p) for p in preds.values()])
+    out = {}
+    for method, pred in preds.items():
+        raw = evaluate(pred, gt, valid)
+        out[method] = {
+            "epe_filled": evaluate(fill_holes_background(pred), gt, valid)["epe"],
+            "epe_both": evaluate(pred, gt, both)["epe"] if both.any() else np.nan,
+            "bad1": raw["bad1"], "bad2": raw["bad2"], "d1": raw["d1"],
+            "invalid": float((~np.isfinite(pred[valid])).mean()) if valid.any() else np.nan,
+        }
+    return out
 
 
 def fmt(mean_std: tuple[float, float] | float, key: str) -> str:
     mean, std = mean_std if isinstance(mean_std, tuple) else (mean_std, None)
-    if key == "epe":
+    if key.startswith("epe"):
         text = f"{mean:.2f}" + (f" ± {std:.2f}" if std is not None else "")
     else:
         text = f"{100 * mean:.1f} %" + (f" ± {100 * std:.1f}" if std is not None else "")
@@ -72,7 +101,8 @@ def fmt(mean_std: tuple[float, float] | float, key: str) -> str:
 
 def table(rows: list[tuple[str, str, dict]], first: str) -> str:
     header = f"| {first} | method | " + " | ".join(
-        {"epe": "EPE (px)", "bad1": "bad-1", "bad2": "bad-2", "d1": "D1", "invalid": "invalid"}[k]
+        {"epe_filled": "EPE filled (px)", "epe_both": "EPE both (px)", "bad1": "bad-1",
+         "bad2": "bad-2", "d1": "D1", "invalid": "invalid"}[k]
         for k in KEYS) + " |"
     lines = [header, "|" + "---|" * (len(KEYS) + 2)]
     for name, method, values in rows:
@@ -80,12 +110,13 @@ def table(rows: list[tuple[str, str, dict]], first: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict]:
+def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict, dict]:
     rig = default_rig()
     pair_rig = rig.subset(list(rig.stereo_pair))
     per = {(region, method): [] for region in ("all", "textured", "glossy")
-           for method in ("stand-in", "SGBM")}
-    seconds = {"stand-in": [], "SGBM": []}
+           for method in METHODS}
+    seconds = {method: [] for method in METHODS}
+    seconds_640 = {}  # median of TIMING_RUNS on the first scene
     for seed in range(n_scenes):
         scene = random_scene(seed, rig, background="textured")
         rendering = render(scene, pair_rig)
@@ -93,14 +124,18 @@ def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict]:
         gt = np.where(rendering.disparity_px > 0, rendering.disparity_px, np.nan)
         regions = {"all": None, "textured": rendering.instance_mask == 0,
                    "glossy": rendering.instance_mask > 0}
-        for method, run in (("stand-in", backbone), ("SGBM", sgbm)):
+        preds = {}
+        for method, run in zip(METHODS, (backbone, sgbm), strict=True):
             t0 = time.perf_counter()
-            pred = run(left, right)
+            preds[method] = run(left, right)
             seconds[method].append(time.perf_counter() - t0)
-            for region, mask in regions.items():
-                per[(region, method)].append(score(pred, gt, mask))
+            if seed == 0:
+                _, seconds_640[method] = timed(run, left, right)
+        for region, mask in regions.items():
+            for method, values in score(preds, gt, mask).items():
+                per[(region, method)].append(values)
     rows = [(region, method, summarize(values)) for (region, method), values in per.items()]
-    return rows, {m: float(np.mean(s)) for m, s in seconds.items()}
+    return rows, {m: float(np.mean(s)) for m, s in seconds.items()}, seconds_640
 
 
 def motorcycle(backbone, sgbm) -> tuple[list, dict]:
@@ -116,9 +151,10 @@ def motorcycle(backbone, sgbm) -> tuple[list, dict]:
             r_img = cv2.resize(right, size, interpolation=cv2.INTER_AREA)
             # nearest keeps inf (unknown) pixels unknown; disparity scales with width
             g = cv2.resize(gt, size, interpolation=cv2.INTER_NEAREST) / factor
-        for method, run in (("stand-in", backbone), ("SGBM", sgbm)):
-            pred, seconds[f"{method} {label}"] = timed(run, l_img, r_img)
-            rows.append((label, method, score(pred, g)))
+        preds = {}
+        for method, run in zip(METHODS, (backbone, sgbm), strict=True):
+            preds[method], seconds[f"{method} {label}"] = timed(run, l_img, r_img)
+        rows += [(label, method, values) for method, values in score(preds, g).items()]
     return rows, seconds
 
 
@@ -130,22 +166,48 @@ def main() -> None:
     args = parser.parse_args()
     backbone = load_backbone(args.model, "igev")
     sgbm = load_backbone("sgbm", SGBM)
-    scene_rows, scene_seconds = rendered_scenes(backbone, sgbm, args.scenes)
+    scene_rows, scene_seconds, seconds_640 = rendered_scenes(backbone, sgbm, args.scenes)
     moto_rows, moto_seconds = motorcycle(backbone, sgbm)
     full = "741x500 (full)"
     ratio = moto_seconds[f"stand-in {full}"] / moto_seconds[f"SGBM {full}"]
+    ratio_640 = seconds_640["stand-in"] / seconds_640["SGBM"]
+    model_path = default_weights_path() if args.model == "default" else Path(args.model)
+    onnx_mb = model_path.stat().st_size / 1e6
+    moto = {m: v for s, m, v in moto_rows if s == full}
+    checks = [(f"Motorcycle {full}: {name}", moto["stand-in"][key], moto["SGBM"][key],
+               moto["stand-in"][key] < moto["SGBM"][key])
+              for key, name in (("epe_filled", "EPE filled (px)"), ("epe_both", "EPE both (px)"),
+                                ("bad2", "bad-2"))]
+    checks += [("seconds per 640x480 pair", seconds_640["stand-in"], seconds_640["SGBM"],
+                seconds_640["stand-in"] <= TARGET_SECONDS_640X480),
+               ("ONNX size (MB)", onnx_mb, None, onnx_mb <= TARGET_ONNX_MB)]
+    target_lines = ["| check | stand-in | SGBM | target | met |", "|---|---|---|---|---|"]
+    for name, mine, theirs, met in checks:
+        goal = ("< SGBM" if "Motorcycle" in name else
+                f"<= {TARGET_SECONDS_640X480:g} s" if "seconds" in name else
+                f"<= {TARGET_ONNX_MB:g} MB")
+        theirs_text = "-" if theirs is None else f"{theirs:.3f}"
+        target_lines.append(f"| {name} | {mine:.3f} | {theirs_text} | {goal} | "
+                            f"{'yes' if met else 'no'} |")
 
     info = default_model_info() if args.model == "default" else {}
     name = "bundled stand-in" if args.model == "default" else f"`{Path(args.model).name}`"
+    training = info.get("training", {})
+    stages = [training.get("first_stage", {}).get("steps"), training.get("steps")]
+    steps = " + ".join(str(n) for n in stages if n is not None) or "?"
     text = (
         "# Stand-in backbone accuracy\n\n"
-        f"The {name} (trained {info.get('training', {}).get('steps', '?')} steps on "
+        f"The {name} (trained {steps} steps on "
         "procedural pairs, igev preset) beside "
         f"OpenCV StereoSGBM as `load_backbone(\"sgbm\")` (block {SGBM.block_size}, "
         f"{'colour' if SGBM.colour else 'luminance'}, width / 8 disparities rounded up to 16, "
         f"{SGBM.mode}). "
-        "SGBM's EPE covers only the pixels it filled (see `invalid`); bad-1, bad-2 and D1 "
-        "count its empty pixels as wrong. The stand-in fills every pixel.\n\n"
+        "Both methods are counted the same way over the pixels with ground truth: "
+        "`EPE filled` over every pixel after filling each method's holes with the KITTI "
+        "devkit's background interpolation (a hole takes the smaller of its row's nearest "
+        "valid disparities), `EPE both` over the pixels where both methods gave a value; "
+        "bad-1, bad-2 and D1 over every pixel of the raw maps, a hole counted as wrong. "
+        "SGBM leaves holes (`invalid`); the stand-in fills every pixel.\n\n"
         f"## Rendered scenes ({args.scenes} scenes, 640x480, textured background, one glossy "
         "object; mean ± std over scenes)\n\n"
         + table(scene_rows, "region")
@@ -156,6 +218,11 @@ def main() -> None:
         + "\nTime per pair (median of 3 after a warm-up): "
         + ", ".join(f"{m} {s:.3f} s" for m, s in moto_seconds.items())
         + f"; stand-in / SGBM at full size: {ratio:.1f}x\n"
+        + "\n## Targets\n\n"
+        + "\n".join(target_lines)
+        + f"\n\nTime per 640x480 pair (first rendered scene, median of {TIMING_RUNS} after a "
+        f"warm-up): stand-in {seconds_640['stand-in']:.3f} s, SGBM {seconds_640['SGBM']:.3f} s "
+        f"({ratio_640:.1f}x).\n"
     )
     print(text)
     RESULTS.mkdir(exist_ok=True)
@@ -166,6 +233,11 @@ def main() -> None:
         "motorcycle": [{"size": s, "method": m, **v} for s, m, v in moto_rows],
         "seconds": {**scene_seconds, **moto_seconds},
         "standin_over_sgbm_time_full": ratio,
+        "seconds_640x480": seconds_640,
+        "standin_over_sgbm_time_640x480": ratio_640,
+        "onnx_mb": onnx_mb,
+        "targets": [{"check": n, "standin": a, "sgbm": b, "met": bool(m)}
+                    for n, a, b, m in checks],
         "sgbm_spec": {f: getattr(SGBM, f) for f in SGBM.__dataclass_fields__},
         "model": info.get("validation"),
         "platform": platform.platform(),

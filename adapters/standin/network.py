@@ -6,7 +6,10 @@ upsampling), all at 1/4 resolution:
 
 1. a shared feature CNN to 1/4 resolution;
 2. a group-wise correlation cost volume at 1/4 resolution, ``max_disparity_px / 4``
-   levels;
+   levels, with one more group: the correlation of a soft census transform (Zabih and
+   Woodfill) of the 1/4-resolution grey image, a hand-made matching cost computed with
+   fixed convolutions that depends only on the order of neighbouring intensities and so
+   matches photographs as well as the procedural training pairs;
 3. a 2-D hourglass (1/4 -> 1/16 -> 1/4) that reads the volume's levels as channels,
    next to the left features, and returns one matching cost per level, added to a
    direct weighted sum of the correlation groups; soft-argmin of it is the initial
@@ -14,11 +17,16 @@ upsampling), all at 1/4 resolution:
 4. a few refinement steps (shared weights, a plain recurrent state): each looks up the
    correlation and the aggregated cost around the current estimate and adds a residual;
 5. a learned convex upsampling by 4 (RAFT) to full resolution, whose weights come from
-   the refinement state, so edges follow the left image.
+   the refinement state, so edges follow the left image;
+6. one full-resolution residual step (StereoNet-like): the soft census of the full-resolution
+   images is compared at the upsampled disparity and a few pixels either side, and a
+   small dilated CNN turns these costs, the left image and the disparity into a
+   sub-pixel correction.
 
 The bundled weights (``weights/standin.onnx``, described by ``weights/standin.json``)
 are this architecture trained with the recipe in
-:mod:`srde_fusion.adapters.standin.training` (2400 steps, seed 0).
+:mod:`srde_fusion.adapters.standin.training` (3000 steps, seed 0, then 700 steps on
+larger crops, seed 1).
 
 It follows IGEV's interface: ``(B, 3, H, W)`` float RGB in 0..255, normalised inside,
 ``H`` and ``W`` multiples of 32 (the ``"igev"`` preset pads to that), output
@@ -36,11 +44,15 @@ from torch import nn
 
 from srde_fusion.errors import BackboneError
 
-__all__ = ["StandinConfig", "StandinStereo", "StandinOutputs", "STANDIN_SIZES", "build_standin"]
+__all__ = ["StandinConfig", "StandinStereo", "StandinOutputs", "STANDIN_SIZES", "build_standin",
+           "SoftCensus", "row_correlations"]
 
 FEATURE_STRIDE = 4  # features, volume and refinement run at 1/4 resolution
 INPUT_MULTIPLE = 32  # the hourglass halves 1/4-resolution maps twice more (with margin)
 _DIRECT_INIT_GAIN = 5.0  # initial softmax sharpness of the direct correlation path
+# Soft census: tanh(difference / softness) of grey values in -1..1; 0.04 is about five
+# 8-bit grey levels, above sensor noise, so flat regions give weak, not random, bits.
+_CENSUS_SOFTNESS = 0.04
 
 
 @dataclass(frozen=True)
@@ -65,6 +77,13 @@ class StandinConfig:
         Refinement: volume levels looked up on each side of the current estimate.
     iterations : int
         Refinement: residual updates per forward pass.
+    census_radius : int
+        Census: half-size of the census window, at 1/4 and at full resolution
+        (``(2 r + 1)^2 - 1`` comparisons).
+    refine_channels : int
+        Full-resolution step: channels of its CNN.
+    refine_radius : int
+        Full-resolution step: census costs at ``-r .. r`` pixels around the estimate.
     """
 
     feature_channels: int = 32
@@ -74,6 +93,9 @@ class StandinConfig:
     hidden_channels: int = 32
     lookup_radius: int = 3
     iterations: int = 3
+    census_radius: int = 2
+    refine_channels: int = 16
+    refine_radius: int = 2
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -97,7 +119,8 @@ class StandinConfig:
 STANDIN_SIZES: dict[str, StandinConfig] = {
     "default": StandinConfig(),
     "tiny": StandinConfig(feature_channels=16, max_disparity_px=64, correlation_groups=2,
-                          volume_channels=16, hidden_channels=16, lookup_radius=2, iterations=2),
+                          volume_channels=16, hidden_channels=16, lookup_radius=2, iterations=2,
+                          census_radius=1, refine_channels=8, refine_radius=1),
 }
 
 
@@ -110,7 +133,8 @@ class StandinOutputs:
     initial : torch.Tensor, (B, 1, H, W), float32, pixels
         Soft-argmin of the aggregated cost, upsampled bilinearly to full resolution.
     refined : tuple of torch.Tensor, each (B, 1, H, W), float32, pixels
-        Convex-upsampled estimate after each refinement step; the last one is the output.
+        Convex-upsampled estimate after each refinement step, then the full-resolution
+        step's estimate; the last one is the output.
     """
 
     initial: torch.Tensor
@@ -184,6 +208,119 @@ def groupwise_correlation(left: torch.Tensor, right: torch.Tensor, levels: int,
         for d in range(levels)
     ]
     return torch.stack(volume, dim=2)
+
+
+class SoftCensus(nn.Module):
+    """Soft census transform with a fixed convolution: one channel per neighbour.
+
+    Channel ``k`` is ``tanh((I(p + o_k) - I(p)) / softness)`` over the ``(2 r + 1)^2 - 1``
+    offsets ``o_k`` of the window (edge pixels replicated): about +-1 where a neighbour is
+    clearly brighter or darker, near 0 in flat regions. The mean product of two such
+    descriptors is one minus a soft, normalised Hamming distance.
+    """
+
+    def __init__(self, radius: int, softness: float = _CENSUS_SOFTNESS) -> None:
+        super().__init__()
+        k = 2 * radius + 1
+        offsets = [(dy, dx) for dy in range(k) for dx in range(k) if (dy, dx) != (radius, radius)]
+        weight = torch.zeros(len(offsets), 1, k, k)
+        for i, (dy, dx) in enumerate(offsets):
+            weight[i, 0, dy, dx] = 1.0
+            weight[i, 0, radius, radius] = -1.0
+        # fixed, not learned: a buffer outside the state dict (a constant in ONNX)
+        self.register_buffer("weight", weight, persistent=False)
+        self.radius = radius
+        self.softness = softness
+
+    @property
+    def channels(self) -> int:
+        """Number of comparisons, ``(2 r + 1)^2 - 1``."""
+        return self.weight.shape[0]
+
+    def forward(self, grey: torch.Tensor) -> torch.Tensor:
+        """(B, 1, H, W) grey in -1..1 -> (B, K, H, W) soft census bits in -1..1."""
+        r = self.radius
+        diff = F.conv2d(F.pad(grey, (r, r, r, r), mode="replicate"), self.weight)
+        return torch.tanh(diff * (1.0 / self.softness))
+
+
+def row_correlations(left: torch.Tensor, right: torch.Tensor, x_px: torch.Tensor,
+                     radius: int) -> torch.Tensor:
+    """Mean product of left descriptors with right ones sampled along the row.
+
+    For each offset ``o`` in ``-radius .. radius``: the channel mean of ``left`` times
+    ``right`` interpolated linearly along the row at ``x_px - o``. The product is linear
+    in the interpolated sample, so the products at the ``2 radius + 2`` whole columns
+    around ``x_px`` are computed and interpolated instead of resampling the descriptors;
+    each column is one gather of channel-last descriptor rows (one index per pixel, not
+    one per channel: on a CPU about 3x faster, and far less memory, than resampling
+    them with grid sampling or per-channel gathers).
+
+    Parameters
+    ----------
+    left, right : torch.Tensor, (B, C, H, W)
+    x_px : torch.Tensor, (B, 1, H, W), float32, column positions in pixels in ``right``
+    radius : int
+
+    Returns
+    -------
+    torch.Tensor, (B, 2 radius + 1, H, W)
+        Channel ``k`` is the offset ``o = k - radius``; a column outside the row
+        contributes zero.
+    """
+    b, c, h, w = left.shape
+    left_last = left.permute(0, 2, 3, 1)  # (B, H, W, C)
+    right_rows = right.permute(0, 2, 3, 1).reshape(-1, c)  # one row per pixel
+    x = x_px[:, 0]  # (B, H, W)
+    below = torch.floor(x)
+    frac = x - below
+    ones = torch.ones_like(x, dtype=torch.long)
+    width = ones.sum(dim=2, keepdim=True)
+    # flat index of each pixel's row start, (batch * H + row) * W, from cumulative sums
+    row_start = ((torch.cumsum(ones, dim=0) - 1) * ones.sum(dim=1, keepdim=True)
+                 + torch.cumsum(ones, dim=1) - 1) * width
+    below_index = below.long()
+    products = []  # whole columns floor(x) - radius .. floor(x) + radius + 1
+    for k in range(-radius, radius + 2):
+        column = below_index + k
+        inside = ((column >= 0) & (column < width)).to(left.dtype)
+        index = row_start + torch.minimum(column.clamp(min=0), width - 1)
+        sampled = torch.index_select(right_rows, 0, index.reshape(-1)).view(b, h, w, c)
+        products.append((left_last * sampled).mean(dim=3) * inside)
+    # offset o samples x - o, between the whole columns floor(x) - o and floor(x) - o + 1
+    costs = [(1.0 - frac) * products[radius - o] + frac * products[radius - o + 1]
+             for o in range(-radius, radius + 1)]
+    return torch.stack(costs, dim=1)
+
+
+class FullResolutionStep(nn.Module):
+    """Census costs around the upsampled disparity + left image -> refined disparity."""
+
+    def __init__(self, *, channels: int, radius: int, max_disparity_px: int) -> None:
+        super().__init__()
+        c = channels
+        self.radius = radius
+        self.scale = 1.0 / max_disparity_px
+        self.net = nn.Sequential(
+            nn.Conv2d(2 * radius + 1 + 3 + 1, c, 3, padding=1), nn.LeakyReLU(0.1, inplace=True),
+            nn.Conv2d(c, c, 3, padding=1), nn.LeakyReLU(0.1, inplace=True),
+            nn.Conv2d(c, c, 3, padding=2, dilation=2), nn.LeakyReLU(0.1, inplace=True),
+            nn.Conv2d(c, c, 3, padding=4, dilation=4), nn.LeakyReLU(0.1, inplace=True),
+            nn.Conv2d(c, c, 3, padding=1), nn.LeakyReLU(0.1, inplace=True),
+            nn.Conv2d(c, 1, 3, padding=1),
+        )
+        with torch.no_grad():  # start as the identity: the upsampled estimate
+            self.net[-1].weight.mul_(0.01)
+            self.net[-1].bias.zero_()
+
+    def forward(self, image_left: torch.Tensor, census_left: torch.Tensor,
+                census_right: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
+        """Refined (B, 1, H, W) disparity in pixels from the same-sized estimate."""
+        # column index without shape arithmetic, so the export stays dynamic in width
+        columns = torch.cumsum(torch.ones_like(disparity), dim=3) - 1.0
+        costs = row_correlations(census_left, census_right, columns - disparity, self.radius)
+        x = torch.cat([costs, image_left, disparity * self.scale], dim=1)
+        return disparity + self.net(x)
 
 
 class Hourglass2d(nn.Module):
@@ -306,7 +443,8 @@ class StandinStereo(nn.Module):
     Parameters
     ----------
     feature_channels, max_disparity_px, correlation_groups, volume_channels,
-    hidden_channels, lookup_radius, iterations : int
+    hidden_channels, lookup_radius, iterations, census_radius, refine_channels,
+    refine_radius : int
         Keyword-only, grouped by part as in :class:`StandinConfig`.
 
     Examples
@@ -326,13 +464,20 @@ class StandinStereo(nn.Module):
                  # aggregation
                  volume_channels: int = 48,
                  # refinement
-                 hidden_channels: int = 32, lookup_radius: int = 3, iterations: int = 3) -> None:
+                 hidden_channels: int = 32, lookup_radius: int = 3, iterations: int = 3,
+                 # hand-made census costs and the full-resolution step
+                 census_radius: int = 2, refine_channels: int = 16, refine_radius: int = 2
+                 ) -> None:
         super().__init__()
         self.config = StandinConfig(
             feature_channels=feature_channels, max_disparity_px=max_disparity_px,
             correlation_groups=correlation_groups, volume_channels=volume_channels,
             hidden_channels=hidden_channels, lookup_radius=lookup_radius, iterations=iterations,
+            census_radius=census_radius, refine_channels=refine_channels,
+            refine_radius=refine_radius,
         )
+        self.census = SoftCensus(census_radius)
+        groups = correlation_groups + 1  # the learned groups and the census
         self.levels = max_disparity_px // FEATURE_STRIDE
         self.features = FeatureExtractor(out_channels=feature_channels)
         # a compressed copy of the left features guides the aggregation (edges, texture)
@@ -341,20 +486,22 @@ class StandinStereo(nn.Module):
         self.context = nn.Sequential(_conv(feature_channels, hidden_channels),
                                      nn.Conv2d(hidden_channels, 2 * hidden_channels, 3, padding=1))
         self.hourglass = Hourglass2d(
-            in_channels=correlation_groups * self.levels + hidden_channels,
+            in_channels=groups * self.levels + hidden_channels,
             channels=volume_channels, levels=self.levels)
         # The hourglass mixes levels freely, so it must learn which input channel belongs
         # to which output level; a direct path, the same at every level (a weighted sum of
         # the groups), gives the cost a matching signal from the first step. Without it
         # training settled on a constant disparity.
-        self.direct = nn.Conv3d(correlation_groups, 1, 1)
+        self.direct = nn.Conv3d(groups, 1, 1)
         with torch.no_grad():
-            self.direct.weight.fill_(_DIRECT_INIT_GAIN / correlation_groups)
+            self.direct.weight.fill_(_DIRECT_INIT_GAIN / groups)
             self.direct.bias.zero_()
             self.hourglass.cost.weight.mul_(0.1)
-        # lookups in the correlation (G channels) and the aggregated cost (1 channel)
-        lookup_channels = (correlation_groups + 1) * (2 * lookup_radius + 1)
+        # lookups in the correlation (G + 1 channels) and the aggregated cost (1 channel)
+        lookup_channels = (groups + 1) * (2 * lookup_radius + 1)
         self.update = UpdateBlock(hidden_channels=hidden_channels, lookup_channels=lookup_channels)
+        self.full_resolution = FullResolutionStep(
+            channels=refine_channels, radius=refine_radius, max_disparity_px=max_disparity_px)
         self.register_buffer("levels_px", torch.arange(self.levels, dtype=torch.float32),
                              persistent=False)
 
@@ -385,6 +532,10 @@ class StandinStereo(nn.Module):
         feats = self.features(both)
         feat_left, feat_right = feats[:b], feats[b:]
         corr = groupwise_correlation(feat_left, feat_right, self.levels, cfg.correlation_groups)
+        grey = both.mean(dim=1, keepdim=True)
+        census_quarter = self.census(F.avg_pool2d(grey, FEATURE_STRIDE))
+        corr = torch.cat([corr, groupwise_correlation(
+            census_quarter[:b], census_quarter[b:], self.levels, 1)], dim=1)
         _, _, levels, h, w = corr.shape
         state, cost = self.hourglass(torch.cat(
             [corr.reshape(b, -1, h, w), self.guide(feat_left)], dim=1))
@@ -406,6 +557,9 @@ class StandinStereo(nn.Module):
             disparity = disparity + delta
             if every_step or step == cfg.iterations - 1:
                 refined.append(convex_upsample(disparity, self.update.upsampling_mask(hidden)))
+        census_full = self.census(grey)
+        refined.append(self.full_resolution(
+            both[:b], census_full[:b], census_full[b:], refined[-1].detach()))
         return StandinOutputs(initial=initial, refined=tuple(refined))
 
 

@@ -9,9 +9,10 @@ view, ``x_r = x_l - d(x_l, y)``, which is solved in closed form for a plane, and
 z-buffers again. Occlusions are therefore exact, including slanted surfaces.
 
 Textures come in kinds, each at a random scale: band-limited noise over several octaves
-with strokes, "dead leaves" (overlapping discs and polygons with sizes spread over two
-decades, close to the statistics of natural images), oriented stripes, and nearly flat
-colour where matching is ambiguous. Some layers are glossy: a specular highlight that
+with strokes, 1/f^beta noise (the power spectrum of natural photographs), "dead leaves"
+(overlapping discs and polygons with sizes spread over two decades, close to the
+statistics of natural images), oriented stripes, and nearly flat colour where matching
+is ambiguous. Some layers are glossy: a specular highlight that
 does not move with the surface (its disparity differs from the plane's) and a faint
 mirrored texture seen at a larger depth. The views differ photometrically: shared
 exposure and gamma, per-view gain, bias and colour balance, occasional blur of one view,
@@ -95,6 +96,23 @@ def _dead_leaves(rng: np.random.Generator, height: int, width: int) -> np.ndarra
     return image
 
 
+def _power_law_noise(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
+    """(H, W) float32 noise with a 1/f^beta amplitude spectrum (beta 0.8..1.6), std 1.
+
+    Photographs have amplitude spectra close to 1/f: detail at every scale, most contrast
+    in the coarse scales. Random phases, so no edges; the dead leaves give those.
+    """
+    fy = np.fft.fftfreq(height)[:, None]
+    fx = np.fft.rfftfreq(width)[None, :]
+    radius = np.sqrt(fx**2 + fy**2)
+    radius[0, 0] = 1.0
+    amplitude = radius ** -rng.uniform(0.8, 1.6)
+    amplitude[0, 0] = 0.0
+    phase = rng.uniform(0, 2 * np.pi, amplitude.shape)
+    grey = np.fft.irfft2(amplitude * np.exp(1j * phase), s=(height, width))
+    return (grey / max(float(grey.std()), 1e-9)).astype(np.float32)
+
+
 def _stripes(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
     """(H, W) float32 oriented stripes (repetitive texture) with a little noise."""
     ys, xs = np.mgrid[0:height, 0:width].astype(np.float32)
@@ -119,7 +137,12 @@ def _texture(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
         contrast = rng.uniform(0.2, 1.0)
         colour = base + contrast * (colour - colour.mean(axis=(0, 1)))
     else:
-        grey = _noise_texture(rng, h, w) if kind < 0.85 else _stripes(rng, h, w)
+        if kind < 0.65:
+            grey = _noise_texture(rng, h, w)
+        elif kind < 0.88:
+            grey = _power_law_noise(rng, h, w)
+        else:
+            grey = _stripes(rng, h, w)
         grey /= max(float(np.abs(grey).max()), 1e-6)
         contrast = rng.uniform(0.03, 0.7)
         tint = rng.uniform(0.4, 1.0, size=3).astype(np.float32)

@@ -34,6 +34,7 @@ from .metrics import (
     PAPER_KEYS,
     THRESHOLD_KEYS,
     evaluate,
+    fill_holes_background,
     format_markdown_table,
     summarize,
 )
@@ -63,6 +64,7 @@ __all__ = [
     "METRIC_KEYS",
     "PAPER_KEYS",
     "evaluate",
+    "fill_holes_background",
     "summarize",
     "format_markdown_table",
 ]

@@ -27,6 +27,7 @@ __all__ = [
     "METRIC_KEYS",
     "PAPER_KEYS",
     "evaluate",
+    "fill_holes_background",
     "summarize",
     "format_markdown_table",
 ]
@@ -132,6 +133,57 @@ def evaluate(pred: np.ndarray, gt: np.ndarray, region: np.ndarray | None = None)
     out["valid_px"] = valid_px
     out["invalid_pred_px"] = int(np.count_nonzero(~has_pred))
     return out
+
+
+def fill_holes_background(disparity_px: np.ndarray) -> np.ndarray:
+    """Fill a disparity map's holes the way the KITTI devkit does before scoring.
+
+    Along each row, a run of missing (NaN or inf) pixels between two valid ones takes the
+    smaller of the two disparities -- the background, which is what an occlusion next to
+    a foreground edge shows; a run at a row's end takes its one valid neighbour. Rows with
+    no valid pixel then take the nearest filled row above or below. This lets a method
+    that leaves holes be scored over every pixel, like one that fills them.
+
+    Parameters
+    ----------
+    disparity_px : numpy.ndarray, (H, W), float, pixels
+        NaN or inf where the method gave no value.
+
+    Returns
+    -------
+    numpy.ndarray, (H, W), float32, pixels
+        The map with every hole filled; all NaN if the input has no valid pixel.
+
+    Raises
+    ------
+    DisparityError
+        Not a 2-D numeric array.
+
+    Examples
+    --------
+    >>> d = np.array([[np.nan, 5.0, np.nan, np.nan, 2.0, np.nan]])
+    >>> fill_holes_background(d).tolist()
+    [[5.0, 5.0, 2.0, 2.0, 2.0, 2.0]]
+    """
+    disp = _check_map(disparity_px, "disparity_px").astype(np.float32)
+    height, width = disp.shape
+    valid = np.isfinite(disp)
+    if not valid.any():
+        return np.full_like(disp, np.nan)
+    cols = np.arange(width)
+    # index of the last valid pixel at or left of x, and of the first at or right of x
+    left_idx = np.maximum.accumulate(np.where(valid, cols, -1), axis=1)
+    right_idx = np.minimum.accumulate(np.where(valid, cols, width)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(height)[:, None]
+    left_val = np.where(left_idx >= 0, disp[rows, left_idx.clip(0, width - 1)], np.inf)
+    right_val = np.where(right_idx < width, disp[rows, right_idx.clip(0, width - 1)], np.inf)
+    filled = np.where(valid, disp, np.minimum(left_val, right_val))
+    empty_rows = ~valid.any(axis=1)
+    if empty_rows.any():
+        full = np.flatnonzero(~empty_rows)
+        nearest = full[np.abs(full[None, :] - np.arange(height)[:, None]).argmin(axis=1)]
+        filled = filled[nearest]
+    return filled.astype(np.float32)
 
 
 def summarize(results: Sequence[Mapping[str, Any]]) -> dict[str, tuple[float, float]]:

@@ -14,6 +14,7 @@ from srde_fusion.evaluation import (
     PAPER_KEYS,
     THRESHOLD_KEYS,
     evaluate,
+    fill_holes_background,
     format_markdown_table,
     summarize,
 )
@@ -295,3 +296,35 @@ def test_markdown_table_errors():
         format_markdown_table({"x": {"epe": 1.0}}, ["epe", "bad1"])
     with pytest.raises(SRDEError, match="non-empty dict"):
         format_markdown_table({})
+
+
+def test_fill_holes_background_takes_the_smaller_row_neighbour():
+    nan, inf = np.nan, np.inf
+    disp = np.array([[nan, 5.0, nan, nan, 2.0, nan],
+                     [nan, nan, nan, nan, nan, nan],
+                     [1.0, inf, 3.0, 4.0, 9.0, 6.0]])
+    filled = fill_holes_background(disp)
+    assert filled.dtype == np.float32
+    # interior runs take min(left, right); row ends the one neighbour they have
+    assert filled[0].tolist() == [5.0, 5.0, 2.0, 2.0, 2.0, 2.0]
+    assert filled[2].tolist() == [1.0, 1.0, 3.0, 4.0, 9.0, 6.0]
+    # a row with no valid pixel copies the nearest filled row
+    assert filled[1].tolist() == filled[0].tolist()
+    assert np.isnan(fill_holes_background(np.full((2, 3), np.nan))).all()
+
+
+@given(arrays(np.float64, (5, 7), elements=st.one_of(
+    st.floats(0, 100, allow_nan=False), st.just(math.nan))))
+def test_fill_holes_background_keeps_valid_pixels_and_stays_in_range(disp):
+    filled = fill_holes_background(disp)
+    valid = np.isfinite(disp)
+    kept = disp[valid].astype(np.float32)  # the result is float32
+    assert np.array_equal(filled[valid], kept)
+    if valid.any():
+        assert np.isfinite(filled).all()
+        assert kept.min() <= filled.min() and filled.max() <= kept.max()
+
+
+def test_fill_holes_background_rejects_bad_input():
+    with pytest.raises(DisparityError, match="expected shape"):
+        fill_holes_background(np.zeros(4))
