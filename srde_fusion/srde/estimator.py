@@ -448,11 +448,11 @@ class SRDE:
                           self.method, result.notes, detections)
 
     def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None,
-                light=None) -> SRDEResult:
+                light=None, refine=None) -> SRDEResult:
         """Check the virtual light and the plane, refine it (given views); disparity.
 
         ``light``: the light ``point`` is the virtual light of (one of several); the
-        SRDE's light by default.
+        SRDE's light by default. ``refine``: whether to refine; ``self.refine`` by default.
         """
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}
@@ -486,7 +486,7 @@ class SRDE:
                 + " on its far side, where its highlight cannot be seen", **fail)
         residual = _rms_residual(rig, point, centers, used)
         refinement = None
-        if views is not None and self.refine:
+        if views is not None and (self.refine if refine is None else refine):
             others = [m for m in self.lights_m if not np.array_equal(m, light)]
             refinement = refine_plane(views, rig, light, mask, plane,
                                       centers_uv=np.where(used[:, None], centers, np.nan),

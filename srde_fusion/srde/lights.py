@@ -38,7 +38,14 @@ from scipy.optimize import least_squares
 
 from .._checks import check_point3
 from ..errors import LightError
-from ..geometry import MAX_LIGHTS, CameraRig, Plane, plane_from_lights
+from ..geometry import (
+    MAX_LIGHTS,
+    CameraRig,
+    Plane,
+    plane_disparity,
+    plane_from_lights,
+    project_points,
+)
 from ..imaging import luminance
 from .config import BLOB_LEVEL, PEAK_SMOOTHING_SIGMA_PX, DetectorConfig
 from .highlight import HighlightDetection, detect_in_view, search_box, weighted_centroid
@@ -187,11 +194,6 @@ class LightsSolution:
     def n_observations(self) -> int:
         """Assigned highlight centres, all lights and views together."""
         return sum(a.n_views for a in self.assignments)
-
-    @property
-    def solved_lights(self) -> tuple[int, ...]:
-        """Lights whose highlight was assigned in two or more views."""
-        return tuple(a.light for a in self.assignments if a.n_views >= 2)
 
     def to_dict(self) -> dict:
         """JSON-ready summary of the assignment and its evidence."""
@@ -462,8 +464,8 @@ class _Context:
         ys, xs = np.nonzero(mask)
         self.box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
         u0, v0, u1, v1 = self.box
-        corners = np.array([[u0, v0], [u1 - 1, v0], [u0, v1 - 1], [u1 - 1, v1 - 1]], float)
-        self.corner_rays = rig.rays(corners)
+        self.corners = np.array([[u0, v0], [u1 - 1, v0], [u0, v1 - 1], [u1 - 1, v1 - 1]],
+                                dtype=np.float64)
 
     # -------------------------------------------------------------- proposals
     def proposals(self):
@@ -535,10 +537,9 @@ class _Context:
         rig = self.rig
         virtual = plane.mirror(self.lights)  # (K, 3)
         centers = rig.centers_m  # (N, 3)
-        offsets = centers - rig.reference_center_m
-        # Seen from camera j, a point X is X - (C_j - C_ref) seen from the reference.
-        moved = virtual[:, None, :] - offsets[None, :, :]  # (K, N, 3)
-        uv = rig.project(moved.reshape(-1, 3)).reshape(len(virtual), len(centers), 2)
+        n_lights, n_views = len(virtual), len(centers)
+        uv = project_points(rig, np.repeat(virtual, n_views, axis=0),
+                            np.tile(np.arange(n_views), n_lights)).reshape(n_lights, n_views, 2)
         # The plane point that reflects the light towards camera j: where the segment
         # from C_j to V crosses the plane.
         n, c = plane.n, plane.offset_m
@@ -638,14 +639,12 @@ class _Context:
         light_idx, view_idx = np.nonzero(score.matched >= 0)
         observed = np.stack([self.cands[j][score.matched[k, j]]
                              for k, j in zip(light_idx, view_idx, strict=True)])
-        offsets = rig.centers_m - rig.reference_center_m
         n0, c0 = score.plane.n, score.plane.offset_m
         helper = np.eye(3)[int(np.argmin(np.abs(n0)))]
         e1 = np.cross(n0, helper)
         e1 /= np.linalg.norm(e1)
         e2 = np.cross(n0, e1)
         lights = self.lights[light_idx]
-        moved_by = offsets[view_idx]
 
         def plane_of(p):
             m = n0 + p[0] * e1 + p[1] * e2
@@ -654,7 +653,7 @@ class _Context:
         def residuals(p):
             n, c = plane_of(p)
             virtual = lights - 2.0 * ((lights @ n) - c)[:, None] * n
-            return (rig.project(virtual - moved_by) - observed).ravel()
+            return (project_points(rig, virtual, view_idx) - observed).ravel()
 
         if len(observed) < 2:
             return None
@@ -666,14 +665,9 @@ class _Context:
 
     def plane_gap_px(self, a: Plane, b: Plane) -> float:
         """Largest disparity difference of two planes at the object's box corners, px."""
-        rig = self.rig
-        scale = rig.intrinsics.fx * rig.baseline_m
-        out = []
-        for plane in (a, b):
-            n = plane.n
-            out.append(scale * (self.corner_rays @ n)
-                       / (plane.offset_m - float(n @ rig.reference_center_m)))
-        return float(np.max(np.abs(out[0] - out[1])))
+        gap = plane_disparity(a, self.rig, self.corners) - plane_disparity(b, self.rig,
+                                                                            self.corners)
+        return float(np.max(np.abs(gap)))
 
     # -------------------------------------------------------------- the answer
     def solution(self, best: _Score, rival: _Score | None) -> LightsSolution:
@@ -789,8 +783,8 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             & (uv[:, 1] <= rig.height - 1)
         return inside & (lum > levels[j])
 
-    solution = assign_lights(rig, srde.lights_m, mask, cands,
-                             tolerance_px=2.0 * srde.max_residual_px,
+    tolerance_px = 2.0 * srde.max_residual_px
+    solution = assign_lights(rig, srde.lights_m, mask, cands, tolerance_px=tolerance_px,
                              min_views=srde.min_views, object_depth_m=srde.object_depth_m,
                              lit=lit, blob_radius_px=float(np.median(
                                  [math.sqrt(d.area_px / math.pi) for dets in found
@@ -819,17 +813,13 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         # The refinement sees one light; every light's assigned highlights must still
         # agree with its plane, else the joint geometric plane stands.
         worst_px = _worst_reprojection_px(rig, srde.lights_m, solution, result.plane)
-        limit_px = REFINED_AGREEMENT * 2.0 * srde.max_residual_px
+        limit_px = REFINED_AGREEMENT * tolerance_px
         if worst_px > limit_px:
             note = (f"refinement: kept the joint plane; the refined plane misses light "
                     f"highlights by up to {worst_px:.1f} px (limit {limit_px:g} px)")
-            saved, srde.refine = srde.refine, False
-            try:
-                result = srde._finish(mask, point, w, used, main.centers_uv, detections,
-                                      (*notes, note), views=views,
-                                      light=srde.lights_m[main.light])
-            finally:
-                srde.refine = saved
+            result = srde._finish(mask, point, w, used, main.centers_uv, detections,
+                                  (*notes, note), views=views, light=srde.lights_m[main.light],
+                                  refine=False)
             result = dataclasses.replace(result, refinement=refinement)
     return dataclasses.replace(result, lights=solution)
 
@@ -838,12 +828,12 @@ def _worst_reprojection_px(rig: CameraRig, lights: np.ndarray, solution: LightsS
                            plane: Plane) -> float:
     """Largest distance between an assigned highlight and where ``plane`` puts it, px."""
     virtual = plane.mirror(lights)
-    offsets = rig.centers_m - rig.reference_center_m
     worst = 0.0
     for a in solution.assignments:
         views = np.flatnonzero(np.isfinite(a.centers_uv[:, 0]))
         if views.size:
-            predicted = rig.project(virtual[a.light] - offsets[views])
+            predicted = project_points(rig, np.repeat(virtual[a.light:a.light + 1], views.size,
+                                                      axis=0), views)
             worst = max(worst, float(np.max(np.linalg.norm(predicted - a.centers_uv[views],
                                                            axis=1))))
     return worst

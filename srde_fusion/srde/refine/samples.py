@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ...geometry import CameraRig, Plane
+from ...geometry import CameraRig, Plane, project_points
 from ...imaging import REC709_LUMA, luminance, saturation_mask, to_linear
 
 # --- fitting window -------------------------------------------------------------------
@@ -150,7 +150,7 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
         uv, y, clipped, inside = window
         if others is not None:
             # Other lights' highlights are not the fitted light's lobe.
-            seen = rig.project(others - (rig.centers_m[i] - rig.reference_center_m))
+            seen = project_points(rig, others, np.full(len(others), i))
             gaps = np.linalg.norm(uv[:, None, :] - seen[None, :, :], axis=2)
             inside = inside & np.all(gaps > exclude_px, axis=1)
             if not inside.any():
