@@ -48,7 +48,13 @@ from ..geometry import (
 )
 from ..imaging import luminance
 from .config import BLOB_LEVEL, PEAK_SMOOTHING_SIGMA_PX, DetectorConfig
-from .highlight import HighlightDetection, detect_in_view, search_box, weighted_centroid
+from .highlight import (
+    HighlightDetection,
+    detect_in_view,
+    grown_box,
+    search_box,
+    weighted_centroid,
+)
 from .refine.samples import references_from_views
 from .search import BaselineSearch
 
@@ -72,6 +78,11 @@ MAX_CANDIDATES = 8
 
 #: Radius (pixels) of the neighbourhood a highlight's peak is the maximum of.
 PEAK_RADIUS_PX = 3
+
+
+# Reach (pixels) of OpenCV's Gaussian kernel at the peak smoothing scale (4 sigma for
+# floating-point images), plus one.
+_BLUR_REACH_PX = int(math.ceil(4.0 * PEAK_SMOOTHING_SIGMA_PX)) + 1
 
 
 #: Maxima within this fraction of the contrast of their neighbourhood's maximum are one
@@ -98,6 +109,11 @@ BLEND_RADII = 3.0
 #: there, on-object blobs no light explains) than this fraction of the highlights it
 #: explains is not the answer: reported "inconsistent" rather than guessed.
 UNEXPLAINED_RATIO = 2.0
+
+
+#: The best plane is decided against its strongest rival when its net support (explained
+#: highlights less the evidence against) is larger by at least this much.
+DECISIVE_MARGIN = 2
 
 
 #: A refined plane (one light's lobe) is kept only if every light's assigned highlight
@@ -248,9 +264,22 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     u0, v0, u1, v1 = box
     lum = luminance(image[v0:v1, u0:u1], config.encoding)
     inside = region[v0:v1, u0:u1]
+    background = float(np.median(lum[inside]))
+    # Everything below works on the part of the crop where something is bright: no peak
+    # (smoothed luminance above background + min_contrast) lies farther than the blur's
+    # reach from a pixel above that level, and no blob pixel (above half its peak's
+    # contrast) lies outside the pixels above half that level. Twice the blur's reach
+    # plus the peak radius around them gives the same filter values there as the whole crop.
+    bright = inside & (lum > background + BLOB_LEVEL * config.min_contrast)
+    x, y, bw, bh = cv2.boundingRect(bright.view(np.uint8))
+    if bw == 0:
+        return []
+    a0, b0, a1, b1 = grown_box((x, y, x + bw, y + bh), 2 * _BLUR_REACH_PX + PEAK_RADIUS_PX,
+                               lum.shape)
+    lum, inside = lum[b0:b1, a0:a1], inside[b0:b1, a0:a1]
+    u0, v0 = u0 + a0, v0 + b0
     smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX,
                               borderType=cv2.BORDER_REFLECT)
-    background = float(np.median(lum[inside]))
     side = 2 * PEAK_RADIUS_PX + 1
     local_max = cv2.dilate(smooth, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side)))
     # (A clipped blob's flat top is one plateau of near-equal maxima: the slack joins it.)
@@ -269,14 +298,17 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
             kept.append(int(i))
         if len(kept) == max_candidates:
             break
-    # Each pixel belongs to its nearest kept peak.
-    vv, uu = np.mgrid[0:v1 - v0, 0:u1 - u0]
-    gaps = np.stack([(uu - where[i][0]) ** 2 + (vv - where[i][1]) ** 2 for i in kept])
-    nearest = np.argmin(gaps, axis=0)
+    # Each pixel above the lowest blob level belongs to its nearest kept peak.
+    lowest = background + BLOB_LEVEL * (float(tops[kept].min()) - background)
+    candidates = inside & (lum > lowest)
+    vv, uu = np.nonzero(candidates)
+    nearest = np.full(lum.shape, -1, dtype=np.intp)
+    nearest[vv, uu] = np.argmin(np.stack([(uu - where[i][0]) ** 2 + (vv - where[i][1]) ** 2
+                                          for i in kept]), axis=0)
     found = []
     for rank, i in enumerate(kept):
         level = background + BLOB_LEVEL * (tops[i] - background)
-        above = inside & (nearest == rank) & (lum > level)
+        above = candidates & (nearest == rank) & (lum > level)
         count, parts = cv2.connectedComponents(above.view(np.uint8), connectivity=8)
         pu, pv = (int(round(c)) for c in where[i])
         label = parts[pv, pu] if above[pv, pu] else 0
@@ -344,6 +376,7 @@ class _Score:
     on_object: np.ndarray  # (K, N) bool
     missing: np.ndarray  # (K, N) bool: on the object, unexplained, and dark there
     n_strays: int  # candidates on the object that no light explains
+    blends: tuple[tuple[int, int], ...]  # (view, candidate) of blobs of merged highlights
 
     @property
     def n_matched(self) -> int:
@@ -360,16 +393,24 @@ class _Score:
 
     @property
     def key(self) -> tuple[int, int, float]:
-        """Larger is better: explained highlights, then less evidence against, then residual."""
+        """Larger is better: net support, then explained highlights, then residual.
+
+        Net support is the explained highlights and merged blobs less the evidence against.
+
+        A plane that explains one more highlight but predicts several that are not there
+        is the worse answer: each missing highlight is as much a measurement as a found
+        one. A blob explained as two lights' highlights merged supports the plane though
+        its centre measures neither.
+        """
         d = self.distance_px[self.matched >= 0]
         rms = float(np.sqrt(np.mean(d * d))) if d.size else math.inf
-        return (self.n_matched, -self.n_against, -rms)
+        return (self.n_matched + len(self.blends) - self.n_against, self.n_matched, -rms)
 
 
 def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
                   candidates_uv, *, tolerance_px: float = 2.0, min_views: int = 2,
                   object_depth_m: tuple[float, float] = (0.2, 10.0),
-                  lit=None, blob_radius_px: float = 0.0) -> LightsSolution:
+                  lit=None, blob_radius_px: float = 0.0, blob_boxes=None) -> LightsSolution:
     """Match highlight candidates to known lights and fit the plane they share.
 
     Parameters
@@ -403,6 +444,11 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         Typical half-maximum radius of a highlight, pixels: predictions within
         :data:`BLEND_RADII` of it of another light's, or whose reflecting point lies
         closer than it to the outline, may be excused by ``lit``; no others are.
+    blob_boxes : sequence of N array_like, each (m_j, 4), optional
+        Each candidate's blob box ``(u0, v0, u1, v1)``, pixels. A candidate whose blob also
+        holds another light's unexplained on-object prediction (inside its box and
+        ``lit`` there) is a blend of both: its centre belongs to neither, so it explains
+        no light (and the other light's highlight is not missing).
 
     Returns
     -------
@@ -411,8 +457,10 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
     lights = np.atleast_2d(np.asarray(lights_m, dtype=np.float64))
     cands = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in candidates_uv]
     ref = rig.reference
+    boxes = None if blob_boxes is None else [
+        np.asarray(b, dtype=np.float64).reshape(-1, 4) for b in blob_boxes]
     context = _Context(rig, lights, mask, cands, lit, tolerance_px, object_depth_m, min_views,
-                       blob_radius_px)
+                       blob_radius_px, boxes)
     if len(cands[ref]) == 0:
         return _no_plane("no_highlight", "reference view: no highlight candidate on the "
                          "object", cands)
@@ -444,9 +492,10 @@ class _Context:
 
     def __init__(self, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, cands, lit,
                  tolerance_px: float, object_depth_m, min_views: int,
-                 blob_radius_px: float) -> None:
+                 blob_radius_px: float, boxes=None) -> None:
         self.rig = rig
         self.lit = lit
+        self.boxes = boxes
         self.blend_px = BLEND_RADII * float(blob_radius_px)
         side = 2 * int(math.ceil(blob_radius_px)) + 1
         self.inner = cv2.erode(np.ascontiguousarray(mask).view(np.uint8),
@@ -582,7 +631,8 @@ class _Context:
                 matched[light, j] = q
                 distance[light, j] = gaps[light, q]
                 taken.add(q)
-        missing = on_object & (matched < 0)
+        blobs, covered = self._blends(uv, on_object, matched, distance)
+        missing = on_object & (matched < 0) & ~covered
         if self.lit is not None and self.blend_px > 0.0:
             # Unexplained but bright where another light's highlight is predicted close by
             # (one blob of both) or where the outline cuts the blob: not a missing one.
@@ -593,12 +643,51 @@ class _Context:
                 ask = np.flatnonzero(missing[:, j] & excusable[:, j])
                 if ask.size:
                     missing[ask, j] &= ~self.lit(j, uv[ask, j])
-        if np.count_nonzero(matched >= 0) < 2:
+        if np.count_nonzero(matched >= 0) + len(blobs) < 2:
             return None
         return _Score(plane, matched, distance, uv, on_object, missing,
-                      self._strays(plane, matched))
+                      self._strays(plane, matched, blobs), tuple(blobs))
 
-    def _strays(self, plane: Plane, matched: np.ndarray) -> int:
+    def _blends(self, uv: np.ndarray, on_object: np.ndarray, matched: np.ndarray,
+                distance: np.ndarray):
+        """Find the blobs that hold more than one light's highlight; unmatch them (in place).
+
+        A blob whose box holds the on-object prediction of a light it was not matched to
+        (and that is bright there) is highlights merged: its centre lies between theirs and
+        measures none of them, yet it shows they are there. So is an unmatched blob that
+        holds two or more predictions. An unmatched blob holding one is that light's
+        highlight cut by the outline or merged with the flank of one off the object:
+        there, unmeasured.
+
+        Returns ``(blobs, covered)``: the ``(view, candidate)`` pairs of the merged blobs,
+        and ``(K, N)`` bool, the predictions that lie in a blob without being measured by it.
+        """
+        covered = np.zeros(matched.shape, dtype=bool)
+        blobs: list[tuple[int, int]] = []
+        if self.boxes is None or self.lit is None:
+            return blobs, covered
+        for j in range(matched.shape[1]):
+            free = np.flatnonzero(on_object[:, j] & (matched[:, j] < 0))
+            if free.size == 0:
+                continue
+            free = free[self.lit(j, uv[free, j])]
+            p = uv[free, j]
+            for q, (u0, v0, u1, v1) in enumerate(self.boxes[j]):
+                inside = free[(p[:, 0] >= u0) & (p[:, 0] < u1) & (p[:, 1] >= v0)
+                              & (p[:, 1] < v1)]
+                if inside.size == 0:
+                    continue
+                covered[inside, j] = True
+                owner = np.flatnonzero(matched[:, j] == q)
+                if owner.size:
+                    matched[owner, j] = -1
+                    distance[owner, j] = np.nan
+                    covered[owner, j] = True
+                if owner.size or inside.size >= 2:
+                    blobs.append((j, q))
+        return blobs, covered
+
+    def _strays(self, plane: Plane, matched: np.ndarray, blobs) -> int:
         """Candidates well inside the object (by ``plane``) that no light explains.
 
         With every light known, each highlight on the object belongs to one of them.
@@ -609,7 +698,8 @@ class _Context:
         h, w = self.mask.shape
         count = 0
         for j, cand in enumerate(self.cands):
-            free = np.setdiff1d(np.arange(len(cand)), matched[:, j])
+            free = np.setdiff1d(np.arange(len(cand)),
+                                np.r_[matched[:, j], [q for view, q in blobs if view == j]])
             if free.size == 0:
                 continue
             ref_uv = cand[free] @ maps[j, :, :2].T + maps[j, :, 2]
@@ -637,6 +727,8 @@ class _Context:
         """Least-squares plane: predicted minus assigned centres over every assignment."""
         rig = self.rig
         light_idx, view_idx = np.nonzero(score.matched >= 0)
+        if len(light_idx) < 2:
+            return None
         observed = np.stack([self.cands[j][score.matched[k, j]]
                              for k, j in zip(light_idx, view_idx, strict=True)])
         n0, c0 = score.plane.n, score.plane.offset_m
@@ -655,8 +747,6 @@ class _Context:
             virtual = lights - 2.0 * ((lights @ n) - c)[:, None] * n
             return (project_points(rig, virtual, view_idx) - observed).ravel()
 
-        if len(observed) < 2:
-            return None
         fit = least_squares(residuals, np.zeros(3), method="trf", x_scale="jac")
         if not fit.success or not np.all(np.isfinite(fit.x)):
             return None
@@ -683,31 +773,36 @@ class _Context:
                                                best.on_object[k], best.missing[k], residual,
                                                virtual[k]))
         d = best.distance_px[best.matched >= 0]
-        rms = float(np.sqrt(np.mean(d * d)))
-        evidence = (f"best plane explains {best.n_matched} highlight(s), RMS {rms:.2f} px; "
+        rms = float(np.sqrt(np.mean(d * d))) if d.size else math.nan
+        evidence = (f"best plane explains {best.n_matched} highlight(s), RMS {rms:.2f} px, "
+                    f"and {len(best.blends)} blob(s) as merged highlights; "
                     f"{best.n_missing} predicted on the object are not there, "
                     f"{best.n_strays} on the object belong to no light")
         if rival is not None:
             gap_px = self.plane_gap_px(rival.plane, best.plane)
             evidence += (f"; the best different plane ({gap_px:.1f} px away) explains "
-                         f"{rival.n_matched} ({rival.n_missing} missing, {rival.n_strays} "
-                         "stray)")
+                         f"{rival.n_matched} and {len(rival.blends)} merged "
+                         f"({rival.n_missing} missing, {rival.n_strays} stray)")
         status, reason = "ok", ""
+        decisive = rival is None or best.key[0] - rival.key[0] >= DECISIVE_MARGIN
         if rival is not None and rival.key[:2] >= best.key[:2]:
             status = "ambiguous"
             reason = ("lights: two different planes explain the highlights equally well; "
                       + evidence)
-        elif best.n_against * UNEXPLAINED_RATIO > best.n_matched:
+        elif best.n_against * UNEXPLAINED_RATIO > best.n_matched + len(best.blends):
             status = "inconsistent"
             reason = (f"lights: the evidence against the best plane ({best.n_against}) is more "
-                      f"than 1/{UNEXPLAINED_RATIO:g} of the {best.n_matched} highlight(s) it "
+                      f"than 1/{UNEXPLAINED_RATIO:g} of the "
+                      f"{best.n_matched + len(best.blends)} highlight(s) and merged blobs it "
                       "explains (blended or hidden highlights, or an unknown light); "
                       + evidence)
-        elif len(self.lights) > 1 and np.count_nonzero((best.matched >= 0).any(axis=1)) < 2 \
+        elif len(self.lights) > 1 and not decisive \
+                and np.count_nonzero((best.matched >= 0).any(axis=1)) == 1 \
                 and np.any(best.on_object.sum(axis=1)[(best.matched < 0).all(axis=1)]
                            >= self.min_views):
             # Only one light's blobs are explained while other lights are predicted on the
-            # object: nothing ties the blobs to that light rather than to another.
+            # object, and no plane that gives them to another light is clearly contradicted:
+            # nothing ties the blobs to that light rather than to another.
             status = "ambiguous"
             lights = np.flatnonzero((best.matched >= 0).any(axis=1)).tolist()
             reason = (f"lights: only light {lights}'s highlights are explained, while other "
@@ -715,8 +810,8 @@ class _Context:
                       "cut); which light the blobs belong to is not established; " + evidence)
         elif max(a.n_views for a in assignments) < self.min_views:
             status = "too_few_views"
-            reason = (f"lights: no light's highlight is assigned in {self.min_views} or more "
-                      "views; " + evidence)
+            reason = (f"lights: no light's highlight is measured in {self.min_views} or more "
+                      "views (a blob of merged highlights measures none of them); " + evidence)
         return LightsSolution(status, reason, best.plane, tuple(assignments), rms,
                               self.n_proposed, evidence, tuple(self.cands))
 
@@ -786,7 +881,8 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     tolerance_px = 2.0 * srde.max_residual_px
     solution = assign_lights(rig, srde.lights_m, mask, cands, tolerance_px=tolerance_px,
                              min_views=srde.min_views, object_depth_m=srde.object_depth_m,
-                             lit=lit, blob_radius_px=float(np.median(
+                             lit=lit, blob_boxes=[[d.bbox for d in dets] for dets in found],
+                             blob_radius_px=float(np.median(
                                  [math.sqrt(d.area_px / math.pi) for dets in found
                                   for d in dets])))
     if not solution.ok:

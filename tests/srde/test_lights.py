@@ -98,6 +98,55 @@ def test_a_plane_contradicted_by_missing_highlights_is_inconsistent(grid):
     assert solution.status == "inconsistent"
 
 
+def merged(rig, plane, lights, views, half_box_px=6.0):
+    """Candidates and blob boxes with lights 0 and 1 merged into one blob in ``views``."""
+    cands, boxes = [], []
+    for j, uv in enumerate(projected(rig, plane, lights)):
+        if j in views:
+            middle = 0.5 * (uv[0] + uv[1])
+            low = np.minimum(uv[0], uv[1]) - half_box_px
+            high = np.maximum(uv[0], uv[1]) + half_box_px
+            cands.append(np.vstack([middle, uv[2:]]))
+            boxes.append([[*low, *high]] + [[*(p - half_box_px), *(p + half_box_px)]
+                                            for p in uv[2:]])
+        else:
+            cands.append(uv)
+            boxes.append([[*(p - half_box_px), *(p + half_box_px)] for p in uv])
+    return cands, boxes
+
+
+def test_a_blob_of_two_merged_highlights_measures_neither(grid):
+    # Lights 0 and 1 close enough that their highlights merge in five views: the blob's
+    # centre lies between theirs, so it is no measurement of either; the separate views
+    # and light 2 still give the plane.
+    lights = np.vstack([LIGHTS[0], LIGHTS[0] + [0.0, 0.03, 0.0], LIGHTS[2]])
+    cands, boxes = merged(grid, PLANE, lights, views={0, 1, 2, 3, 4})
+    solution = assign_lights(grid, lights, np.ones((H, W), bool), cands,
+                             lit=lambda j, uv: np.ones(len(uv), bool), blob_boxes=boxes)
+    assert solution.ok, solution.reason
+    for a in solution.assignments[:2]:
+        assert not np.isfinite(a.centers_uv[:5, 0]).any()
+        assert not a.missing[:5].any()  # there, in the blob, though unmeasured
+    assert "5 blob(s) as merged highlights" in solution.evidence
+    gap = plane_disparity(solution.plane, grid) - plane_disparity(PLANE, grid)
+    assert np.nanmax(np.abs(gap)) < 0.05
+    # Without the blobs' boxes, the merged centres cost the blended views' matches but
+    # nothing marks them as measurements of neither light.
+    blind = assign_lights(grid, lights, np.ones((H, W), bool), cands,
+                          lit=lambda j, uv: np.ones(len(uv), bool))
+    assert "0 blob(s) as merged" in blind.evidence
+
+
+def test_only_merged_blobs_are_no_measurement(grid):
+    lights = np.vstack([LIGHTS[0], LIGHTS[0] + [0.0, 0.03, 0.0]])
+    cands, boxes = merged(grid, PLANE, lights, views=set(range(grid.n_cameras)))
+    solution = assign_lights(grid, lights, np.ones((H, W), bool), cands,
+                             lit=lambda j, uv: np.ones(len(uv), bool), blob_boxes=boxes)
+    assert not solution.ok
+    assert solution.status in ("too_few_views", "ambiguous")
+    assert "merged" in solution.reason
+
+
 def test_no_reference_candidate(grid):
     cands = projected(grid, PLANE, LIGHTS)
     cands[grid.reference] = np.zeros((0, 2))
