@@ -448,11 +448,13 @@ class SRDE:
                           self.method, result.notes, detections)
 
     def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None,
-                light=None, refine=None) -> SRDEResult:
+                light=None, refine=None, modelled_lights=()) -> SRDEResult:
         """Check the virtual light and the plane, refine it (given views); disparity.
 
         ``light``: the light ``point`` is the virtual light of (one of several); the
         SRDE's light by default. ``refine``: whether to refine; ``self.refine`` by default.
+        ``modelled_lights``: further lights whose highlights the refinement renders beside
+        ``light``'s (the other lights' are left out of its windows).
         """
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}
@@ -487,11 +489,14 @@ class SRDE:
         residual = _rms_residual(rig, point, centers, used)
         refinement = None
         if views is not None and (self.refine if refine is None else refine):
-            others = [m for m in self.lights_m if not np.array_equal(m, light)]
+            others = [m for m in self.lights_m if not np.array_equal(m, light)
+                      and not any(np.array_equal(m, x) for x in modelled_lights)]
             refinement = refine_plane(views, rig, light, mask, plane,
                                       centers_uv=np.where(used[:, None], centers, np.nan),
                                       lobe=self.refine_lobe,
-                                      other_lights_m=np.array(others) if others else None)
+                                      other_lights_m=np.array(others) if others else None,
+                                      modelled_lights_m=(np.array(modelled_lights)
+                                                         if len(modelled_lights) else None))
             if refinement.ok:
                 plane = refinement.plane
                 point = plane.mirror(light)

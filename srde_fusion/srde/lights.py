@@ -55,7 +55,7 @@ from .highlight import (
     search_box,
     weighted_centroid,
 )
-from .refine.samples import references_from_views
+from .refine.samples import WINDOW_PER_BLOB_RADIUS, references_from_views
 from .search import BaselineSearch
 
 if TYPE_CHECKING:
@@ -190,6 +190,11 @@ class LightsSolution:
         The winner's and the best different plane's support, in words.
     candidates_uv : tuple of numpy.ndarray
         The candidates ``(m_j, 2)`` of every view the assignment chose from.
+    merged_blobs : tuple of (int, int)
+        ``(view, candidate)`` of the blobs the plane explains as several lights'
+        highlights merged (their centres measure no light).
+    rival_plane : Plane or None
+        The best hypothesis whose plane is a different answer, if any.
     """
 
     status: str
@@ -200,6 +205,8 @@ class LightsSolution:
     hypotheses: int
     evidence: str
     candidates_uv: tuple[np.ndarray, ...] = field(repr=False, default=())
+    merged_blobs: tuple[tuple[int, int], ...] = ()
+    rival_plane: Plane | None = field(repr=False, default=None)
 
     @property
     def ok(self) -> bool:
@@ -219,6 +226,7 @@ class LightsSolution:
             "hypotheses": self.hypotheses,
             "evidence": self.evidence,
             "residual_px": None if not math.isfinite(self.residual_px) else self.residual_px,
+            "merged_blobs": [[int(j), int(q)] for j, q in self.merged_blobs],
             "lights": [{
                 "light": a.light,
                 "views": [int(j) for j in np.flatnonzero(np.isfinite(a.centers_uv[:, 0]))],
@@ -813,7 +821,8 @@ class _Context:
             reason = (f"lights: no light's highlight is measured in {self.min_views} or more "
                       "views (a blob of merged highlights measures none of them); " + evidence)
         return LightsSolution(status, reason, best.plane, tuple(assignments), rms,
-                              self.n_proposed, evidence, tuple(self.cands))
+                              self.n_proposed, evidence, tuple(self.cands), best.blends,
+                              None if rival is None else rival.plane)
 
 
 # ---------------------------------------------------------------------- in SRDE
@@ -879,15 +888,19 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         return inside & (lum > levels[j])
 
     tolerance_px = 2.0 * srde.max_residual_px
+    blob_radius_px = float(np.median([math.sqrt(d.area_px / math.pi) for dets in found
+                                      for d in dets]))
     solution = assign_lights(rig, srde.lights_m, mask, cands, tolerance_px=tolerance_px,
                              min_views=srde.min_views, object_depth_m=srde.object_depth_m,
                              lit=lit, blob_boxes=[[d.bbox for d in dets] for dets in found],
-                             blob_radius_px=float(np.median(
-                                 [math.sqrt(d.area_px / math.pi) for dets in found
-                                  for d in dets])))
+                             blob_radius_px=blob_radius_px)
     if not solution.ok:
-        status = solution.status
-        return dataclasses.replace(srde._failed(status, solution.reason), lights=solution)
+        failed = dataclasses.replace(srde._failed(solution.status, solution.reason),
+                                     lights=solution)
+        if srde.refine and solution.merged_blobs and solution.plane is not None \
+                and solution.status in ("too_few_views", "ambiguous"):
+            return _solve_merged(srde, views, mask, solution, failed)
+        return failed
     # The light seen in most views (then with the smallest residual) carries the checks
     # and the refinement; the joint plane mirrors it onto its own virtual light.
     main = max((a for a in solution.assignments if a.n_views),
@@ -902,8 +915,15 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         next((d for d in found[j] if np.allclose(d.center_uv, main.centers_uv[j])),
              HighlightDetection.missing(f"no highlight of light {main.light}"))
         for j in range(rig.n_cameras))
+    # Lights whose highlights come near the main one's are rendered with it (their lobes
+    # reach into its windows); the others are left out of the windows.
+    reach_px = (WINDOW_PER_BLOB_RADIUS + BLEND_RADII) * blob_radius_px
+    modelled = [srde.lights_m[a.light] for a in solution.assignments if a.light != main.light
+                and np.any(a.on_object & main.on_object & (np.linalg.norm(
+                    a.predicted_uv - main.predicted_uv, axis=1) < reach_px))]
     result = srde._finish(mask, point, w, used, main.centers_uv, detections, notes,
-                          views=views, light=srde.lights_m[main.light])
+                          views=views, light=srde.lights_m[main.light],
+                          modelled_lights=modelled)
     refinement = result.refinement
     if result.ok and refinement is not None and refinement.ok:
         # The refinement sees one light; every light's assigned highlights must still
@@ -918,6 +938,72 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
                                   refine=False)
             result = dataclasses.replace(result, refinement=refinement)
     return dataclasses.replace(result, lights=solution)
+
+
+def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
+                  failed: SRDEResult) -> SRDEResult:
+    """Solve an object whose highlights are merged blobs by one lobe per light.
+
+    No blob centre measures a light, but the blobs' light does: a joint photometric fit
+    (:class:`~.refine.joint.JointLobeModel`) of every light present on the object,
+    started from the best plane and from its rival, must end on one plane. Otherwise
+    (no fit explains the blobs, or the starts end on different planes) ``failed``.
+    """
+    from .refine import refine_plane
+
+    rig, lights = srde.rig, srde.lights_m
+    # Lights present on the object (a candidate, or a merged blob holding them).
+    present = np.stack([a.on_object & ~a.missing for a in solution.assignments])
+    main = int(np.argmax(present.sum(axis=1)))
+    modelled = [k for k in range(len(lights)) if k != main and present[k].any()]
+    others = [k for k in range(len(lights)) if k != main and k not in modelled]
+    used = present[main]
+    starts = [solution.plane] + ([solution.rival_plane] if solution.rival_plane is not None
+                                 else [])
+    refined = []
+    for start in starts:
+        virtual = start.mirror(lights[main])
+        centers = project_points(rig, np.repeat(virtual[None], rig.n_cameras, axis=0),
+                                 np.arange(rig.n_cameras))
+        fit = refine_plane(views, rig, lights[main], mask, start,
+                           centers_uv=np.where(used[:, None], centers, np.nan),
+                           lobe=srde.refine_lobe,
+                           other_lights_m=lights[others] if others else None,
+                           modelled_lights_m=lights[modelled] if modelled else None)
+        if fit.ok:
+            refined.append(fit)
+    note = (f"lights: highlights merged in {len(solution.merged_blobs)} blob(s); a joint fit "
+            f"of one lobe per light ({[main, *modelled]})")
+    if not refined:
+        return dataclasses.replace(failed, notes=(*failed.notes, note + " explained none"))
+    gaps = [_plane_gap_px(rig, mask, fit.plane, refined[0].plane) for fit in refined[1:]]
+    if any(gap > SAME_PLANE_PX for gap in gaps):
+        reason = (f"{note} ends on planes {max(gaps):.1f} px apart from the best plane and "
+                  f"its rival; {solution.evidence}")
+        return dataclasses.replace(failed, status="ambiguous", reason=reason)
+    fit = min(refined, key=lambda f: f.cost_final)
+    point = fit.plane.mirror(lights[main])
+    w = 1.0 / (point[2] - rig.reference_center_m[2])
+    centers = project_points(rig, np.repeat(point[None], rig.n_cameras, axis=0),
+                             np.arange(rig.n_cameras))
+    detections = tuple(HighlightDetection.missing(f"light {main}: in a merged blob")
+                       for _ in range(rig.n_cameras))
+    result = srde._finish(mask, point, w, used, centers, detections,
+                          (*failed.notes, note + f" gives the plane (RMS {fit.residual:.3g})"),
+                          refine=False, light=lights[main])
+    if not result.ok:
+        return dataclasses.replace(failed, notes=(*failed.notes, note + f": {result.reason}"))
+    solved = dataclasses.replace(solution, status="ok", reason="", plane=result.plane)
+    return dataclasses.replace(result, refinement=fit, lights=solved)
+
+
+def _plane_gap_px(rig: CameraRig, mask: np.ndarray, a: Plane, b: Plane) -> float:
+    """Largest disparity difference of two planes at the mask's box corners, px."""
+    ys, xs = np.nonzero(mask)
+    corners = np.array([[xs.min(), ys.min()], [xs.max(), ys.min()], [xs.min(), ys.max()],
+                        [xs.max(), ys.max()]], dtype=np.float64)
+    return float(np.max(np.abs(plane_disparity(a, rig, corners)
+                               - plane_disparity(b, rig, corners))))
 
 
 def _worst_reprojection_px(rig: CameraRig, lights: np.ndarray, solution: LightsSolution,

@@ -231,3 +231,31 @@ def test_refinement_windows_leave_out_the_other_lights_highlights():
     for light in lights[1:]:
         seen = rig.project(plane.mirror(light))
         assert np.min(np.linalg.norm(uv[at_ref] - seen, axis=1)) > apart.half_window_px - 2
+
+
+@pytest.mark.parametrize("seed", [7000, 7001])
+def test_merged_highlights_are_solved_by_one_lobe_per_light(seed):
+    # Two lights' highlights merge into one blob in every view: no blob centre measures
+    # either light (the geometric assignment fails), but a fit of both lobes on one
+    # plane recovers it.
+    rig = default_rig()
+    scene = random_scene(seed, rig, config=RandomSceneConfig(n_lights=2))
+    out = render(scene, rig)
+    lit = rig.with_lights(rig_lights(scene))
+    mask = out.object_masks[0]
+    geometric = SRDE(lit, refine=False).estimate(out.views, mask)
+    assert not geometric.ok
+    assert len(geometric.lights.merged_blobs) >= 8
+    result = SRDE(lit).estimate(out.views, mask)
+    assert result.ok, result.reason
+    assert result.refinement is not None and result.refinement.ok
+    assert any("one lobe per light" in note for note in result.notes)
+    assert result.lights.ok and result.lights.plane == result.plane
+    epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
+    assert epe < 0.02
+    # Told of one light only, the blob is that light's highlight: a wrong plane.
+    one = rig.with_lights(rig_lights(scene)[:1])
+    alone = SRDE(one).estimate(out.views, mask)
+    if alone.ok:
+        assert np.mean(np.abs(plane_disparity(alone.plane, one)[mask]
+                              - out.disparity_px[mask])) > 5 * epe

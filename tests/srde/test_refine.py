@@ -18,6 +18,7 @@ from srde_fusion.errors import ImageError, LightError, MaskError, SRDEError
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity, plane_from_lights
 from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine import LOBES, PlaneRefinement, refine_plane
+from srde_fusion.srde.refine.joint import JointLobeModel
 from srde_fusion.srde.refine.layout import I_FORE, I_SPEC, I_TAIL, N_PLANE
 from srde_fusion.srde.refine.model import DEFAULT_F0, LobeModel
 from srde_fusion.srde.refine.samples import sample_windows
@@ -206,6 +207,43 @@ def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail, fresn
         assert np.max(np.abs(slopes[row] - expected)) < SLOPE_RTOL * scale, index
 
 
+# ------------------------------------------------------------------ one lobe per light
+def test_a_joint_model_of_one_light_is_the_single_light_model(rough_ggx):
+    case = rough_ggx
+    samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
+                              case["centers"])
+    single = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
+                        "gtr", DEFAULT_F0, None)
+    joint = JointLobeModel([LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"],
+                                      case["plane"], "gtr", DEFAULT_F0, None)])
+    theta = single.initial_guess()
+    theta[:N_PLANE] = [0.004, -0.003, 0.001]
+    r_single, t_single = single.evaluate(theta)
+    r_joint, t_joint = joint.evaluate(theta)
+    np.testing.assert_allclose(r_joint, r_single, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(t_joint, t_single, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(joint.jacobian(t_joint, single.free_all),
+                               single.jacobian(t_single, single.free_all), rtol=1e-6,
+                               atol=1e-9 * np.abs(single.jacobian(t_single, single.free_all)).max())
+
+
+def test_a_far_light_gets_no_intensity_and_changes_nothing(rough_ggx):
+    # A further light whose highlight is nowhere near the windows: its lobe is 0 there.
+    case = rough_ggx
+    samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
+                              case["centers"])
+    far = np.asarray(case["light"]) + [5.0, 0.0, 0.0]
+    parts = [LobeModel(samples, case["rig"], (0, 0, 320, 240), light, case["plane"], "ggx",
+                       DEFAULT_F0, None) for light in (case["light"], far)]
+    joint = JointLobeModel(parts)
+    theta = joint.initial_guess()
+    assert theta[-1] == 0.0 and theta[I_SPEC] > 0.0
+    alone = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
+                      "ggx", DEFAULT_F0, None)
+    np.testing.assert_allclose(joint.evaluate(theta)[0], alone.evaluate(theta[:-1])[0],
+                               atol=1e-12)
+
+
 # ------------------------------------------------------------------ keeping the initial plane
 def test_keeps_the_plane_when_everything_is_saturated(rough_ggx):
     white = [np.full_like(v, 255) for v in rough_ggx["views"]]
@@ -302,6 +340,9 @@ def test_positional_input_errors(rough_ggx, index, value, error, match):
     (dict(centers_uv=np.zeros((9, 3))), ImageError, r"centers_uv: expected shape \(9, 2\)"),
     (dict(centers_uv=np.full((9, 2), np.inf)), ImageError, "centers_uv: expected finite"),
     (dict(centers_uv="centre"), ImageError, "centers_uv: expected an array"),
+    (dict(modelled_lights_m=[[0.1, np.nan, 0.2]]), SRDEError,
+     r"modelled_lights_m: expected \(M, 3\) finite metres"),
+    (dict(other_lights_m="lamp"), SRDEError, r"other_lights_m: expected \(M, 3\) finite"),
 ])
 def test_keyword_input_errors(rough_ggx, kwargs, error, match):
     with pytest.raises(error, match=match):

@@ -35,6 +35,7 @@ import numpy as np
 from ..._checks import check_mask, check_point3, check_views
 from ...errors import ImageError, SRDEError
 from ...geometry import CameraRig, Plane, plane_from_lights
+from .joint import JointLobeModel
 from .layout import I_FORE, I_SPEC, N_PLANE
 from .lobes import DEFAULT_LOBE, LOBES
 from .model import (
@@ -156,6 +157,7 @@ def refine_plane(
     fresnel: str = "exact",
     max_iterations: int = 20,
     other_lights_m=None,
+    modelled_lights_m=None,
 ) -> PlaneRefinement:
     """Refine a plane so that a specular lobe model explains the highlight in every view.
 
@@ -193,6 +195,11 @@ def refine_plane(
     other_lights_m : array_like, (M, 3), metres, optional
         Further known lights. Their highlights (where each sampled plane puts them) are
         left out of the fitting windows: the lobe model renders one light.
+    modelled_lights_m : array_like, (M, 3), metres, optional
+        Further known lights whose highlights are rendered beside ``light_m``'s instead
+        (:class:`~.joint.JointLobeModel`: one lobe per light on the same plane and
+        surface, each light with its own intensity), for highlights merged into one
+        blob. They should not also be in ``other_lights_m``.
 
     Returns
     -------
@@ -271,13 +278,10 @@ def refine_plane(
     if centers is None:
         virtual = initial_plane.mirror(light)
         centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
-    others = None
-    if other_lights_m is not None:
-        others = np.asarray(other_lights_m, dtype=np.float64).reshape(-1, 3)
-        if not np.all(np.isfinite(others)):
-            raise SRDEError(f"other_lights_m: expected (M, 3) finite metres, got {others!r}")
+    others = _check_lights(other_lights_m, "other_lights_m")
+    modelled = _check_lights(modelled_lights_m, "modelled_lights_m")
     setup = _Setup(views, rig, mask, mask_bbox(mask), light, initial_plane, centers, lobe, f0,
-                   fresnel, foreshortening, max_iterations, others)
+                   fresnel, foreshortening, max_iterations, others, modelled)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
         return kept(attempt)
@@ -323,10 +327,13 @@ class _Setup:
     foreshortening: float | None
     max_iterations: int
     other_lights: np.ndarray | None = None
+    modelled_lights: np.ndarray | None = None
 
-    def model(self, samples: HighlightSamples, plane: Plane) -> LobeModel:
-        return LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
-                          self.foreshortening, fresnel=self.fresnel)
+    def model(self, samples: HighlightSamples, plane: Plane) -> LobeModel | JointLobeModel:
+        lights = [self.light] + ([] if self.modelled_lights is None else list(self.modelled_lights))
+        parts = [LobeModel(samples, self.rig, self.box, light, plane, self.lobe, self.f0,
+                           self.foreshortening, fresnel=self.fresnel) for light in lights]
+        return parts[0] if len(parts) == 1 else JointLobeModel(parts)
 
 
 @dataclass(frozen=True)
@@ -486,6 +493,18 @@ def _restart_plane(setup: _Setup, samples: HighlightSamples) -> Plane | None:
 def _is_number_in(value, low: float, high: float) -> bool:
     return (not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
             and low <= float(value) <= high)
+
+
+def _check_lights(lights_m, name: str) -> np.ndarray | None:
+    if lights_m is None:
+        return None
+    try:
+        lights = np.asarray(lights_m, dtype=np.float64).reshape(-1, 3)
+    except (TypeError, ValueError):
+        raise SRDEError(f"{name}: expected (M, 3) finite metres, got {lights_m!r:.80}") from None
+    if not np.all(np.isfinite(lights)):
+        raise SRDEError(f"{name}: expected (M, 3) finite metres, got {lights!r}")
+    return lights if len(lights) else None
 
 
 def _check_centers(centers_uv, n_views: int) -> np.ndarray | None:

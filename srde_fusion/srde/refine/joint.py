@@ -1,0 +1,226 @@
+"""Several lights in one fit: a lobe per light, one plane, one surface.
+
+Two lights close to each other put their highlights close together; on a rough coating
+the two merge into one blob whose centre belongs to neither light, so no centroid
+measures either virtual light. The image still holds the answer: the blob is the sum of
+two lobes of the *same* surface (one roughness, one Fresnel term, one foreshortening),
+each lit by its own known light and mirrored by the *same* plane. :class:`JointLobeModel`
+renders that sum, one :class:`~.model.LobeModel` per light sharing the plane and shape
+parameters, each light with its own specular intensity; the diffuse term is the first
+light's (the fit only sees a small window, where the other lights' diffuse light is
+nearly constant and goes into the level).
+
+``theta`` is the single light's layout (see ``layout``) followed by the specular
+intensity of each further light: ``(tilt_1, tilt_2, offset_m, log_width, tail,
+foreshortening, specular_0, diffuse, level, specular_1, ..., specular_{M-1})``. All
+intensities enter linearly and are solved in closed form at every evaluation, as for one
+light; saturated samples are one-sided as there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .layout import I_DIFF, I_LEVEL, I_SPEC, I_TAIL, I_WIDTH, N_PARAMS
+from .model import WIDTH_GRID, LobeFit, LobeModel
+
+__all__ = ["JointLobeModel"]
+
+# Passes of the active-set solve for the intensities (saturated samples in or out).
+_ACTIVE_SET_PASSES = 4
+
+
+# A further light whose lobe is this small (its squared norm over the samples, relative
+# to the first light's) is not in the windows: its intensity is not fitted (held at 0).
+_NEGLIGIBLE_LOBE = 1e-6
+
+
+# Start: widths scanned with the families' default tail, then these around the best.
+_TAILS = (0.25, 0.0)
+_WIDTH_FACTORS = (0.85, 1.0, 1.2)
+
+
+class JointLobeModel:
+    """The highlights of several lights on one plane, a :class:`~.solver.LeastSquaresModel`.
+
+    Parameters
+    ----------
+    parts : list of LobeModel
+        One model per light, all on the same samples and initial plane, the light whose
+        highlight placed the windows first (its diffuse term is the model's, its
+        specular intensity must come out positive).
+    """
+
+    def __init__(self, parts: list[LobeModel]) -> None:
+        self.parts = parts
+        first = parts[0]
+        self.valid = first.valid and all(p.valid for p in parts)
+        self.intensities = first.intensities  # the observations and their clipping
+        self.free_all = first.free_all
+        self.free_photometric = first.free_photometric
+        self.initial_cost = math.inf
+        self.n_lights = len(parts)
+
+    # ------------------------------------------------------------------ delegated
+    def plane(self, theta: np.ndarray):
+        """Return the plane of ``theta``."""
+        return self.parts[0].plane(theta)
+
+    def disparity_change_px(self, before: np.ndarray, after: np.ndarray) -> float:
+        """Largest change of the stereo disparity at the probe pixels between two thetas."""
+        return self.parts[0].disparity_change_px(before, after)
+
+    def clamp(self, theta: np.ndarray) -> np.ndarray:
+        """Move ``theta``'s shape parameters inside their bounds (in place) and return it."""
+        self.parts[0].clamp(theta)
+        return theta
+
+    def parameters_at_bounds(self, theta: np.ndarray) -> str:
+        """Name and value of fitted shape parameters stuck at a bound ("" if none)."""
+        return self.parts[0].parameters_at_bounds(theta)
+
+    def lobe_fit(self, theta: np.ndarray) -> LobeFit:
+        """Return the first light's photometric parameters (the surface's, its intensity)."""
+        return self.parts[0].lobe_fit(theta[:N_PARAMS])
+
+    def start_theta(self) -> np.ndarray:
+        """Parameters at the initial plane with a mid-range lobe, intensities 0."""
+        return np.concatenate([self.parts[0].start_theta(), np.zeros(self.n_lights - 1)])
+
+    def specular(self, theta: np.ndarray) -> np.ndarray:
+        """Each light's specular intensity ``(K,)``."""
+        return np.concatenate([[theta[I_SPEC]], theta[N_PARAMS:]])
+
+    # ------------------------------------------------------------------ the rendering
+    def _lobes(self, theta: np.ndarray):
+        """Every light's lobe at the samples ``(K, P)`` and the first's shading, or Nones."""
+        lobes = []
+        shading = None
+        for k, part in enumerate(self.parts):
+            g, _, _, part_shading, lobe = part._lobe_at(theta[:N_PARAMS])
+            if g is None:
+                return None, None
+            if k == 0:
+                shading = part_shading
+            lobes.append(lobe)
+        return np.stack(lobes), shading
+
+    def _solve(self, lobes: np.ndarray, diffuse: np.ndarray):
+        """Intensities ``(K + 2,)`` (specular per light, diffuse, level) and the model."""
+        solver = self.intensities
+        y, k = solver.y, solver.n_unclipped
+        basis = np.vstack([lobes, diffuse[None, :], np.ones((1, len(y)))])
+        norms = np.einsum("bp,bp->b", basis[:, :k], basis[:, :k])
+        # A further light whose lobe does not reach the samples has no intensity to fit.
+        used = np.ones(len(basis), dtype=bool)
+        used[1:self.n_lights] = norms[1:self.n_lights] > _NEGLIGIBLE_LOBE * max(norms[0], 1e-300)
+        sub = basis[used]
+        head = sub[:, :k]
+        normal0 = head @ head.T
+        rhs0 = head @ y[:k]
+        coef_used = _solve_scaled(normal0, rhs0)
+        if k < len(y):
+            clipped, clipped_y = sub[:, k:], y[k:]
+            active = np.zeros(len(clipped_y), dtype=bool)
+            for _ in range(_ACTIVE_SET_PASSES - 1):
+                now_active = coef_used @ clipped < clipped_y
+                if not np.any(now_active ^ active):
+                    break
+                active = now_active
+                cols = clipped[:, active]
+                coef_used = _solve_scaled(normal0 + cols @ cols.T, rhs0 + cols @ clipped_y[active])
+        coef = np.zeros(len(basis))
+        coef[used] = coef_used
+        return coef, coef @ basis, basis
+
+    def _theta_with(self, theta: np.ndarray, coef: np.ndarray) -> np.ndarray:
+        out = theta.copy()
+        k = self.n_lights
+        out[I_SPEC] = coef[0]
+        out[N_PARAMS:] = coef[1:k]
+        out[I_DIFF] = coef[k]
+        out[I_LEVEL] = coef[k + 1]
+        return out
+
+    # ------------------------------------------------------------------ least squares
+    def evaluate(self, theta: np.ndarray):
+        """Residual at ``theta``'s plane and lobe shape with the best intensities."""
+        lobes, shading = self._lobes(theta)
+        if lobes is None:
+            return np.full(self.intensities.y.shape, np.inf), theta.copy()
+        coef, model, _ = self._solve(lobes, shading.diffuse)
+        return self.intensities.residual(model), self._theta_with(theta, coef)
+
+    def jacobian(self, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """Transposed Jacobian ``(len(free), P)`` (variable projection, Kaufman's form)."""
+        lobes, shading = self._lobes(theta)
+        coef, model, basis = self._solve(lobes, shading.diffuse)
+        spec = self.specular(theta)
+        jac = np.zeros((len(free), len(model)))
+        for k, part in enumerate(self.parts):
+            if spec[k] == 0.0 and k > 0:
+                continue
+            # The part's slopes with its own intensity; the diffuse term's slope once.
+            theta_k = theta[:N_PARAMS].copy()
+            theta_k[I_SPEC] = spec[k]
+            if k > 0:
+                theta_k[I_DIFF] = 0.0
+            jac += part.reduce(part.model_slopes(theta_k, free))
+        # A saturated sample above its lower bound contributes nothing, nor does its slope.
+        ignored = self.intensities.censored & (model >= self.intensities.y)
+        if ignored.any():
+            jac[:, ignored] = 0.0
+            basis = basis.copy()
+            basis[:, ignored] = 0.0
+        keep = np.einsum("bp,bp->b", basis, basis) > 0.0
+        basis = basis[keep]
+        in_span = np.linalg.lstsq(basis.T, jac.T, rcond=None)[0]  # (B, len(free))
+        jac -= in_span.T @ basis
+        return jac
+
+    def gram(self, jac: np.ndarray) -> np.ndarray:
+        """Return ``jac @ jac.T``."""
+        return jac @ jac.T
+
+    # ------------------------------------------------------------------ start
+    def initial_guess(self) -> np.ndarray | None:
+        """Parameters at the initial plane: the best lobe shape on a grid (as one light's).
+
+        None if no shape gives the first light a positive specular intensity.
+        """
+        best_cost, best = math.inf, None
+        base = self.start_theta()
+
+        def consider(width: float, tail: float) -> None:
+            nonlocal best_cost, best
+            theta = base.copy()
+            theta[I_WIDTH], theta[I_TAIL] = math.log(width), tail
+            residual, filled = self.evaluate(theta)
+            if not filled[I_SPEC] > 0.0:
+                return
+            cost = float(residual @ residual) / len(residual)
+            if cost < best_cost:
+                best_cost, best = cost, filled
+
+        for width in WIDTH_GRID:
+            consider(float(width), float(base[I_TAIL]))
+        if best is not None and I_TAIL in self.free_all:
+            best_width = math.exp(best[I_WIDTH])
+            for factor in _WIDTH_FACTORS:
+                for tail in _TAILS:
+                    consider(best_width * factor, tail)
+        self.initial_cost = best_cost
+        return best
+
+
+def _solve_scaled(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve small normal equations with Jacobi scaling; least squares if singular."""
+    scale = 1.0 / np.sqrt(np.maximum(normal.diagonal(), 1e-300))
+    scaled = normal * scale[:, None] * scale[None, :]
+    try:
+        x = np.linalg.solve(scaled, rhs * scale)
+    except np.linalg.LinAlgError:
+        x = np.linalg.lstsq(scaled, rhs * scale, rcond=None)[0]
+    return x * scale
