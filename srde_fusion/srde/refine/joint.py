@@ -176,7 +176,7 @@ class JointLobeModel:
             basis[:, ignored] = 0.0
         keep = np.einsum("bp,bp->b", basis, basis) > 0.0
         basis = basis[keep]
-        in_span = np.linalg.lstsq(basis.T, jac.T, rcond=None)[0]  # (B, len(free))
+        in_span = _solve_scaled(basis @ basis.T, basis @ jac.T)  # (B, len(free))
         jac -= in_span.T @ basis
         return jac
 
@@ -216,11 +216,16 @@ class JointLobeModel:
 
 
 def _solve_scaled(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve small normal equations with Jacobi scaling; least squares if singular."""
+    """Solve small normal equations ``(B, B)`` for ``rhs`` ``(B,)`` or ``(B, F)``.
+
+    Jacobi scaling keeps the nearly collinear diffuse and level columns solvable; a
+    singular system falls back to least squares.
+    """
     scale = 1.0 / np.sqrt(np.maximum(normal.diagonal(), 1e-300))
     scaled = normal * scale[:, None] * scale[None, :]
+    column = scale if rhs.ndim == 1 else scale[:, None]
     try:
-        x = np.linalg.solve(scaled, rhs * scale)
+        x = np.linalg.solve(scaled, rhs * column)
     except np.linalg.LinAlgError:
-        x = np.linalg.lstsq(scaled, rhs * scale, rcond=None)[0]
-    return x * scale
+        x = np.linalg.lstsq(scaled, rhs * column, rcond=None)[0]
+    return x * column
