@@ -121,6 +121,11 @@ DECISIVE_MARGIN = 2
 REFINED_AGREEMENT = 1.0
 
 
+#: Two planes fitted to merged blobs from different starts: one is the answer if its
+#: photometric cost is this many times lower than the other's on both fits' samples.
+DECISIVE_COST_RATIO = 2.0
+
+
 #: Rounds of "refit the plane to what it explains, then match again".
 _REFIT_ROUNDS = 3
 
@@ -950,6 +955,7 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
     (no fit explains the blobs, or the starts end on different planes) ``failed``.
     """
     from .refine import refine_plane
+    from .refine.plane import compare_planes
 
     rig, lights = srde.rig, srde.lights_m
     # Lights present on the object (a candidate, or a merged blob holding them).
@@ -960,28 +966,40 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
     used = present[main]
     starts = [solution.plane] + ([solution.rival_plane] if solution.rival_plane is not None
                                  else [])
-    refined = []
-    for start in starts:
-        virtual = start.mirror(lights[main])
+    options = dict(lobe=srde.refine_lobe, other_lights_m=lights[others] if others else None,
+                   modelled_lights_m=lights[modelled] if modelled else None)
+
+    def centers_for(plane: Plane) -> np.ndarray:
+        virtual = plane.mirror(lights[main])
         centers = project_points(rig, np.repeat(virtual[None], rig.n_cameras, axis=0),
                                  np.arange(rig.n_cameras))
-        fit = refine_plane(views, rig, lights[main], mask, start,
-                           centers_uv=np.where(used[:, None], centers, np.nan),
-                           lobe=srde.refine_lobe,
-                           other_lights_m=lights[others] if others else None,
-                           modelled_lights_m=lights[modelled] if modelled else None)
-        if fit.ok:
-            refined.append(fit)
+        return np.where(used[:, None], centers, np.nan)
+
+    refined = [fit for fit in (refine_plane(views, rig, lights[main], mask, start,
+                                            centers_uv=centers_for(start), **options)
+                               for start in starts) if fit.ok]
     note = (f"lights: highlights merged in {len(solution.merged_blobs)} blob(s); a joint fit "
             f"of one lobe per light ({[main, *modelled]})")
     if not refined:
         return dataclasses.replace(failed, notes=(*failed.notes, note + " explained none"))
-    gaps = [_plane_gap_px(rig, mask, fit.plane, refined[0].plane) for fit in refined[1:]]
-    if any(gap > SAME_PLANE_PX for gap in gaps):
-        reason = (f"{note} ends on planes {max(gaps):.1f} px apart from the best plane and "
-                  f"its rival; {solution.evidence}")
-        return dataclasses.replace(failed, status="ambiguous", reason=reason)
-    fit = min(refined, key=lambda f: f.cost_final)
+    fit = refined[0]
+    if len(refined) > 1 and _plane_gap_px(rig, mask, refined[0].plane,
+                                          refined[1].plane) > SAME_PLANE_PX:
+        # Two fits, two planes: compare them on the same samples, each fit's in turn.
+        a, b = refined[0].plane, refined[1].plane
+        on_a = compare_planes(views, rig, lights[main], mask, [a, b], centers_for(a), **options)
+        on_b = compare_planes(views, rig, lights[main], mask, [b, a], centers_for(b), **options)
+        if on_a[1] > DECISIVE_COST_RATIO * on_a[0] and on_b[0] > DECISIVE_COST_RATIO * on_b[1]:
+            fit = refined[0]
+        elif on_a[0] > DECISIVE_COST_RATIO * on_a[1] and on_b[1] > DECISIVE_COST_RATIO * on_b[0]:
+            fit = refined[1]
+        else:
+            gap_px = _plane_gap_px(rig, mask, a, b)
+            reason = (f"{note} ends on planes {gap_px:.1f} px apart from the best plane and its "
+                      f"rival, neither explaining the images {DECISIVE_COST_RATIO:g}x better "
+                      f"(costs {on_a[0]:.3g} vs {on_a[1]:.3g} and {on_b[1]:.3g} vs "
+                      f"{on_b[0]:.3g}); {solution.evidence}")
+            return dataclasses.replace(failed, status="ambiguous", reason=reason)
     point = fit.plane.mirror(lights[main])
     w = 1.0 / (point[2] - rig.reference_center_m[2])
     centers = project_points(rig, np.repeat(point[None], rig.n_cameras, axis=0),

@@ -21,6 +21,7 @@ from srde_fusion.srde.refine import LOBES, PlaneRefinement, refine_plane
 from srde_fusion.srde.refine.joint import JointLobeModel
 from srde_fusion.srde.refine.layout import I_FORE, I_SPEC, I_TAIL, N_PLANE
 from srde_fusion.srde.refine.model import DEFAULT_F0, LobeModel
+from srde_fusion.srde.refine.plane import compare_planes
 from srde_fusion.srde.refine.samples import sample_windows
 from srde_fusion.synthetic import random_scene, render
 
@@ -242,6 +243,17 @@ def test_a_far_light_gets_no_intensity_and_changes_nothing(rough_ggx):
                       "ggx", DEFAULT_F0, None)
     np.testing.assert_allclose(joint.evaluate(theta)[0], alone.evaluate(theta[:-1])[0],
                                atol=1e-12)
+
+
+def test_compare_planes_ranks_the_true_plane_first(rough_ggx):
+    case = rough_ggx
+    truth = case["truth"]
+    off = Plane(truth.normal, truth.offset_m - 0.004)  # 4 mm nearer
+    costs = compare_planes(case["views"], case["rig"], case["light"], case["mask"],
+                           [truth, off, case["plane"]], case["centers"])
+    assert np.all(np.isfinite(costs))
+    # The rough lobe's centroid bias leaves the geometric plane off the truth too.
+    assert costs[1] > 2.0 * costs[0] and costs[2] > costs[0]
 
 
 # ------------------------------------------------------------------ keeping the initial plane

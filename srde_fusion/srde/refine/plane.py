@@ -310,6 +310,36 @@ def refine_plane(
                            time_s=time.perf_counter() - start, **common)
 
 
+def compare_planes(views: Sequence[np.ndarray], rig: CameraRig, light_m, mask: np.ndarray,
+                   planes: Sequence[Plane], centers_uv, *, lobe: str = DEFAULT_LOBE,
+                   f0: float = DEFAULT_F0, other_lights_m=None, modelled_lights_m=None,
+                   max_iterations: int = 20) -> np.ndarray:
+    """Best photometric cost of each plane on one set of samples, ``(len(planes),)``.
+
+    The samples are placed for ``planes[0]`` around ``centers_uv`` (as
+    :func:`refine_plane` would); each plane then gets its best lobe start and its
+    photometric parameters fitted with the plane held. Costs of fits on different
+    samples do not compare; these do. ``inf`` for a plane that cannot be evaluated there.
+    Inputs are those of :func:`refine_plane`, assumed checked.
+    """
+    centers = np.asarray(centers_uv, dtype=np.float64)
+    setup = _Setup(list(views), rig, mask, mask_bbox(mask), np.asarray(light_m, np.float64),
+                   planes[0], centers, lobe, f0, "exact", None, max_iterations,
+                   _check_lights(other_lights_m, "other_lights_m"),
+                   _check_lights(modelled_lights_m, "modelled_lights_m"))
+    samples = sample_windows(setup.views, rig, mask, planes[0], centers, box=setup.box,
+                              other_lights_m=setup.other_lights)
+    costs = np.full(len(planes), math.inf)
+    if isinstance(samples, str):
+        return costs
+    for i, plane in enumerate(planes):
+        model = setup.model(samples, plane)
+        start = model.initial_guess() if model.valid else None
+        if start is not None:
+            _, costs[i] = _profile_at_start(model, start, max_iterations)
+    return costs
+
+
 @dataclass(frozen=True)
 class _Setup:
     """The validated arguments of one :func:`refine_plane` call."""
