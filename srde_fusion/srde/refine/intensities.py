@@ -14,10 +14,30 @@ from .reflection import ShadingGeometry
 from .samples import HighlightSamples
 from .solver import solve_normal
 
-__all__ = ["IntensitySolver"]
+__all__ = ["IntensitySolver", "with_saturated"]
 
 # Passes of the active-set solve for the intensities (saturated samples in or out).
 _ACTIVE_SET_PASSES = 4
+
+
+def with_saturated(coef: np.ndarray, normal0: np.ndarray, rhs0: np.ndarray,
+                   clipped: np.ndarray, clipped_y: np.ndarray, solve) -> np.ndarray:
+    """Re-solve linear intensities with the saturated samples the model falls below.
+
+    ``coef`` ``(B,)`` solves the normal equations ``normal0``, ``rhs0`` of the unsaturated
+    samples; ``clipped`` ``(B, S)`` is the basis at the saturated samples ``clipped_y``
+    ``(S,)``. Which of them count depends on the solution: a few active-set passes settle
+    it. ``solve(normal, rhs)`` solves the normal equations.
+    """
+    active = np.zeros(len(clipped_y), dtype=bool)
+    for _ in range(_ACTIVE_SET_PASSES - 1):
+        now_active = coef @ clipped < clipped_y
+        if not np.any(now_active ^ active):
+            break
+        active = now_active
+        cols = clipped[:, active]
+        coef = solve(normal0 + cols @ cols.T, rhs0 + cols @ clipped_y[active])
+    return coef
 
 
 class IntensitySolver:
@@ -87,15 +107,7 @@ class IntensitySolver:
         coef = solve_normal(normal0, rhs0)
         if k < len(lobe):
             clipped = np.stack([lobe[k:], g.diffuse[k:], self._ones[k:]])  # (3, P - k)
-            clipped_y = self.y[k:]
-            active = np.zeros(len(clipped_y), dtype=bool)
-            for _ in range(_ACTIVE_SET_PASSES - 1):
-                now_active = coef @ clipped < clipped_y
-                if not np.any(now_active ^ active):
-                    break
-                active = now_active
-                cols = clipped[:, active]
-                coef = solve_normal(normal0 + cols @ cols.T, rhs0 + cols @ clipped_y[active])
+            coef = with_saturated(coef, normal0, rhs0, clipped, self.y[k:], solve_normal)
         model = lobe * coef[0]
         model += coef[1] * g.diffuse
         model += coef[2]

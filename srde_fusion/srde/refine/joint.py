@@ -23,14 +23,11 @@ import math
 
 import numpy as np
 
+from .intensities import with_saturated
 from .layout import I_DIFF, I_LEVEL, I_SPEC, I_TAIL, I_WIDTH, N_PARAMS
 from .model import WIDTH_GRID, LobeFit, LobeModel
 
 __all__ = ["JointLobeModel"]
-
-# Passes of the active-set solve for the intensities (saturated samples in or out).
-_ACTIVE_SET_PASSES = 4
-
 
 # A further light whose lobe is this small (its squared norm over the samples, relative
 # to the first light's) is not in the windows: its intensity is not fitted (held at 0).
@@ -122,15 +119,8 @@ class JointLobeModel:
         rhs0 = head @ y[:k]
         coef_used = _solve_scaled(normal0, rhs0)
         if k < len(y):
-            clipped, clipped_y = sub[:, k:], y[k:]
-            active = np.zeros(len(clipped_y), dtype=bool)
-            for _ in range(_ACTIVE_SET_PASSES - 1):
-                now_active = coef_used @ clipped < clipped_y
-                if not np.any(now_active ^ active):
-                    break
-                active = now_active
-                cols = clipped[:, active]
-                coef_used = _solve_scaled(normal0 + cols @ cols.T, rhs0 + cols @ clipped_y[active])
+            coef_used = with_saturated(coef_used, normal0, rhs0, sub[:, k:], y[k:],
+                                       _solve_scaled)
         coef = np.zeros(len(basis))
         coef[used] = coef_used
         return coef, coef @ basis, basis
