@@ -79,6 +79,10 @@ _BAD_THRESHOLD_PX = 2.0
 # IGEV's loss: smooth-L1 on the initial estimate, gamma-weighted L1 on the iterates.
 _INITIAL_LOSS_WEIGHT = 1.0
 _ITERATION_GAMMA = 0.9
+#: How the adapters run a trained stand-in (StereoSpec fields, written to its record):
+#: a left-right check whose failures take the row's background, chosen on held-out
+#: rendered and procedural pairs (see the module text).
+INFERENCE = {"left_right_check": True, "left_right_max_diff_px": 1.0}
 
 
 @dataclass(frozen=True)
@@ -392,6 +396,7 @@ def train_standin(out: str | os.PathLike, config: TrainingConfig | None = None, 
         "format": "srde-standin/1",
         "model": out.name,
         "preset": "igev",
+        "inference": dict(INFERENCE),
         "architecture": asdict(arch),
         "training": {**asdict(config), "crop_hw": list(config.crop_hw),
                      "size": config.size if isinstance(config.size, str) else "custom",
