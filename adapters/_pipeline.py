@@ -351,9 +351,10 @@ class StereoAdapter:
         -------
         numpy.ndarray, (H, W), float32, pixels
             Disparity of the left image, positive, at input resolution. With
-            ``spec.left_right_check`` the model also runs on the mirrored pair, and the
-            pixels the right view contradicts hold the background fill
-            (:func:`~.consistency.fill_left_right`); ``last_filled_fraction`` says how many.
+            ``spec.left_right_check`` the model also runs on the mirrored pair; the pixels
+            the right view contradicts hold the background fill, the others the mean of
+            both views (:func:`~.consistency.fill_left_right`); ``last_filled_fraction``
+            says how many were filled.
 
         Raises
         ------
@@ -414,7 +415,8 @@ class StereoAdapter:
         spec = self.spec
         check = (f"  left-right check: on (the mirrored pair too, so two runs per pair; pixels "
                  f"off by more than {spec.left_right_max_diff_px:g} px or matched outside "
-                 f"the right image take the row's background)" if spec.left_right_check
+                 f"the right image take the row's background, the others the mean of both "
+                 f"views)" if spec.left_right_check
                  else "  left-right check: off")
         return [*self._large_image_lines(), check]
 

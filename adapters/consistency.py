@@ -6,10 +6,17 @@ the foreground, "fattening"), and the left band whose matches fall outside the r
 image. Matching the mirrored pair gives the right view's disparity; a left disparity
 ``d`` at ``(y, x)`` is trusted when the right pixel ``x - d`` lies in the image and its own
 disparity agrees with ``d`` (Hirschmueller's left-right check, as in OpenCV's
-``disp12MaxDiff``). Every other pixel takes, along its row, the smaller of the nearest
-trusted disparities left and right of it -- the background, which is what an occlusion
-beside a foreground edge shows (the KITTI devkit's background interpolation) -- so the
-result stays dense.
+``disp12MaxDiff``); it then holds the mean of the two views' estimates of the same
+point, which evens out some of their independent sub-pixel error. Every other pixel
+takes, along its row, the smaller of the nearest trusted disparities left and right of
+it -- the background, which is what an occlusion beside a foreground edge shows (the
+KITTI devkit's background interpolation) -- so the result stays dense.
+
+These rules were chosen on held-out rendered and procedural pairs against a 1 px and a
+2 px tolerance and against fills from eight directions (the median, or Hirschmueller's
+second-lowest value for occlusions): none of those was better than the row's background
+with 1 px on all three sets of pairs, and averaging the trusted pixels was better on all
+three.
 """
 
 from __future__ import annotations
@@ -51,8 +58,8 @@ class LeftRightFill:
     Attributes
     ----------
     disparity_px : numpy.ndarray, (H, W), float32, pixels
-        The checked map, dense wherever the input was: trusted pixels keep their value,
-        the others hold the fill.
+        The checked map, dense wherever the input was: trusted pixels hold the mean of
+        the two views' disparities, the others the fill.
     filled : numpy.ndarray, (H, W), bool
         The pixels that were replaced.
     """
@@ -103,7 +110,9 @@ def fill_left_right(left_px: np.ndarray, right_px: np.ndarray, *,
     -------
     LeftRightFill
         A left pixel is trusted when its right pixel ``round(x - d)`` lies inside the
-        image and holds a disparity within ``max_diff_px`` of ``d``. Untrusted pixels
+        image and holds a disparity within ``max_diff_px`` of ``d``; it takes the mean of
+        ``d`` and the right view's disparity interpolated at ``x - d`` (where that is
+        also within ``max_diff_px`` of ``d``; else it keeps ``d``). Untrusted pixels
         (contradicted, or matched outside the right image) take the smaller of the nearest
         trusted disparities along their row (one side at a row's end); in rows with no
         trusted pixel, and where ``left_px`` is NaN, the input stays.
@@ -131,10 +140,19 @@ def fill_left_right(left_px: np.ndarray, right_px: np.ndarray, *,
         columns = np.where(inside, x_right, 0).astype(np.intp)
         seen = right_px[np.arange(height)[:, None], columns]
         trusted = inside & (np.abs(seen - left_px) <= max_diff_px)
+        # the right view's estimate of the same point, linear along the row at x - d
+        x_at = np.clip(np.where(inside, xs - left_px, 0), 0, width - 1)
+        below = np.floor(x_at).astype(np.intp)
+        frac = x_at - below
+        rows = np.arange(height)[:, None]
+        right_at = ((1 - frac) * right_px[rows, below]
+                    + frac * right_px[rows, np.minimum(below + 1, width - 1)])
+        agrees = trusted & (np.abs(right_at - left_px) <= max_diff_px)
     row_has_trusted = trusted.any(axis=1, keepdims=True)
     filled = ~trusted & np.isfinite(left_px) & row_has_trusted
     # a pixel without a disparity is neither trusted nor given one
     disparity_px = np.where(np.isfinite(left_px), _background_fill(left_px, trusted), left_px)
+    disparity_px = np.where(agrees, 0.5 * (left_px + right_at), disparity_px)
     result = LeftRightFill(disparity_px.astype(np.float32), filled)
     logger.debug("left-right check: %.1f %% of the pixels filled", 100 * result.filled_fraction)
     return result

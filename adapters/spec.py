@@ -160,11 +160,11 @@ class StereoSpec:
         Peak memory of one run per input pixel, if measured (the bundled stand-in: about
         680 B/px on CPU). Sets the adapters' default ``max_pixels``; ``None``: unknown.
     left_right_check : bool
-        Also run the mirrored pair to get the right view's disparity, and replace every
-        left disparity that it contradicts (by more than ``left_right_max_diff_px``) or
-        that points outside the right image by the background fill of
-        :func:`~srde_fusion.adapters.consistency.fill_left_right`: the output stays
-        dense. Runs the model twice. On for the bundled stand-in.
+        Also run the mirrored pair to get the right view's disparity; average the left
+        disparities it confirms (within ``left_right_max_diff_px``) with it, and replace
+        those it contradicts or that point outside the right image by the row's
+        background (:func:`~srde_fusion.adapters.consistency.fill_left_right`): the output
+        stays dense. Runs the model twice. On for the bundled stand-in.
     left_right_max_diff_px : float
         Tolerance of ``left_right_check``, px.
 

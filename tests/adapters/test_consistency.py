@@ -51,7 +51,25 @@ def test_fill_is_the_scoring_background_fill_of_the_replaced_pixels():
     checked = fill_left_right(left, right)
     assert 0.1 < checked.filled_fraction < 0.9
     holes = np.where(checked.filled, np.nan, left)
-    np.testing.assert_array_equal(checked.disparity_px, fill_holes_background(holes))
+    expected = fill_holes_background(holes)
+    np.testing.assert_array_equal(checked.disparity_px[checked.filled],
+                                  expected[checked.filled])
+
+
+def test_trusted_pixels_hold_the_mean_of_both_views():
+    # a plane at 3.4 px seen as 3.0 from the left and 3.6 from the right
+    left = np.full((2, 20), 3.0, np.float32)
+    right = np.full((2, 20), 3.6, np.float32)
+    checked = fill_left_right(left, right)
+    np.testing.assert_allclose(checked.disparity_px[:, 3:], 3.3, atol=1e-6)
+    # where the right view's interpolated value is off by more than the tolerance, the
+    # left value stays (here the right pixel's neighbour belongs to another surface)
+    right[:, 5] = 9.0
+    left[:, 8] = 3.6  # x - d = 4.4: rounded, right_px[4] agrees; interpolated, 5.76
+    checked = fill_left_right(left, right)
+    assert not checked.filled[0, 8]
+    assert checked.disparity_px[0, 8] == pytest.approx(3.6)
+    assert checked.disparity_px[0, 7] == pytest.approx(3.3)  # x - d = 4: right_px[4]
 
 
 def test_pixels_without_disparity_stay_empty_and_rows_without_trust_stay():
