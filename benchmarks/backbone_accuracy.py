@@ -206,7 +206,8 @@ def main() -> None:
     info = default_model_info() if args.model == "default" else {}
     name = "bundled stand-in" if args.model == "default" else f"`{Path(args.model).name}`"
     training = info.get("training", {})
-    stages = [training.get("first_stage", {}).get("steps"), training.get("steps")]
+    stages = [training.get("first_stage", {}).get("steps"),
+              training.get("second_stage", {}).get("steps"), training.get("steps")]
     steps = " + ".join(str(n) for n in stages if n is not None) or "?"
     text = (
         "# Stand-in backbone accuracy\n\n"
