@@ -17,6 +17,7 @@ import numpy as np
 from srde_fusion._checks import check_disparity_sign, check_image
 from srde_fusion.errors import BackboneError, ImageError
 
+from .consistency import fill_left_right, mirrored_pair
 from .large_images import (
     MEMORY_FRACTION,
     LargeImagePlan,
@@ -317,6 +318,8 @@ class StereoAdapter:
     large_images: str = "tile"
     #: How the last call was run (whole, in strips, or downscaled), and why.
     last_plan: LargeImagePlan | None = None
+    #: Share of the pixels the left-right check replaced in the last call (None: no check).
+    last_filled_fraction: float | None = None
 
     def _init_large_images(self, max_pixels: Any, large_images: Any,
                            memory_bytes: int | None = None) -> None:
@@ -347,7 +350,11 @@ class StereoAdapter:
         Returns
         -------
         numpy.ndarray, (H, W), float32, pixels
-            Disparity of the left image, positive, at input resolution.
+            Disparity of the left image, positive, at input resolution. With
+            ``spec.left_right_check`` the model also runs on the mirrored pair; the pixels
+            the right view contradicts hold the background fill, the others the mean of
+            both views (:func:`~.consistency.fill_left_right`); ``last_filled_fraction``
+            says how many were filled.
 
         Raises
         ------
@@ -357,6 +364,17 @@ class StereoAdapter:
             The model's output does not fit the spec, or the model fails.
         """
         left01, right01 = check_pair(left, right)
+        disparity_px = self._planned(left01, right01)
+        if not self.spec.left_right_check:
+            return disparity_px
+        right_px = self._planned(*mirrored_pair(left01, right01))[:, ::-1]
+        checked = fill_left_right(disparity_px, right_px,
+                                  max_diff_px=self.spec.left_right_max_diff_px)
+        self.last_filled_fraction = checked.filled_fraction
+        return checked.disparity_px
+
+    def _planned(self, left01: np.ndarray, right01: np.ndarray) -> np.ndarray:
+        """Run the model on one checked pair: whole, in strips or downscaled."""
         max_pixels = self.max_pixels
         failure: ModelOutOfMemory | None = None
         for _ in range(_OUT_OF_MEMORY_RETRIES + 1):
@@ -391,6 +409,16 @@ class StereoAdapter:
                                 coarse_size=self.coarse_size)
         raw = self._run(inputs)
         return finish_disparity(raw, self.spec, inputs.geometry)
+
+    def _runtime_lines(self) -> list[str]:
+        """List the runtime settings for ``describe()``: large images, left-right check."""
+        spec = self.spec
+        check = (f"  left-right check: on (the mirrored pair too, so two runs per pair; pixels "
+                 f"off by more than {spec.left_right_max_diff_px:g} px or matched outside "
+                 f"the right image take the row's background, the others the mean of both "
+                 f"views)" if spec.left_right_check
+                 else "  left-right check: off")
+        return [*self._large_image_lines(), check]
 
     def _large_image_lines(self) -> list[str]:
         if self.model_size is not None:

@@ -29,6 +29,8 @@ _DEFAULT_PRESET = "igev"
 #: more at 1280x960 than at 640x480 (0.92 MP more), about 0.68 GB per megapixel (most of
 #: it the full-resolution census step).
 STANDIN_BYTES_PER_PX = 680.0
+# load_backbone options that are StereoSpec fields rather than adapter options
+_SPEC_OPTIONS = ("left_right_check", "left_right_max_diff_px")
 
 
 def default_weights_path() -> Path:
@@ -73,8 +75,12 @@ def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
         Passed on to :class:`OnnxStereo` (``providers``, ``session_options``) or
         :class:`TorchStereo` (``device``), and to both ``max_pixels`` and
         ``large_images`` (the bundled stand-in's default budget comes from its measured
-        memory per pixel, :data:`STANDIN_BYTES_PER_PX`); for ``"sgbm"``, fields of
-        :class:`SGBMSpec` (``block_size=7``, ``left_right_check=True``, ...).
+        memory per pixel, :data:`STANDIN_BYTES_PER_PX`); ``left_right_check`` and
+        ``left_right_max_diff_px`` set those fields of the spec (the bundled stand-in
+        has the check on, as its record's ``inference`` says:
+        ``load_backbone("default", left_right_check=False)`` turns it off); for
+        ``"sgbm"``, fields of :class:`SGBMSpec` (``block_size=7``,
+        ``left_right_check=True``, ...).
 
     Returns
     -------
@@ -108,12 +114,16 @@ def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
             f"spec: expected a StereoSpec or a preset name for source {source!r}, got an "
             f"SGBMSpec (it goes with source 'sgbm')"
         )
+    spec_changes = {name: options.pop(name) for name in _SPEC_OPTIONS if name in options}
     if isinstance(source, str) and source == "default":
         info = default_model_info()
-        spec = preset(spec or info.get("preset", _DEFAULT_PRESET))
+        if not isinstance(spec, StereoSpec):
+            # a preset name (or none): the stand-in's own inference settings apply
+            spec = preset(spec or info.get("preset", _DEFAULT_PRESET)).replace(
+                **{k: v for k, v in info.get("inference", {}).items() if k in _SPEC_OPTIONS})
         if spec.bytes_per_px is None:
             spec = spec.replace(bytes_per_px=STANDIN_BYTES_PER_PX)
-        return OnnxStereo(default_weights_path(), spec, **options)
+        return OnnxStereo(default_weights_path(), spec.replace(**spec_changes), **options)
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         if path.suffix.lower() != ".onnx":
@@ -121,13 +131,15 @@ def load_backbone(source: Any, spec: StereoSpec | SGBMSpec | str | None = None,
                 f"source: expected 'default', 'sgbm', a .onnx file or a torch.nn.Module, "
                 f"got {str(source)!r}"
             )
-        backbone = OnnxStereo(path, preset(spec or "generic"), **options)
+        backbone = OnnxStereo(path, preset(spec or "generic").replace(**spec_changes),
+                              **options)
         if spec is None:
             _warn_generic_assumed(path.name)
         return backbone
     torch = sys.modules.get("torch")  # a torch module can only exist if torch is imported
     if torch is not None and isinstance(source, torch.nn.Module):
-        backbone = TorchStereo(source, preset(spec or "generic"), **options)
+        backbone = TorchStereo(source, preset(spec or "generic").replace(**spec_changes),
+                               **options)
         if spec is None:
             _warn_generic_assumed(type(source).__name__)
         return backbone

@@ -449,7 +449,7 @@ class OnnxStereo(StereoAdapter):
         lines.append("not inferable from the model:")
         lines += [f"  {item}" for item in self._unknown]
         lines.append("runtime:")
-        lines += self._large_image_lines()
+        lines += self._runtime_lines()
         return "\n".join(lines)
 
     def __repr__(self) -> str:

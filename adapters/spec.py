@@ -159,6 +159,14 @@ class StereoSpec:
     bytes_per_px : float, optional
         Peak memory of one run per input pixel, if measured (the bundled stand-in: about
         680 B/px on CPU). Sets the adapters' default ``max_pixels``; ``None``: unknown.
+    left_right_check : bool
+        Also run the mirrored pair to get the right view's disparity; average the left
+        disparities it confirms (within ``left_right_max_diff_px``) with it, and replace
+        those it contradicts or that point outside the right image by the row's
+        background (:func:`~srde_fusion.adapters.consistency.fill_left_right`): the output
+        stays dense. Runs the model twice. On for the bundled stand-in.
+    left_right_max_diff_px : float
+        Tolerance of ``left_right_check``, px.
 
     Examples
     --------
@@ -194,6 +202,8 @@ class StereoSpec:
     coarse_input_names: tuple[str, str] | None = None
     flow_init: str | None = None
     bytes_per_px: float | None = None
+    left_right_check: bool = False
+    left_right_max_diff_px: float = 1.0
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__  # frozen: normalise fields once, here
@@ -317,6 +327,15 @@ class StereoSpec:
         ):
             raise BackboneError(
                 f"bytes_per_px: expected None or a positive number, got {self.bytes_per_px!r}"
+            )
+        if not isinstance(self.left_right_check, bool):
+            raise BackboneError(
+                f"left_right_check: expected True or False, got {self.left_right_check!r}"
+            )
+        diff = self.left_right_max_diff_px
+        if not (isinstance(diff, (int, float)) and not isinstance(diff, bool) and diff >= 0):
+            raise BackboneError(
+                f"left_right_max_diff_px: expected a number >= 0 (px), got {diff!r}"
             )
 
     @property

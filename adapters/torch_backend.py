@@ -249,7 +249,7 @@ class TorchStereo(StereoAdapter):
             "not inferable from a torch module (checked on each call): input names, "
             "fixed or dynamic size, output structure, rank, channels and resolution",
             "runtime:",
-            *self._large_image_lines(),
+            *self._runtime_lines(),
         ]
         return "\n".join(lines)
 

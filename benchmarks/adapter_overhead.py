@@ -5,7 +5,9 @@ The bundled stand-in at 640 x 480 (a multiple of 32: no padding) and at 620 x 47
 tensors of the padded size to the same session; the adapter call starts from uint8
 RGB images and returns the cropped float32 disparity, so the difference is the whole
 pre/post-processing (checks, conversion, padding, layout, output selection, crop).
-Calls alternate between the two so that load from other processes hits both alike.
+Calls alternate between the two so that load from other processes hits both alike. The
+stand-in runs without its left-right check here (that check runs the model a second
+time, on the mirrored pair; see ``backbone_accuracy.py`` for its cost).
 
     python benchmarks/adapter_overhead.py [--repeats 10]
 """
@@ -31,7 +33,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=10)
     args = parser.parse_args()
-    backbone = load_backbone("default")
+    # one model run per call: the left-right check's second run is the model's time, not
+    # the adapter's
+    backbone = load_backbone("default", left_right_check=False)
     session, names = backbone.session, backbone.input_names
     rng = np.random.default_rng(0)
     rows = []

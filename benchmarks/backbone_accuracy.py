@@ -15,7 +15,14 @@ Two data sets:
 SGBM is the library's backbone with its documented defaults (``SGBMSpec()``: block 5,
 colour, width / 8 disparities rounded up to 16, P1/P2 = 8/32 * 3 * 25, 3-way). It leaves
 pixels empty (failed uniqueness or left-right checks); the stand-in fills every pixel.
-Both methods are counted the same way, over the pixels with finite ground truth:
+The stand-in runs as ``load_backbone`` gives it, with its left-right check on (the
+mirrored pair too; pixels the right view contradicts, or that match outside the right
+image, take the row's background, the others the mean of both views), and once more with
+the check off
+(``stand-in, no LR``) to show what the check changes; the share of pixels it filled is
+reported. ``EPE both`` is taken over the pixels where the stand-in and SGBM both gave a
+value (the same pixels for both stand-in rows).
+All methods are counted the same way, over the pixels with finite ground truth:
 
 * ``EPE filled``: every pixel, each method's holes first filled by the KITTI devkit's
   background interpolation (``fill_holes_background``: a hole takes the smaller of its
@@ -55,7 +62,7 @@ from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 KEYS = ("epe_filled", "epe_both", "bad1", "bad2", "d1", "invalid")
-METHODS = ("stand-in", "SGBM")
+METHODS = ("stand-in", "stand-in, no LR", "SGBM")
 SGBM = SGBMSpec()
 TIMING_RUNS = 3
 TARGET_SECONDS_640X480 = 1.0
@@ -110,13 +117,14 @@ def table(rows: list[tuple[str, str, dict]], first: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict, dict]:
+def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list]:
     rig = default_rig()
     pair_rig = rig.subset(list(rig.stereo_pair))
     per = {(region, method): [] for region in ("all", "textured", "glossy")
            for method in METHODS}
     seconds = {method: [] for method in METHODS}
     seconds_640 = {}  # median of TIMING_RUNS on the first scene
+    filled = []  # share of pixels the stand-in's left-right check filled, per scene
     for seed in range(n_scenes):
         scene = random_scene(seed, rig, background="textured")
         rendering = render(scene, pair_rig)
@@ -125,23 +133,25 @@ def rendered_scenes(backbone, sgbm, n_scenes: int) -> tuple[list, dict, dict]:
         regions = {"all": None, "textured": rendering.instance_mask == 0,
                    "glossy": rendering.instance_mask > 0}
         preds = {}
-        for method, run in zip(METHODS, (backbone, sgbm), strict=True):
+        for method, run in runs.items():
             t0 = time.perf_counter()
             preds[method] = run(left, right)
             seconds[method].append(time.perf_counter() - t0)
+            if method == METHODS[0]:
+                filled.append(run.last_filled_fraction)
             if seed == 0:
                 _, seconds_640[method] = timed(run, left, right)
         for region, mask in regions.items():
             for method, values in score(preds, gt, mask).items():
                 per[(region, method)].append(values)
     rows = [(region, method, summarize(values)) for (region, method), values in per.items()]
-    return rows, {m: float(np.mean(s)) for m, s in seconds.items()}, seconds_640
+    return rows, {m: float(np.mean(s)) for m, s in seconds.items()}, seconds_640, filled
 
 
-def motorcycle(backbone, sgbm) -> tuple[list, dict]:
+def motorcycle(runs: dict) -> tuple[list, dict, dict]:
     left, right, gt = skdata.stereo_motorcycle()
     gt = gt.astype(np.float32)
-    rows, seconds = [], {}
+    rows, seconds, filled = [], {}, {}
     for label, factor in (("741x500 (full)", 1), ("370x250 (1/2)", 2)):
         if factor == 1:
             l_img, r_img, g = left, right, gt
@@ -152,10 +162,11 @@ def motorcycle(backbone, sgbm) -> tuple[list, dict]:
             # nearest keeps inf (unknown) pixels unknown; disparity scales with width
             g = cv2.resize(gt, size, interpolation=cv2.INTER_NEAREST) / factor
         preds = {}
-        for method, run in zip(METHODS, (backbone, sgbm), strict=True):
+        for method, run in runs.items():
             preds[method], seconds[f"{method} {label}"] = timed(run, l_img, r_img)
+        filled[label] = runs[METHODS[0]].last_filled_fraction
         rows += [(label, method, values) for method, values in score(preds, g).items()]
-    return rows, seconds
+    return rows, seconds, filled
 
 
 def main() -> None:
@@ -164,10 +175,12 @@ def main() -> None:
     parser.add_argument("--model", default="default",
                         help="'default' or a stand-in .onnx file (igev preset)")
     args = parser.parse_args()
-    backbone = load_backbone(args.model, "igev")
-    sgbm = load_backbone("sgbm", SGBM)
-    scene_rows, scene_seconds, seconds_640 = rendered_scenes(backbone, sgbm, args.scenes)
-    moto_rows, moto_seconds = motorcycle(backbone, sgbm)
+    runs = dict(zip(METHODS, (
+        load_backbone(args.model, "igev", left_right_check=True),
+        load_backbone(args.model, "igev", left_right_check=False),
+        load_backbone("sgbm", SGBM)), strict=True))
+    scene_rows, scene_seconds, seconds_640, scene_filled = rendered_scenes(runs, args.scenes)
+    moto_rows, moto_seconds, moto_filled = motorcycle(runs)
     full = "741x500 (full)"
     ratio = moto_seconds[f"stand-in {full}"] / moto_seconds[f"SGBM {full}"]
     ratio_640 = seconds_640["stand-in"] / seconds_640["SGBM"]
@@ -193,7 +206,8 @@ def main() -> None:
     info = default_model_info() if args.model == "default" else {}
     name = "bundled stand-in" if args.model == "default" else f"`{Path(args.model).name}`"
     training = info.get("training", {})
-    stages = [training.get("first_stage", {}).get("steps"), training.get("steps")]
+    stages = [training.get("first_stage", {}).get("steps"),
+              training.get("second_stage", {}).get("steps"), training.get("steps")]
     steps = " + ".join(str(n) for n in stages if n is not None) or "?"
     text = (
         "# Stand-in backbone accuracy\n\n"
@@ -202,10 +216,17 @@ def main() -> None:
         f"OpenCV StereoSGBM as `load_backbone(\"sgbm\")` (block {SGBM.block_size}, "
         f"{'colour' if SGBM.colour else 'luminance'}, width / 8 disparities rounded up to 16, "
         f"{SGBM.mode}). "
-        "Both methods are counted the same way over the pixels with ground truth: "
+        "The stand-in runs with its left-right check on, as `load_backbone` gives it (the "
+        "mirrored pair too; pixels the right view contradicts by more than 1 px, or that "
+        "match outside the right image, take the smaller of their row's nearest confirmed "
+        "disparities: the output stays dense; the others the mean of both views' "
+        "disparities), and once more with the check off "
+        "(`stand-in, no LR`). "
+        "All methods are counted the same way over the pixels with ground truth: "
         "`EPE filled` over every pixel after filling each method's holes with the KITTI "
         "devkit's background interpolation (a hole takes the smaller of its row's nearest "
-        "valid disparities), `EPE both` over the pixels where both methods gave a value; "
+        "valid disparities), `EPE both` over the pixels where every method gave a value "
+        "(where SGBM did); "
         "bad-1, bad-2 and D1 over every pixel of the raw maps, a hole counted as wrong. "
         "SGBM leaves holes (`invalid`); the stand-in fills every pixel.\n\n"
         f"## Rendered scenes ({args.scenes} scenes, 640x480, textured background, one glossy "
@@ -213,11 +234,14 @@ def main() -> None:
         + table(scene_rows, "region")
         + "\nMean time per pair: "
         + ", ".join(f"{m} {s:.2f} s" for m, s in scene_seconds.items())
+        + f". Pixels filled by the left-right check: {100 * np.mean(scene_filled):.1f} % "
+        f"(per scene {', '.join(f'{100 * f:.1f}' for f in scene_filled)} %)."
         + "\n\n## Middlebury 2014 Motorcycle (scikit-image copy)\n\n"
         + table(moto_rows, "size")
         + "\nTime per pair (median of 3 after a warm-up): "
         + ", ".join(f"{m} {s:.3f} s" for m, s in moto_seconds.items())
-        + f"; stand-in / SGBM at full size: {ratio:.1f}x\n"
+        + f"; stand-in / SGBM at full size: {ratio:.1f}x. Pixels filled by the left-right "
+        "check: " + ", ".join(f"{s} {100 * f:.1f} %" for s, f in moto_filled.items()) + "\n"
         + "\n## Targets\n\n"
         + "\n".join(target_lines)
         + f"\n\nTime per 640x480 pair (first rendered scene, median of {TIMING_RUNS} after a "
@@ -234,6 +258,7 @@ def main() -> None:
         "seconds": {**scene_seconds, **moto_seconds},
         "standin_over_sgbm_time_full": ratio,
         "seconds_640x480": seconds_640,
+        "left_right_filled": {"scenes": scene_filled, "motorcycle": moto_filled},
         "standin_over_sgbm_time_640x480": ratio_640,
         "onnx_mb": onnx_mb,
         "targets": [{"check": n, "standin": a, "sgbm": b, "met": bool(m)}

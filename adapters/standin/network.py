@@ -26,7 +26,7 @@ upsampling), all at 1/4 resolution:
 The bundled weights (``weights/standin.onnx``, described by ``weights/standin.json``)
 are this architecture trained with the recipe in
 :mod:`srde_fusion.adapters.standin.training` (3000 steps, seed 0, then 700 steps on
-larger crops, seed 1).
+larger crops, seed 1, then 1300 steps on 256x512 crops, seed 2).
 
 It follows IGEV's interface: ``(B, 3, H, W)`` float RGB in 0..255, normalised inside,
 ``H`` and ``W`` multiples of 32 (the ``"igev"`` preset pads to that), output
