@@ -478,6 +478,11 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         return _no_plane("no_highlight", "reference view: no highlight candidate on the "
                          "object", cands)
     scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
+    if not scores and blob_boxes is not None:
+        # No depth that two views agree on: merged or cut blobs, whose centres wander.
+        # Planes from single pairings may still explain them as merged blobs.
+        scores = [s for s in (context.score(p) for p in context.proposals(loose=True))
+                  if s is not None]
     if not scores:
         return _no_plane("too_few_views", "no reference candidate has a partner on its "
                          "baseline line in another view at a plausible depth for any light "
@@ -510,6 +515,7 @@ class _Context:
         self.lit = lit
         self.boxes = boxes
         self.blend_px = BLEND_RADII * float(blob_radius_px)
+        self.blob_radius_px = float(blob_radius_px)
         side = 2 * int(math.ceil(blob_radius_px)) + 1
         self.inner = cv2.erode(np.ascontiguousarray(mask).view(np.uint8),
                                np.ones((side, side), np.uint8)).view(bool)
@@ -530,7 +536,7 @@ class _Context:
                                 dtype=np.float64)
 
     # -------------------------------------------------------------- proposals
-    def proposals(self):
+    def proposals(self, *, loose: bool = False):
         """Candidate planes: a reference candidate, a depth its partners agree on, a light.
 
         Partners of a reference candidate lie on its baseline lines; each gives the
@@ -538,12 +544,17 @@ class _Context:
         ``w`` (within the tolerance) are one virtual light seen several times: only depths
         that two views agree on are proposed when three or more views have candidates,
         which keeps the proposals from growing with every pairing of unrelated blobs.
+
+        ``loose``: every partner within a blob radius of the baseline line proposes its
+        own depth (the centres of merged or outline-cut blobs wander off the line and
+        disagree on the depth; such planes are only starts for the joint lobe fit).
         """
         rig, ref = self.rig, self.rig.reference
+        line_px = max(self.tolerance_px, self.blob_radius_px) if loose else self.tolerance_px
         span = float(np.max(np.hypot(self.steps[:, 0], self.steps[:, 1])))
         others = [j for j in range(rig.n_cameras) if j != ref and len(self.cands[j])
                   and float(self.steps[j] @ self.steps[j]) > 0.0]
-        need = 2 if len(others) >= 2 else 1
+        need = 2 if len(others) >= 2 and not loose else 1
         for c_ref in self.cands[ref]:
             ray = rig.rays(c_ref)
             depths, views = [], []
@@ -553,7 +564,7 @@ class _Context:
                 d = self.cands[j] - c_ref
                 w = d @ step / norm2  # inverse depth of the virtual light
                 perp = np.abs(d[:, 0] * step[1] - d[:, 1] * step[0]) / math.sqrt(norm2)
-                keep = (perp <= self.tolerance_px) & (w > 0.0)
+                keep = (perp <= line_px) & (w > 0.0)
                 depths += w[keep].tolist()
                 views += [j] * int(keep.sum())
             order = np.argsort(depths)
@@ -903,7 +914,7 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         failed = dataclasses.replace(srde._failed(solution.status, solution.reason),
                                      lights=solution)
         if srde.refine and solution.merged_blobs and solution.plane is not None \
-                and solution.status in ("too_few_views", "ambiguous"):
+                and solution.status in ("too_few_views", "ambiguous", "inconsistent"):
             return _solve_merged(srde, views, mask, solution, failed)
         return failed
     # The light seen in most views (then with the smallest residual) carries the checks
