@@ -33,8 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..._checks import check_mask, check_point3, check_views
-from ...errors import ImageError, SRDEError
+from ...errors import ImageError, LightError, SRDEError
 from ...geometry import CameraRig, Plane, plane_from_lights
+from ...geometry.rig import MAX_LIGHT_RADIUS_M
 from .layout import I_FORE, I_SPEC, N_PLANE
 from .lobes import DEFAULT_LOBE, LOBES
 from .model import (
@@ -156,6 +157,7 @@ def refine_plane(
     fresnel: str = "exact",
     max_iterations: int = 20,
     other_lights_m=None,
+    light_radius_m: float | None = None,
 ) -> PlaneRefinement:
     """Refine a plane so that a specular lobe model explains the highlight in every view.
 
@@ -193,6 +195,11 @@ def refine_plane(
     other_lights_m : array_like, (M, 3), metres, optional
         Further known lights. Their highlights (where each sampled plane puts them) are
         left out of the fitting windows: the lobe model renders one light.
+    light_radius_m : float, optional
+        Radius of the (spherical) light, metres, if known: the lobe model then sees the
+        light's disc (a flat-topped highlight over the light's mirror image, see
+        :mod:`~srde_fusion.srde.refine.disc`) instead of a point, whose extent the lobe's
+        fitted width would otherwise absorb. None or 0: a point light.
 
     Returns
     -------
@@ -257,6 +264,10 @@ def refine_plane(
     if (isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer))
             or max_iterations < 1):
         raise SRDEError(f"max_iterations: expected a positive integer, got {max_iterations!r}")
+    if light_radius_m is not None and not _is_number_in(light_radius_m, 0.0, MAX_LIGHT_RADIUS_M):
+        raise LightError(f"light_radius_m: expected None or a radius in "
+                         f"[0, {MAX_LIGHT_RADIUS_M:g}] m, got {light_radius_m!r}")
+    radius_m = float(light_radius_m) if light_radius_m else None  # 0: a point light
 
     def kept(reason: str, **fields) -> PlaneRefinement:
         values = dict(converged=False, iterations=0, cost_initial=math.nan, cost_final=math.nan,
@@ -277,7 +288,7 @@ def refine_plane(
         if not np.all(np.isfinite(others)):
             raise SRDEError(f"other_lights_m: expected (M, 3) finite metres, got {others!r}")
     setup = _Setup(views, rig, mask, mask_bbox(mask), light, initial_plane, centers, lobe, f0,
-                   fresnel, foreshortening, max_iterations, others)
+                   fresnel, foreshortening, max_iterations, others, radius_m)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
         return kept(attempt)
@@ -323,10 +334,12 @@ class _Setup:
     foreshortening: float | None
     max_iterations: int
     other_lights: np.ndarray | None = None
+    light_radius_m: float | None = None  # None: a point light
 
     def model(self, samples: HighlightSamples, plane: Plane) -> LobeModel:
         return LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
-                          self.foreshortening, fresnel=self.fresnel)
+                          self.foreshortening, fresnel=self.fresnel,
+                          light_radius_m=self.light_radius_m)
 
 
 @dataclass(frozen=True)
