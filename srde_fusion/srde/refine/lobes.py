@@ -70,7 +70,7 @@ def lobe_shape(lobe: str, g: ShadingGeometry, log_width, tail) -> np.ndarray:
 
 
 def _disc_shapes(lobe: str, disc, log_width, tail) -> np.ndarray:
-    """The lobe at every point of the disc, ``(K, P)``; the last one is kept."""
+    """Return the lobe at every point of the disc, ``(K, P)``; the last one is kept."""
     key = (lobe, float(log_width), float(tail))
     if disc.shapes.get("key") != key:
         disc.shapes["values"] = _point_shape(lobe, disc.sin2, _disc_cos(lobe, disc),
