@@ -38,7 +38,7 @@ Wide lights: the scenes above put the light 0.6-1.5 m from the object, where the
 half-vector disc a 15 mm light spans is at most about half the lobe's width (the lobe's
 fitted width absorbs it). A further section renders sharp lobes (roughness 0.004-0.008)
 at 0.35-0.6 m under a 15 mm light, a disc 2-4 lobe widths across, with the light
-integrated over 256 points (the default 64 alias on lobes this sharp), with and without
+integrated over 1024 points (the default 64 alias on lobes this sharp), with and without
 the sensor's noise, and compares the refinement told the radius with the one not told.
 
 Run: ``python benchmarks/mismatched_physics.py [--scenes 3]``; writes
@@ -91,7 +91,7 @@ RADIUS_GIVEN = {"faithful, radius given": "faithful",
 ROWS = (*PHYSICS, *RADIUS_GIVEN)  # table rows, in order
 WIDE = {"roughness": (0.004, 0.008), "light_radius_m": 0.015, "distance_m": (0.35, 0.6),
         "light_offset_m": (0.05, 0.2), "clip_ratio": CLIP_RATIO}
-WIDE_LIGHT_SAMPLES = 256
+WIDE_LIGHT_SAMPLES = 1024
 WIDE_PHYSICS = {"faithful": replace(Physics.faithful(), light_samples=WIDE_LIGHT_SAMPLES),
                 "faithful, noiseless": replace(Physics.faithful(), full_well_e=None,
                                                read_noise_e=0.0,

@@ -107,7 +107,7 @@ def disc_geometry(cos_h: np.ndarray, sin2_h: np.ndarray, r: np.ndarray,
     radius_m : float
         The light's radius, metres, > 0.
     """
-    points, weights = disc_points()
+    points, weights = disc_points(DISC_RINGS)
     xi_x, xi_y = points[:, :1], points[:, 1:]  # (K, 1)
     s = np.maximum(np.sqrt(sin2_h), _MIN_SIN_H)
     ratio = np.minimum(radius_m / r, 1.0)
