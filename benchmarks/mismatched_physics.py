@@ -37,7 +37,7 @@ level, 15 mm light: large saturated blobs).
 Wide lights: the scenes above put the light 0.6-1.5 m from the object, where the
 half-vector disc a 15 mm light spans is at most about half the lobe's width (the lobe's
 fitted width absorbs it). A further section renders sharp lobes (roughness 0.004-0.008)
-at 0.35-0.6 m under a 15 mm light, a disc 2-4 lobe widths across, with the light
+at 0.35-0.6 m under a 15 mm light, a disc about 1.5-5 lobe widths in radius, with the light
 integrated over 1024 points (the default 64 alias on lobes this sharp), with and without
 the sensor's noise, and compares the refinement told the radius with the one not told.
 
