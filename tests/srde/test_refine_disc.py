@@ -181,3 +181,10 @@ def test_srde_hands_the_rig_lights_radius_to_the_refinement(wide_light):
 def test_a_bad_radius_is_a_light_error(wide_light, radius):
     with pytest.raises(LightError, match="light_radius_m: expected None or a radius"):
         _refine(wide_light, light_radius_m=radius)
+
+
+def test_every_rig_light_keeps_its_radius():
+    rig = CameraRig.stereo(0.085, fx=300.0, image_size=(320, 240)).with_lights(
+        [RigLight((0.3, -0.2, 0.0), radius_m=0.01), (-0.3, -0.2, 0.0)])
+    assert SRDE(rig).light_radii_m == (0.01, None)
+    assert SRDE(rig, light=[0.3, -0.2, 0.0]).light_radii_m == (None,)
