@@ -12,6 +12,11 @@ exact by construction. Here every scene is rendered three times from the same de
 * ``faithful, noiseless``: the same without the sensor's noise (still 8-bit), which says
   how much of the faithful error is noise rather than model (not timed).
 
+SRDE is told only the light's position, as a point (``radius unknown``), except in the
+``..., radius given`` rows: the same renders, with the rig's light carrying the
+renderer's radius (``radius_m`` in ``rig.json``), which the refinement then models as
+the light's disc. The geometric plane does not use the radius.
+
 For every refined plane the benchmark also asks whether the fit found its own minimum:
 the refinement's cost (best photometry on the same samples) at the refined plane against
 the true plane's. At or below it means the remaining error comes from the data (noise,
@@ -28,6 +33,13 @@ Speed: SRDE's default and geometric-only estimate against the cheapest full read
 pixels -- OpenCV ``cvtColor`` RGB->GRAY of every view -- timed in the same run, on the
 typical scenes and on harsh ones (rough coatings 0.05-0.08, peak 4-8x the clipping
 level, 15 mm light: large saturated blobs).
+
+Wide lights: the scenes above put the light 0.6-1.5 m from the object, where the
+half-vector disc a 15 mm light spans is at most about half the lobe's width (the lobe's
+fitted width absorbs it). A further section renders sharp lobes (roughness 0.004-0.008)
+at 0.35-0.6 m under a 15 mm light, a disc about 1.5-5 lobe widths in radius, with the light
+integrated over 1024 points (the default 64 alias on lobes this sharp), with and without
+the sensor's noise, and compares the refinement told the radius with the one not told.
 
 Run: ``python benchmarks/mismatched_physics.py [--scenes 3]``; writes
 ``benchmarks/results/mismatched_physics.md`` and ``.json``. With ``--speed-only`` only the
@@ -50,8 +62,9 @@ import cv2
 import numpy as np
 
 from srde_fusion._checks import check_views
+from srde_fusion.errors import SceneError
 from srde_fusion.evaluation import evaluate
-from srde_fusion.geometry import CameraRig, plane_disparity
+from srde_fusion.geometry import CameraRig, RigLight, plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine import plane as refine_internals
 from srde_fusion.synthetic import RandomSceneConfig, default_rig, random_scene, render
@@ -72,6 +85,17 @@ PHYSICS = {"own model": (Physics(), 1), "faithful": (Physics.faithful(), SUPERSA
            "faithful, noiseless": (replace(Physics.faithful(), full_well_e=None,
                                            read_noise_e=0.0), SUPERSAMPLE)}
 UNTIMED = ("faithful, noiseless",)
+# SRDE's default run again on a physics' renders, the rig's light carrying the radius.
+RADIUS_GIVEN = {"faithful, radius given": "faithful",
+                "faithful, noiseless, radius given": "faithful, noiseless"}
+ROWS = (*PHYSICS, *RADIUS_GIVEN)  # table rows, in order
+WIDE = {"roughness": (0.004, 0.008), "light_radius_m": 0.015, "distance_m": (0.35, 0.6),
+        "light_offset_m": (0.05, 0.2), "clip_ratio": CLIP_RATIO}
+WIDE_LIGHT_SAMPLES = 1024
+WIDE_PHYSICS = {"faithful": replace(Physics.faithful(), light_samples=WIDE_LIGHT_SAMPLES),
+                "faithful, noiseless": replace(Physics.faithful(), full_well_e=None,
+                                               read_noise_e=0.0,
+                                               light_samples=WIDE_LIGHT_SAMPLES)}
 STEREO_BASELINE_M = 0.085
 TARGETS_PX = {"3x3": {0.0: 0.005, "lit": 0.01}, "stereo": {0.0: 0.02, "lit": 0.02}}
 TIMING_REPEATS = 3
@@ -107,6 +131,9 @@ def run_scene(rig: CameraRig, seed: int, config: RandomSceneConfig, timed: bool,
     """
     scene = scene_for(seed, rig, config)
     lit = rig.with_light(scene.light.position_m)
+    # the same light as rig.json would give it with its radius
+    lit_radius = rig.with_lights([RigLight(scene.light.position_m,
+                                           radius_m=scene.light.radius_m)])
     record = {"seed": seed, "roughness": scene.objects[0].material.roughness,
               "light_radius_m": scene.light.radius_m, "runs": {}}
     for label, (physics, supersample) in PHYSICS.items():
@@ -114,41 +141,54 @@ def run_scene(rig: CameraRig, seed: int, config: RandomSceneConfig, timed: bool,
             continue
         start = time.perf_counter()
         out = render(scene, rig, physics=physics, supersample=supersample)
-        run = {"render_s": time.perf_counter() - start}
+        render_s = time.perf_counter() - start
         mask = out.object_masks[0]
-        for method, refine in (("default", True), ("geometric", False)):
-            srde = SRDE(lit, refine=refine)
-            result = srde.estimate(out.views, mask)
-            run[method] = {"status": result.status}
-            if not result.ok:
-                continue
-            disparity = np.full(mask.shape, np.nan, dtype=np.float32)
-            disparity[mask] = plane_disparity(result.plane, lit)[mask]
-            metrics = evaluate(disparity, out.disparity_px, mask)
-            signed = float(np.mean(disparity[mask] - out.disparity_px[mask]))
-            run[method].update(epe=float(metrics["epe"]), bmp01=float(metrics["bmp0.1"]),
-                               signed=signed)
-            if (method == "default" and not speed_only and result.refinement is not None
-                    and result.refinement.ok):
-                run[method]["below_truth"] = fit_cost_below_truth(
-                    out.views, lit, mask, result, scene.objects[0].plane)
+        variants = [(label, lit, (("default", True), ("geometric", False)))] + [
+            (given, lit_radius, (("default", True),))
+            for given, base in RADIUS_GIVEN.items() if base == label]
+        for name, srde_rig, methods in variants:
+            run = {"render_s": render_s}
+            for method, refine in methods:
+                run[method] = score(SRDE(srde_rig, refine=refine), out, mask, lit,
+                                    scene.objects[0].plane,
+                                    timed and label not in UNTIMED, repeats,
+                                    check_cost=method == "default" and not speed_only)
             if timed and label not in UNTIMED:
-                run[method]["time_s"] = best_time_s(
-                    lambda s=srde, v=out.views, m=mask: s.estimate(v, m), repeats)
-        if timed and label not in UNTIMED:
-            run["floor_s"] = best_time_s(
-                lambda v=out.views: [cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) for x in v],
-                max(10, repeats))
-        record["runs"][label] = run
+                run["floor_s"] = best_time_s(
+                    lambda v=out.views: [cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) for x in v],
+                    max(10, repeats))
+            record["runs"][name] = run
     return record
 
 
-def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth) -> bool:
+def score(srde: SRDE, out, mask, lit: CameraRig, truth, timed: bool,
+          repeats: int = TIMING_REPEATS, check_cost: bool = False) -> dict:
+    """Run one SRDE on a rendering; its status, errors (px), fit-cost check and time."""
+    result = srde.estimate(out.views, mask)
+    run = {"status": result.status}
+    if not result.ok:
+        return run
+    disparity = np.full(mask.shape, np.nan, dtype=np.float32)
+    disparity[mask] = plane_disparity(result.plane, lit)[mask]
+    metrics = evaluate(disparity, out.disparity_px, mask)
+    signed = float(np.mean(disparity[mask] - out.disparity_px[mask]))
+    run.update(epe=float(metrics["epe"]), bmp01=float(metrics["bmp0.1"]), signed=signed)
+    if check_cost and result.refinement is not None and result.refinement.ok:
+        radius = srde.light_radii_m[0]
+        run["below_truth"] = fit_cost_below_truth(out.views, lit, mask, result, truth, radius)
+    if timed:
+        run["time_s"] = best_time_s(lambda: srde.estimate(out.views, mask), repeats)
+    return run
+
+
+def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth,
+                         light_radius_m: float | None = None) -> bool:
     """Whether the refined plane explains the images better than the true plane does.
 
     Both planes get the refinement's best photometric parameters on the same samples
-    (placed for the refined plane). True means the fit found the minimum of its own
-    cost and the error lies in the data (noise) or the model, not in the optimiser.
+    (placed for the refined plane), with the light's radius the refinement was given.
+    True means the fit found the minimum of its own cost and the error lies in the data
+    (noise) or the model, not in the optimiser.
     """
     found = result.refinement.plane
     light = rig.light
@@ -157,7 +197,8 @@ def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth) -> bool:
     box = refine_internals.mask_bbox(mask)
     setup = refine_internals._Setup(
         check_views(views, rig.n_cameras, rig.image_size), rig, mask, box, light, found,
-        centers, result.refinement.lobe, refine_internals.DEFAULT_F0, "exact", None, 40)
+        centers, result.refinement.lobe, refine_internals.DEFAULT_F0, "exact", None, 40,
+        light_radius_m=light_radius_m or None)
     samples = refine_internals.sample_windows(setup.views, rig, mask, found, centers, box=box)
     costs = []
     for plane in (found, truth):
@@ -165,6 +206,54 @@ def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth) -> bool:
         start = model.initial_guess()
         costs.append(refine_internals._profile_at_start(model, start, 40)[1])
     return bool(costs[0] <= costs[1])
+
+
+def wide_scene(rig: CameraRig, seed: int, repeats: int = TIMING_REPEATS) -> dict | None:
+    """A sharp lobe under a light wider than it; SRDE told the radius and not. None: no scene."""
+    try:
+        scene = scene_for(seed, rig, RandomSceneConfig(**WIDE))
+    except SceneError:
+        return None
+    light = scene.light
+    lit = rig.with_light(light.position_m)
+    lit_radius = rig.with_lights([RigLight(light.position_m, radius_m=light.radius_m)])
+    truth = scene.objects[0].plane
+    alpha = scene.objects[0].material.roughness
+    # the half-vector disc's radius R / (2 d), d at least the light's height over the plane
+    disc = light.radius_m / (2.0 * truth.signed_distance(np.array(light.position_m)))
+    record = {"seed": seed, "roughness": alpha, "disc_over_width": disc / alpha, "runs": {}}
+    for label, physics in WIDE_PHYSICS.items():
+        out = render(scene, rig, physics=physics, supersample=SUPERSAMPLE)
+        mask = out.object_masks[0]
+        timed = label == "faithful"
+        record["runs"][label] = {
+            "radius unknown": score(SRDE(lit), out, mask, lit, truth, timed, repeats, True),
+            "radius given": score(SRDE(lit_radius), out, mask, lit, truth, timed, repeats,
+                                  True),
+            "geometric": score(SRDE(lit, refine=False), out, mask, lit, truth, False)}
+    return record
+
+
+def wide_lines(records: list[dict]) -> tuple[list[str], dict]:
+    """The wide-light section's table: SRDE told the light's radius against not told."""
+    lines = ["| physics | SRDE | mean EPE | max EPE | bmp0.1 | too near | fit cost at or below "
+             "truth's | median time | n | failed |", "|---|---|---:|---:|---:|---:|---:|---:|"
+             "---:|---:|"]
+    numbers: dict = {}
+    for physics in WIDE_PHYSICS:
+        for method in ("radius unknown", "radius given", "geometric"):
+            s = summarise(records, physics, method)
+            runs = [r["runs"][physics][method] for r in records]
+            flags = [r["below_truth"] for r in runs if "below_truth" in r]
+            times = [r["time_s"] for r in runs if "time_s" in r]
+            s["below_truth"] = f"{sum(flags)} of {len(flags)}" if flags else "-"
+            s["median_time_ms"] = 1000 * float(np.median(times)) if times else float("nan")
+            numbers.setdefault(physics, {})[method] = s
+            lines.append(f"| {physics} | {method} | {s['epe']:.4f} | {s['epe_max']:.4f} | "
+                         f"{s['bmp01']:.3f} | {s['too_near']:.0%} | {s['below_truth']} | "
+                         + (f"{s['median_time_ms']:.1f} ms" if times else "-")
+                         + f" | {s['n']} | {s['failed']} |")
+    return lines, numbers
 
 
 def cell_scenes(per_cell: int):
@@ -197,9 +286,9 @@ def summarise(records: list[dict], physics: str, method: str) -> dict:
 def cost_lines(records: list[dict]) -> list[str]:
     """How often the refined plane fits the images better than the true plane."""
     out = []
-    for physics in PHYSICS:
+    for physics in ROWS:
         flags = [r["runs"][physics]["default"]["below_truth"] for r in records
-                 if "below_truth" in r["runs"][physics]["default"]]
+                 if "below_truth" in r["runs"].get(physics, {}).get("default", {})]
         if flags:
             out.append(f"- {physics}: the refined plane's fit cost is at or below the true "
                        f"plane's (same samples, photometry refitted) in {sum(flags)} of "
@@ -213,8 +302,8 @@ def accuracy_tables(records: list[dict], rig_name: str) -> tuple[list[str], dict
         f"EPE {lo}-{hi}" for lo, hi in ROUGHNESS_BINS) + " | max EPE | bmp0.1 | too near | n "
         "| failed |")
     lines += [header, "|---|---|---:|" + "---:|" * (len(ROUGHNESS_BINS) + 5)]
-    for physics in PHYSICS:
-        for method in ("default", "geometric"):
+    for physics in ROWS:
+        for method in ("default", "geometric") if physics in PHYSICS else ("default",):
             for radius in LIGHT_RADII_M:
                 chosen = [r for r in records if r["light_radius_m"] == radius]
                 cells, n, failed, epe_max, bmp, near = [], 0, 0, [], [], []
@@ -237,31 +326,32 @@ def accuracy_tables(records: list[dict], rig_name: str) -> tuple[list[str], dict
 
 def target_lines(numbers: dict, rig_name: str) -> list[str]:
     out = []
-    cells = numbers["faithful"]["default"]
-    for radius_label, bins in cells.items():
-        worst = max(s["epe"] for s in bins.values())
-        target = TARGETS_PX[rig_name][0.0 if radius_label == "0 mm" else "lit"]
-        near = [s["too_near"] for s in bins.values() if s["n"] >= 3]
-        lopsided = [f"{v:.0%}" for v in near if v > 0.7 or v < 0.3]
-        verdict = "met" if worst <= target else "NOT met"
-        out.append(f"- {rig_name}, faithful, light {radius_label}: worst roughness bin mean EPE "
-                   f"{worst:.4f} px (target <= {target} px): {verdict}"
-                   + (f"; bins with more than 70 % of scenes on one side: {lopsided}"
-                      if lopsided else ""))
+    for physics in ("faithful", "faithful, radius given"):
+        for radius_label, bins in numbers[physics]["default"].items():
+            worst = max(s["epe"] for s in bins.values())
+            target = TARGETS_PX[rig_name][0.0 if radius_label == "0 mm" else "lit"]
+            near = [s["too_near"] for s in bins.values() if s["n"] >= 3]
+            lopsided = [f"{v:.0%}" for v in near if v > 0.7 or v < 0.3]
+            verdict = "met" if worst <= target else "NOT met"
+            out.append(f"- {rig_name}, {physics}, light {radius_label}: worst roughness bin "
+                       f"mean EPE {worst:.4f} px (target <= {target} px): {verdict}"
+                       + (f"; bins with more than 70 % of scenes on one side: {lopsided}"
+                          if lopsided else ""))
     return out
 
 
 def speed_lines(records: list[dict], label: str) -> tuple[list[str], dict]:
     out, numbers = [], {}
-    for physics in PHYSICS:
+    for physics in ROWS:
         timed = [r["runs"][physics] for r in records
                  if "floor_s" in r["runs"].get(physics, {})]
         if not timed:
             continue
         row = {}
         for method in ("default", "geometric"):
-            ratios = [t[method]["time_s"] / t["floor_s"] for t in timed if "time_s" in t[method]]
-            ms = [1000 * t[method]["time_s"] for t in timed if "time_s" in t[method]]
+            ratios = [t[method]["time_s"] / t["floor_s"] for t in timed
+                      if "time_s" in t.get(method, {})]
+            ms = [1000 * t[method]["time_s"] for t in timed if "time_s" in t.get(method, {})]
             if ratios:
                 row[method] = {"median_ms": float(np.median(ms)), "median_ratio":
                                float(np.median(ratios)), "max_ratio": float(np.max(ratios)),
@@ -319,6 +409,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenes", type=int, default=3,
                         help="scenes per (rig, roughness bin, light radius)")
     parser.add_argument("--harsh", type=int, default=6, help="harsh scenes per rig (timing)")
+    parser.add_argument("--wide", type=int, default=6,
+                        help="scenes per rig with a light wider than the lobe")
     parser.add_argument("--speed-only", action="store_true",
                         help="run only the speed section (writes mismatched_physics_speed.*)")
     parser.add_argument("--repeats", type=int, default=TIMING_REPEATS,
@@ -347,7 +439,10 @@ def main(argv: list[str] | None = None) -> int:
         table, numbers = accuracy_tables(records, rig_name)
         typical_speed, typical_numbers = speed_lines(records, "typical scenes")
         harsh_speed, harsh_numbers = speed_lines(harsh, "harsh scenes")
-        harsh_epe = {p: summarise(harsh, p, "default") for p in PHYSICS}
+        harsh_epe = {p: summarise(harsh, p, "default") for p in ROWS}
+        wide = [w for w in (wide_scene(rig, 7000 + i) for i in range(args.wide)) if w]
+        wide_table, wide_numbers = wide_lines(wide)
+        ratios = [r["disc_over_width"] for r in wide]
         md += [f"## {rig_name} ({rig.n_cameras} views)", "", *table, "",
                *target_lines(numbers, rig_name), "",
                *cost_lines(records),
@@ -355,8 +450,14 @@ def main(argv: list[str] | None = None) -> int:
                    f"{p} mean EPE {s['epe']:.4f} px, max {s['epe_max']:.4f} px, n {s['n']}, "
                    f"failed {s['failed']}" for p, s in harsh_epe.items()), "",
                "Speed (median over scenes; best of three calls each):", "",
-               *typical_speed, *harsh_speed, ""]
+               *typical_speed, *harsh_speed, "",
+               f"Wide lights ({len(wide)} scenes, seeds 7000 + ...; roughness 0.004-0.008, "
+               f"15 mm light at 0.35-0.6 m, light disc about {min(ratios, default=0):.1f}-"
+               f"{max(ratios, default=0):.1f} lobe widths in radius; the light integrated over "
+               f"{WIDE_LIGHT_SAMPLES} points; time: default SRDE, faithful, best of three):",
+               "", *wide_table, ""]
         report["rigs"][rig_name] = {"accuracy": numbers, "harsh_accuracy": harsh_epe,
+                                    "wide_accuracy": wide_numbers, "wide_records": wide,
                                     "speed": {"typical": typical_numbers,
                                               "harsh": harsh_numbers},
                                     "records": records, "harsh_records": harsh}

@@ -107,7 +107,9 @@ class SRDE:
     rig : CameraRig
         The rectified rig the views come from.
     light : array_like, (3,), optional
-        The point light in the array frame, metres; ``rig.light`` by default.
+        The point light in the array frame, metres; by default the rig's light(s),
+        whose ``radius_m`` (where ``rig.json`` gives one) the photometric refinement
+        then models as the extent of a spherical light. A light given here is a point.
     method : {"default", "paper"}
         See the module docstring.
     detector : {"blob", "paper"}, optional
@@ -197,8 +199,10 @@ class SRDE:
         config = DetectorConfig(method=detector, encoding=rig.image_encoding, window=window, k=k,
                                 min_extent_px=min_extent_px, blob_center=blob_center,
                                 min_contrast=min_contrast, min_area_px=MIN_BLOB_AREA_PX)
+        radii_m: tuple[float | None, ...] | None = None  # unknown for a light given here
         if light is None:
             light = rig.light_positions_m
+            radii_m = tuple(entry.radius_m for entry in rig.lights)
             if len(light) == 0:
                 raise LightError("light: expected a light position (x, y, z) in metres, or a rig "
                                  "with a light, got neither")
@@ -238,6 +242,7 @@ class SRDE:
         self.rig = rig
         self.light_m = light_m
         self.lights_m = lights_m
+        self.light_radii_m = radii_m if radii_m is not None else (None,) * len(lights_m)
         self.method = method
         # The paper's method stays the paper's unless asked otherwise.
         self.refine = (method == "default") if refine is None else refine
@@ -491,12 +496,15 @@ class SRDE:
         if views is not None and (self.refine if refine is None else refine):
             others = [m for m in self.lights_m if not np.array_equal(m, light)
                       and not any(np.array_equal(m, x) for x in modelled_lights)]
+            radius_m = next((r for m, r in zip(self.lights_m, self.light_radii_m, strict=True)
+                             if np.array_equal(m, light)), None)
             refinement = refine_plane(views, rig, light, mask, plane,
                                       centers_uv=np.where(used[:, None], centers, np.nan),
                                       lobe=self.refine_lobe,
                                       other_lights_m=np.array(others) if others else None,
                                       modelled_lights_m=(np.array(modelled_lights)
-                                                         if len(modelled_lights) else None))
+                                                         if len(modelled_lights) else None),
+                                      light_radius_m=radius_m)
             if refinement.ok:
                 plane = refinement.plane
                 point = plane.mirror(light)

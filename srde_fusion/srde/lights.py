@@ -978,7 +978,8 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
     starts = [solution.plane] + ([solution.rival_plane] if solution.rival_plane is not None
                                  else [])
     options = dict(lobe=srde.refine_lobe, other_lights_m=lights[others] if others else None,
-                   modelled_lights_m=lights[modelled] if modelled else None)
+                   modelled_lights_m=lights[modelled] if modelled else None,
+                   light_radius_m=srde.light_radii_m[main])
 
     def centers_for(plane: Plane) -> np.ndarray:
         virtual = plane.mirror(lights[main])

@@ -184,13 +184,15 @@ def test_result_is_frozen_and_reports_itself(rough_ggx):
     ("gtr", 0.3), ("gtr", 0.0), ("gtr", 2e-4), ("gtr", -0.2), ("ggx", 0.5),
     ("blinn_phong", 0.0),
 ])
-@pytest.mark.parametrize("fresnel", ["exact", "schlick"])
-def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail, fresnel):
+@pytest.mark.parametrize(("fresnel", "light_radius_m"), [
+    ("exact", None), ("schlick", None), ("exact", 0.01), ("exact", 0.05)])
+def test_model_slopes_agree_with_finite_differences(rough_ggx, lobe, tail, fresnel,
+                                                    light_radius_m):
     case = rough_ggx
     samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
                               case["centers"])
     model = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
-                       lobe, DEFAULT_F0, None, fresnel=fresnel)
+                       lobe, DEFAULT_F0, None, fresnel=fresnel, light_radius_m=light_radius_m)
     theta = model.start_theta()
     # off the initial plane, a tail where both of the "gtr" derivative's branches apply
     theta[:N_PLANE] = [0.01, -0.02, 0.003]

@@ -152,15 +152,20 @@ class LobeModel:
     support : int
         Points per axis at which the model is averaged over each sample's block (1: at
         block centres).
+    light_radius_m : float or None
+        Radius of the spherical light, metres: the lobe is seen through the light's disc
+        (:mod:`~.disc`). None or 0: a point light.
     """
 
     def __init__(self, samples: HighlightSamples, rig: CameraRig, box, light: np.ndarray,
                  plane0: Plane, lobe: str, f0: float, foreshortening: float | None,
-                 support: int = SUPPORT_POINTS, fresnel: str = "exact") -> None:
+                 support: int = SUPPORT_POINTS, fresnel: str = "exact",
+                 light_radius_m: float | None = None) -> None:
         self.lobe = lobe
         points, self.support_weights = support_points(samples, rig, support)
         self.n_support = len(self.support_weights)
-        self.reflection = PlaneReflection(points, rig, box, light, plane0, f0, fresnel)
+        self.reflection = PlaneReflection(points, rig, box, light, plane0, f0, fresnel,
+                                          light_radius_m)
         self.valid = self.reflection.valid
         self.foreshortening0 = (_FORESHORTENING_START if foreshortening is None
                                 else float(foreshortening))

@@ -33,8 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..._checks import check_mask, check_point3, check_views
-from ...errors import ImageError, SRDEError
+from ...errors import ImageError, LightError, SRDEError
 from ...geometry import CameraRig, Plane, plane_from_lights
+from ...geometry.rig import MAX_LIGHT_RADIUS_M
 from .joint import JointLobeModel
 from .layout import I_FORE, I_SPEC, N_PLANE
 from .lobes import DEFAULT_LOBE, LOBES
@@ -158,6 +159,7 @@ def refine_plane(
     max_iterations: int = 20,
     other_lights_m=None,
     modelled_lights_m=None,
+    light_radius_m: float | None = None,
 ) -> PlaneRefinement:
     """Refine a plane so that a specular lobe model explains the highlight in every view.
 
@@ -199,7 +201,12 @@ def refine_plane(
         Further known lights whose highlights are rendered beside ``light_m``'s instead
         (:class:`~.joint.JointLobeModel`: one lobe per light on the same plane and
         surface, each light with its own intensity), for highlights merged into one
-        blob. They should not also be in ``other_lights_m``.
+        blob. They should not also be in ``other_lights_m``. They are points.
+    light_radius_m : float, optional
+        Radius of the (spherical) light, metres, if known: the lobe model then sees the
+        light's disc (a flat-topped highlight over the light's mirror image, see
+        :mod:`~srde_fusion.srde.refine.disc`) instead of a point, whose extent the lobe's
+        fitted width would otherwise absorb. None or 0: a point light.
 
     Returns
     -------
@@ -264,6 +271,10 @@ def refine_plane(
     if (isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer))
             or max_iterations < 1):
         raise SRDEError(f"max_iterations: expected a positive integer, got {max_iterations!r}")
+    if light_radius_m is not None and not _is_number_in(light_radius_m, 0.0, MAX_LIGHT_RADIUS_M):
+        raise LightError(f"light_radius_m: expected None or a radius in "
+                         f"[0, {MAX_LIGHT_RADIUS_M:g}] m, got {light_radius_m!r}")
+    radius_m = float(light_radius_m) if light_radius_m else None  # 0: a point light
 
     def kept(reason: str, **fields) -> PlaneRefinement:
         values = dict(converged=False, iterations=0, cost_initial=math.nan, cost_final=math.nan,
@@ -281,7 +292,7 @@ def refine_plane(
     others = _check_lights(other_lights_m, "other_lights_m")
     modelled = _check_lights(modelled_lights_m, "modelled_lights_m")
     setup = _Setup(views, rig, mask, mask_bbox(mask), light, initial_plane, centers, lobe, f0,
-                   fresnel, foreshortening, max_iterations, others, modelled)
+                   fresnel, foreshortening, max_iterations, others, modelled, radius_m)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
         return kept(attempt)
@@ -313,7 +324,8 @@ def refine_plane(
 def compare_planes(views: Sequence[np.ndarray], rig: CameraRig, light_m, mask: np.ndarray,
                    planes: Sequence[Plane], centers_uv, *, lobe: str = DEFAULT_LOBE,
                    f0: float = DEFAULT_F0, other_lights_m=None, modelled_lights_m=None,
-                   max_iterations: int = 20) -> np.ndarray:
+                   light_radius_m: float | None = None, max_iterations: int = 20
+                   ) -> np.ndarray:
     """Best photometric cost of each plane on one set of samples, ``(len(planes),)``.
 
     The samples are placed for ``planes[0]`` around ``centers_uv`` (as
@@ -326,7 +338,8 @@ def compare_planes(views: Sequence[np.ndarray], rig: CameraRig, light_m, mask: n
     setup = _Setup(list(views), rig, mask, mask_bbox(mask), np.asarray(light_m, np.float64),
                    planes[0], centers, lobe, f0, "exact", None, max_iterations,
                    _check_lights(other_lights_m, "other_lights_m"),
-                   _check_lights(modelled_lights_m, "modelled_lights_m"))
+                   _check_lights(modelled_lights_m, "modelled_lights_m"),
+                   float(light_radius_m) if light_radius_m else None)
     samples = sample_windows(setup.views, rig, mask, planes[0], centers, box=setup.box,
                               other_lights_m=setup.other_lights)
     costs = np.full(len(planes), math.inf)
@@ -358,12 +371,18 @@ class _Setup:
     max_iterations: int
     other_lights: np.ndarray | None = None
     modelled_lights: np.ndarray | None = None
+    light_radius_m: float | None = None  # None: a point light
 
     def model(self, samples: HighlightSamples, plane: Plane) -> LobeModel | JointLobeModel:
-        lights = [self.light] + ([] if self.modelled_lights is None else list(self.modelled_lights))
-        parts = [LobeModel(samples, self.rig, self.box, light, plane, self.lobe, self.f0,
-                           self.foreshortening, fresnel=self.fresnel) for light in lights]
-        return parts[0] if len(parts) == 1 else JointLobeModel(parts)
+        main = LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
+                         self.foreshortening, fresnel=self.fresnel,
+                         light_radius_m=self.light_radius_m)
+        if self.modelled_lights is None:
+            return main
+        return JointLobeModel([main] + [
+            LobeModel(samples, self.rig, self.box, light, plane, self.lobe, self.f0,
+                      self.foreshortening, fresnel=self.fresnel)
+            for light in self.modelled_lights])
 
 
 @dataclass(frozen=True)

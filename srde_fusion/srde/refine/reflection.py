@@ -16,6 +16,7 @@ import numpy as np
 
 from ...geometry import CameraRig, Plane
 from ...optics import fresnel_dielectric, ior_from_f0
+from .disc import DiscGeometry, disc_geometry
 from .layout import N_PLANE
 from .samples import HighlightSamples
 
@@ -47,6 +48,7 @@ class ShadingGeometry:
     grazing: np.ndarray  # 1 - omega_i . h
     fresnel: np.ndarray
     fresnel_slope: np.ndarray  # dF / d(omega_i . h)
+    disc: DiscGeometry | None = None  # the light's disc (None: a point light)
 
 
 class PlaneReflection:
@@ -69,6 +71,10 @@ class PlaneReflection:
     fresnel : {"exact", "schlick"}
         The Fresnel equations for the dielectric of that reflectance (refractive index
         ``(1 + sqrt(f0)) / (1 - sqrt(f0))``), or Schlick's approximation of them.
+    light_radius_m : float or None
+        Radius of the spherical light, metres; None or 0 for a point light. A radius
+        gives every geometry the lobe's argument seen through the light's disc
+        (:mod:`~.disc`).
 
     Attributes
     ----------
@@ -78,8 +84,10 @@ class PlaneReflection:
     """
 
     def __init__(self, samples: HighlightSamples, rig: CameraRig, box, light: np.ndarray,
-                 plane0: Plane, f0: float, fresnel: str = "exact") -> None:
+                 plane0: Plane, f0: float, fresnel: str = "exact",
+                 light_radius_m: float | None = None) -> None:
         self.f0 = f0
+        self.light_radius_m = light_radius_m if light_radius_m else None
         self.fresnel = fresnel
         self.ior = ior_from_f0(f0)
         self.light = light
@@ -191,11 +199,14 @@ class PlaneReflection:
         specular = np.multiply(cos_o, r2, out=r2)
         np.divide(fresnel, specular, out=specular)
         specular *= self.spec_scale
+        disc = None
+        if self.light_radius_m is not None:
+            disc = disc_geometry(cos_h, sin2_h, r, self.light_radius_m)
         return ShadingGeometry(cos_h=cos_h, sin2_h=sin2_h, log_foreshortening=log_foreshortening,
                          diffuse=diffuse, specular=specular, normal=n, t=t, nk=nk, tq_b=tq_b,
                          r=r, cos_i=cos_i, cos_o=cos_o, cos_io=cos_io, half_norm=half_norm,
                          grazing=grazing, fresnel=fresnel,
-                         fresnel_slope=fresnel_slope)
+                         fresnel_slope=fresnel_slope, disc=disc)
 
     def at(self, theta: np.ndarray) -> ShadingGeometry | None:
         """Geometry of ``theta``'s plane, reused while only the photometry changes."""

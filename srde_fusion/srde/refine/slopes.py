@@ -43,13 +43,13 @@ def model_slopes(reflection: PlaneReflection, lobe: str, g: ShadingGeometry, the
         Where the derivatives go (returned).
     """
     specular, fore = theta[I_SPEC], theta[I_FORE]
-    by, along, by_log_width, by_tail = lobe_shape_slopes(lobe, g, theta[I_WIDTH], theta[I_TAIL],
-                                                         shape)
+    by, along, by_log_width, by_tail, by_r = lobe_shape_slopes(lobe, g, theta[I_WIDTH],
+                                                               theta[I_TAIL], shape)
     spec_term = specular * specular_factor  # S's factor in the model
     planes = [(row, index) for row, index in enumerate(free) if index < N_PLANE]
     if planes:
         on_nk, on_cam, on_lh = _plane_slope_terms(reflection, g, fore, theta[I_DIFF], by, along,
-                                                  shape, spec_term)
+                                                  shape, spec_term, by_r)
         directions = reflection.directions(theta)
     for row, index in planes:
         # slope = (n . L - c)' on_lh + (c - n . C)' on_cam + (n . k)' on_nk
@@ -73,7 +73,7 @@ def model_slopes(reflection: PlaneReflection, lobe: str, g: ShadingGeometry, the
 
 def _plane_slope_terms(reflection: PlaneReflection, g: ShadingGeometry, fore, diffuse,
                        by: np.ndarray, along: np.ndarray, shape: np.ndarray,
-                       spec_term: np.ndarray):
+                       spec_term: np.ndarray, by_r: np.ndarray | None = None):
     """Return the model's derivatives ``(P,)`` by ``n . k``, ``c - n . C``, ``n . L - c``.
 
     Every shading term depends on the plane through these three per-sample scalars
@@ -81,7 +81,8 @@ def _plane_slope_terms(reflection: PlaneReflection, g: ShadingGeometry, fore, di
     first order: collecting the chain rule's coefficients once makes each plane
     parameter's slope three products. ``fore`` and ``diffuse`` are the foreshortening
     exponent and the diffuse intensity; ``by`` and ``along`` the lobe's slope (see
-    :class:`~.lobes.LobeSlopes`).
+    :class:`~.lobes.LobeSlopes`), and ``by_r`` its slope by the distance to the light
+    (under a light's disc; None for a point light).
     """
     inv_r, inv_half = 1.0 / g.r, 1.0 / g.half_norm
     rho = g.tq_b * inv_r  # dr = rho dt (r^2 = a - 2 t b + t^2 q)
@@ -124,6 +125,10 @@ def _plane_slope_terms(reflection: PlaneReflection, g: ShadingGeometry, fore, di
     term *= rho
     term *= 2.0 * inv_r  # d log r^2 = 2 rho / r dt
     on_t -= term
+    if by_r is not None:  # the light's disc: its size moves with r, and dr = rho dt
+        term = by_r * spec_term
+        term *= rho
+        on_t += term
     # cos_i = (n . L - c) / r: d cos_i = (d(n . L - c) - cos_i rho dt) / r
     on_lh = on_cos_i * inv_r
     term = on_lh * g.cos_i

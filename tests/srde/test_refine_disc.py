@@ -1,0 +1,190 @@
+"""Tests for the light's extent in the photometric refinement (srde_fusion.srde.refine.disc).
+
+A spherical light of known radius turns the refinement's lobe into the lobe averaged over
+the light's disc. These tests check the quadrature against a fine numerical average, the
+point-light limit, the public option's checks, that a radius of 0 or None is exactly the
+point model, and that on a faithful render with a light wider than the lobe the radius
+brings the plane closer than the point model does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from srde_fusion.errors import LightError
+from srde_fusion.geometry import CameraRig, RigLight, plane_disparity
+from srde_fusion.srde import SRDE
+from srde_fusion.srde.refine import LOBES, refine_plane
+from srde_fusion.srde.refine.disc import disc_geometry, disc_points
+from srde_fusion.srde.refine.lobes import lobe_shape
+from srde_fusion.synthetic import Physics, RandomSceneConfig, random_scene, render
+
+# A light 1 m away whose half-vector disc has radius b = R / (2 r) (R = 2 mm: b = 1e-3).
+DISTANCE_M = 1.0
+# The quadrature's largest error against a fine average, relative to the lobe's peak,
+# while the disc's radius is at most one lobe unit (module notes of refine.disc).
+QUADRATURE_TOL = 0.01
+# Fine reference average: points of a polar grid over the disc.
+FINE_RINGS, FINE_ANGLES = 200, 256
+
+
+def _fine_disc_mean(lobe: str, s: np.ndarray, b: float, log_width: float, tail: float):
+    """Lobe averaged over the half-vector disc of radius ``b`` around offset ``s``."""
+    # midpoint rule in r^2 (equal areas) and in angle
+    radii = b * np.sqrt((np.arange(FINE_RINGS) + 0.5) / FINE_RINGS)
+    angles = 2.0 * np.pi * (np.arange(FINE_ANGLES) + 0.5) / FINE_ANGLES
+    x = (radii[:, None] * np.cos(angles)[None, :]).ravel()
+    y = (radii[:, None] * np.sin(angles)[None, :]).ravel()
+    sin2 = (s[:, None] - x[None, :]) ** 2 + y[None, :] ** 2
+    g = SimpleNamespace(sin2_h=sin2, cos_h=np.sqrt(1.0 - sin2))
+    return lobe_shape(lobe, g, log_width, tail).mean(axis=1)
+
+
+def _disc(s: np.ndarray, radius_m: float):
+    sin2 = s * s
+    cos = np.sqrt(1.0 - sin2)
+    geometry = SimpleNamespace(sin2_h=sin2, cos_h=cos)
+    geometry.disc = disc_geometry(cos, sin2, np.full_like(s, DISTANCE_M), radius_m)
+    return geometry
+
+
+def test_the_points_cover_the_disc_with_its_moments():
+    points, weights = disc_points()
+    assert len(points) == 12 and points[:, 1].min() >= 0.0  # 19 points, 12 above the axis
+    assert weights.sum() == pytest.approx(1.0, abs=1e-15)
+    assert np.all(np.hypot(points[:, 0], points[:, 1]) < 1.0)
+    # mirrored below the axis the pattern is centred and has the disc's mean |xi|^2
+    assert weights @ points[:, 0] == pytest.approx(0.0, abs=1e-15)
+    assert weights @ np.sum(points**2, axis=1) == pytest.approx(0.5, abs=1e-15)
+
+
+@pytest.mark.parametrize(("lobe", "tail"), [("gtr", 0.5), ("gtr", 0.0), ("gtr", -0.2),
+                                            ("ggx", 0.5), ("blinn_phong", 0.0)])
+@pytest.mark.parametrize("disc_in_lobe_units", [0.3, 1.0])
+def test_the_quadrature_matches_a_fine_average_over_the_disc(lobe, tail, disc_in_lobe_units):
+    width = 0.02
+    # one lobe unit: z = 2 (1 - w^2) sin^2 / w^2 = 1 (blinn_phong: half of that)
+    unit = width / math.sqrt((2.0 if lobe != "blinn_phong" else 1.0) * (1.0 - width**2))
+    b = disc_in_lobe_units * unit
+    radius_m = math.sin(2.0 * b) * DISTANCE_M
+    s = np.linspace(0.0, b + 4.0 * unit, 41)
+    quadrature = lobe_shape(lobe, _disc(s, radius_m), math.log(width), tail)
+    fine = _fine_disc_mean(lobe, s, b, math.log(width), tail)
+    assert np.max(np.abs(quadrature - fine)) < QUADRATURE_TOL * fine.max()
+    # and the point lobe is far off: the disc is no detail
+    point = lobe_shape(lobe, SimpleNamespace(sin2_h=s * s, cos_h=np.sqrt(1 - s * s)),
+                       math.log(width), tail)
+    assert np.max(np.abs(point - fine)) > 3 * QUADRATURE_TOL * fine.max()
+
+
+@pytest.mark.parametrize("lobe", LOBES)
+def test_a_tiny_disc_is_the_point_lobe(lobe):
+    s = np.linspace(0.0, 0.2, 50)
+    point = lobe_shape(lobe, SimpleNamespace(sin2_h=s * s, cos_h=np.sqrt(1 - s * s)),
+                       math.log(0.05), 0.3)
+    disc = lobe_shape(lobe, _disc(s, 1e-7), math.log(0.05), 0.3)
+    np.testing.assert_allclose(disc, point, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize(("disc_in_lobe_units", "peak_rtol"), [(0.5, QUADRATURE_TOL), (2.0, 0.05)])
+def test_the_disc_lowers_the_peak_and_keeps_the_energy(disc_in_lobe_units, peak_rtol):
+    # In the tangent plane every point's lobe has the point lobe's integral, so the
+    # average has it too; the light's extent spreads it (a lower, wider highlight).
+    width = 0.01
+    unit = width / math.sqrt(2.0 * (1.0 - width**2))
+    b = disc_in_lobe_units * unit
+    s = np.linspace(0.0, b + 60.0 * unit, 20001)  # GGX's tail holds ~1e-3 beyond 30 units
+    disc = lobe_shape("ggx", _disc(s, math.sin(2.0 * b) * DISTANCE_M), math.log(width), 0.5)
+    point = lobe_shape("ggx", SimpleNamespace(sin2_h=s * s, cos_h=np.sqrt(1 - s * s)),
+                       math.log(width), 0.5)
+    energy = [float(np.trapezoid(v * s, s)) for v in (disc, point)]
+    assert energy[0] == pytest.approx(energy[1], rel=2e-3)
+    # the exact average's peak: (1 - (1 + beta^2 / 2)^-1) / (beta^2 / 2) for GGX
+    half_beta2 = disc_in_lobe_units**2 / 2.0
+    assert disc[0] == pytest.approx((1.0 - 1.0 / (1.0 + half_beta2)) / half_beta2,
+                                    rel=peak_rtol)
+
+
+# ------------------------------------------------------------------ through refine_plane
+@pytest.fixture(scope="module")
+def wide_light():
+    """A sharp lobe close to a 15 mm light (disc radius ~3 lobe widths), faithful render.
+
+    The renderer integrates the light over 256 points of its disc (its default 64 alias
+    on a lobe this sharp); no sensor noise, 8-bit sRGB.
+    """
+    rig = CameraRig.stereo(0.085, fx=300.0, image_size=(320, 240))
+    config = RandomSceneConfig(roughness=0.006, light_radius_m=0.015, clip_ratio=(2.0, 6.0),
+                               distance_m=(0.3, 0.45), light_offset_m=(0.05, 0.2))
+    scene = random_scene(103, rig, config=config)
+    physics = replace(Physics.faithful(), full_well_e=None, read_noise_e=0.0,
+                      light_samples=256)
+    out = render(scene, rig, physics=physics, supersample=2)
+    light = np.array(scene.light.position_m)
+    lit = rig.with_light(light)
+    mask = out.object_masks[0]
+    geometric = SRDE(lit, refine=False).estimate(out.views, mask)
+    assert geometric.ok, geometric.reason
+    return SimpleNamespace(
+        views=out.views, rig=lit, light=light, mask=mask, plane=geometric.plane,
+        radius_m=scene.light.radius_m, truth=out.disparity_px,
+        centers=np.where(geometric.used_views[:, None], geometric.highlight_centers, np.nan))
+
+
+def _epe(case, plane) -> float:
+    pred = plane_disparity(plane, case.rig)
+    return float(np.mean(np.abs(pred - case.truth)[case.mask]))
+
+
+def _refine(case, **kwargs):
+    return refine_plane(case.views, case.rig, case.light, case.mask, case.plane,
+                        centers_uv=case.centers, **kwargs)
+
+
+def test_the_radius_fixes_a_light_wider_than_the_lobe(wide_light):
+    point = _refine(wide_light)
+    disc = _refine(wide_light, light_radius_m=wide_light.radius_m)
+    assert disc.ok, disc.reason
+    assert _epe(wide_light, disc.plane) < 0.5 * _epe(wide_light, point.plane)
+    assert _epe(wide_light, disc.plane) < 0.01
+    # the rendered lobe is GGX of width 0.006: the disc model finds it
+    assert disc.params.width == pytest.approx(0.006, rel=0.15)
+    assert disc.params.tail == pytest.approx(0.5, abs=0.05)
+
+
+def test_a_radius_of_zero_is_the_point_model(wide_light):
+    point = _refine(wide_light)
+    for radius in (0.0, None):
+        again = _refine(wide_light, light_radius_m=radius)
+        assert again.plane == point.plane and again.params == point.params
+
+
+def test_srde_hands_the_rig_lights_radius_to_the_refinement(wide_light):
+    case = wide_light
+    with_radius = case.rig.with_lights([RigLight(tuple(case.light), radius_m=case.radius_m)])
+    result = SRDE(with_radius).estimate(case.views, case.mask)
+    assert result.ok and result.refinement.ok
+    direct = _refine(case, light_radius_m=case.radius_m)
+    assert result.plane == direct.plane
+    # no radius in the rig, or a light given by position: the point model
+    plain = SRDE(case.rig).estimate(case.views, case.mask)
+    given = SRDE(with_radius, light=case.light).estimate(case.views, case.mask)
+    assert plain.plane == given.plane == _refine(case).plane
+
+
+@pytest.mark.parametrize("radius", [-0.001, 1.5, True, "5 mm", float("nan")])
+def test_a_bad_radius_is_a_light_error(wide_light, radius):
+    with pytest.raises(LightError, match="light_radius_m: expected None or a radius"):
+        _refine(wide_light, light_radius_m=radius)
+
+
+def test_every_rig_light_keeps_its_radius():
+    rig = CameraRig.stereo(0.085, fx=300.0, image_size=(320, 240)).with_lights(
+        [RigLight((0.3, -0.2, 0.0), radius_m=0.01), (-0.3, -0.2, 0.0)])
+    assert SRDE(rig).light_radii_m == (0.01, None)
+    assert SRDE(rig, light=[0.3, -0.2, 0.0]).light_radii_m == (None,)
