@@ -946,6 +946,17 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         # agree with its plane, else the joint geometric plane stands.
         worst_px = _worst_reprojection_px(rig, srde.lights_m, solution, result.plane)
         limit_px = REFINED_AGREEMENT * tolerance_px
+        if worst_px > limit_px and solution.merged_blobs:
+            # Blob centres and blob light disagree where some blobs are merged: the few
+            # centres that measure a light may be the wrong ones. Only the lobes' fit
+            # from the best plane and from its rival, agreeing, settles it.
+            reason = (f"lights: the plane of {solution.n_observations} highlight centre(s) "
+                      f"and the photometric fit disagree by up to {worst_px:.1f} px (limit "
+                      f"{limit_px:g} px) with {len(solution.merged_blobs)} merged blob(s); "
+                      + solution.evidence)
+            doubt = dataclasses.replace(solution, status="inconsistent", reason=reason)
+            return _solve_merged(srde, views, mask, doubt, dataclasses.replace(
+                srde._failed("inconsistent", reason), lights=doubt))
         if worst_px > limit_px:
             note = (f"refinement: kept the joint plane; the refined plane misses light "
                     f"highlights by up to {worst_px:.1f} px (limit {limit_px:g} px)")
