@@ -529,11 +529,7 @@ class _Context:
         k = rig.intrinsics
         offsets = rig.centers_m - rig.reference_center_m
         self.steps = np.stack([-k.fx * offsets[:, 0], -k.fy * offsets[:, 1]], axis=1)  # (N, 2)
-        ys, xs = np.nonzero(mask)
-        self.box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
-        u0, v0, u1, v1 = self.box
-        self.corners = np.array([[u0, v0], [u1 - 1, v0], [u0, v1 - 1], [u1 - 1, v1 - 1]],
-                                dtype=np.float64)
+        self.corners = _box_corners(mask)
 
     # -------------------------------------------------------------- proposals
     def proposals(self, *, loose: bool = False):
@@ -779,9 +775,7 @@ class _Context:
 
     def plane_gap_px(self, a: Plane, b: Plane) -> float:
         """Largest disparity difference of two planes at the object's box corners, px."""
-        gap = plane_disparity(a, self.rig, self.corners) - plane_disparity(b, self.rig,
-                                                                            self.corners)
-        return float(np.max(np.abs(gap)))
+        return _plane_gap_px(self.rig, self.corners, a, b)
 
     # -------------------------------------------------------------- the answer
     def solution(self, best: _Score, rival: _Score | None) -> LightsSolution:
@@ -1006,7 +1000,8 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
     if not refined:
         return dataclasses.replace(failed, notes=(*failed.notes, note + " explained none"))
     fit = refined[0]
-    if len(refined) > 1 and _plane_gap_px(rig, mask, refined[0].plane,
+    corners = _box_corners(mask)
+    if len(refined) > 1 and _plane_gap_px(rig, corners, refined[0].plane,
                                           refined[1].plane) > SAME_PLANE_PX:
         # Two fits, two planes: compare them on the same samples, each fit's in turn.
         a, b = refined[0].plane, refined[1].plane
@@ -1017,7 +1012,7 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
         elif on_a[0] > DECISIVE_COST_RATIO * on_a[1] and on_b[1] > DECISIVE_COST_RATIO * on_b[0]:
             fit = refined[1]
         else:
-            gap_px = _plane_gap_px(rig, mask, a, b)
+            gap_px = _plane_gap_px(rig, corners, a, b)
             reason = (f"{note} ends on planes {gap_px:.1f} px apart from the best plane and its "
                       f"rival, neither explaining the images {DECISIVE_COST_RATIO:g}x better "
                       f"(costs {on_a[0]:.3g} vs {on_a[1]:.3g} and {on_b[1]:.3g} vs "
@@ -1038,11 +1033,15 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
     return dataclasses.replace(result, refinement=fit, lights=solved)
 
 
-def _plane_gap_px(rig: CameraRig, mask: np.ndarray, a: Plane, b: Plane) -> float:
-    """Largest disparity difference of two planes at the mask's box corners, px."""
+def _box_corners(mask: np.ndarray) -> np.ndarray:
+    """Corner pixels ``(4, 2)`` of the mask's bounding box."""
     ys, xs = np.nonzero(mask)
-    corners = np.array([[xs.min(), ys.min()], [xs.max(), ys.min()], [xs.min(), ys.max()],
-                        [xs.max(), ys.max()]], dtype=np.float64)
+    u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max())
+    return np.array([[u0, v0], [u1, v0], [u0, v1], [u1, v1]], dtype=np.float64)
+
+
+def _plane_gap_px(rig: CameraRig, corners: np.ndarray, a: Plane, b: Plane) -> float:
+    """Largest disparity difference of two planes at pixels ``corners`` ``(M, 2)``, px."""
     return float(np.max(np.abs(plane_disparity(a, rig, corners)
                                - plane_disparity(b, rig, corners))))
 
