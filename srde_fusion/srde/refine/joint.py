@@ -96,7 +96,7 @@ class JointLobeModel:
         lobes = []
         shading = None
         for k, part in enumerate(self.parts):
-            g, _, _, part_shading, lobe = part._lobe_at(theta[:N_PARAMS])
+            g, _, _, part_shading, lobe = part.lobe_at(theta[:N_PARAMS])
             if g is None:
                 return None, None
             if k == 0:

@@ -245,7 +245,7 @@ class LobeModel:
         point = theta[I_SPEC] * self._lobe(g, theta) + theta[I_DIFF] * g.diffuse + theta[I_LEVEL]
         return self.reduce(point)
 
-    def _lobe_at(self, theta: np.ndarray):
+    def lobe_at(self, theta: np.ndarray):
         """Return ``theta``'s geometry, lobe, shape, and the samples' shading and lobe.
 
         Geometry, lobe and shape are at the model points ``(S * P,)``, the shading and
@@ -270,7 +270,7 @@ class LobeModel:
 
         Returns the residual ``(P,)`` and ``theta`` with those intensities filled in.
         """
-        g, _, _, shading, lobe = self._lobe_at(theta)
+        g, _, _, shading, lobe = self.lobe_at(theta)
         if g is None:
             return np.full(self.intensities.y.shape, np.inf), theta.copy()
         coef, model = self.intensities.solve(shading, lobe)
@@ -286,7 +286,7 @@ class LobeModel:
         intensity basis removed. The array is a buffer of the model's, overwritten by
         the next call.
         """
-        _, _, _, shading, lobe = self._lobe_at(theta)
+        _, _, _, shading, lobe = self.lobe_at(theta)
         slopes = self.model_slopes(theta, free, out=self._slopes_buffer[:len(free)])
         jac = self.reduce(slopes, out=self._jacobian_buffer[:len(free)])
         return self.intensities.project_out(jac, shading, lobe, theta[I_SPEC:])
@@ -308,7 +308,7 @@ class LobeModel:
         At the model points, intensities held (:meth:`reduce` gives the samples').
         Analytic (see :mod:`~.slopes`). ``theta``'s plane must be valid.
         """
-        g, lobe, shape, _, _ = self._lobe_at(theta)
+        g, lobe, shape, _, _ = self.lobe_at(theta)
         out = np.empty((len(free), len(lobe))) if out is None else out
         return model_slopes(self.reflection, self.lobe, g, theta, free, lobe_term=lobe,
                             shape=shape, specular_factor=self._specular_term(g, theta[I_FORE]),
