@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LeftRightFill", "fill_left_right", "mirrored_pair"]
+__all__ = ["LeftRightFill", "fill_left_right", "mirrored_pair", "seen_from_right"]
 
 logger = logging.getLogger(__name__)
 
@@ -92,6 +92,22 @@ def _background_fill(disparity_px: np.ndarray, trusted: np.ndarray) -> np.ndarra
     return np.where(trusted | ~np.isfinite(background), disparity_px, background)
 
 
+def seen_from_right(left_px: np.ndarray, right_px: np.ndarray):
+    """Return the right view's disparity where each left pixel's match lands.
+
+    A left pixel ``(y, x)`` with disparity ``d`` sees the right pixel ``round(x - d)``.
+    Returns ``inside`` ``(H, W)`` bool (that pixel exists; False for NaN disparities)
+    and ``seen`` ``(H, W)``, the right disparity there (meaningless where not inside).
+    """
+    height, width = left_px.shape
+    xs = np.arange(width, dtype=np.float32)[None, :]
+    with np.errstate(invalid="ignore"):  # NaN disparities give NaN columns: not inside
+        x_right = np.rint(xs - left_px)
+    inside = np.isfinite(x_right) & (x_right >= 0) & (x_right < width)
+    columns = np.where(inside, x_right, 0).astype(np.intp)
+    return inside, right_px[np.arange(height)[:, None], columns]
+
+
 def fill_left_right(left_px: np.ndarray, right_px: np.ndarray, *,
                     max_diff_px: float = 1.0) -> LeftRightFill:
     """Replace the left disparities the right view does not confirm by the background.
@@ -134,11 +150,8 @@ def fill_left_right(left_px: np.ndarray, right_px: np.ndarray, *,
     left_px = np.asarray(left_px, dtype=np.float32)
     height, width = left_px.shape
     xs = np.arange(width, dtype=np.float32)[None, :]
-    with np.errstate(invalid="ignore"):  # NaN disparities give NaN columns, untrusted below
-        x_right = np.rint(xs - left_px)
-        inside = np.isfinite(x_right) & (x_right >= 0) & (x_right < width)
-        columns = np.where(inside, x_right, 0).astype(np.intp)
-        seen = right_px[np.arange(height)[:, None], columns]
+    inside, seen = seen_from_right(left_px, right_px)
+    with np.errstate(invalid="ignore"):  # NaN disparities are untrusted
         trusted = inside & (np.abs(seen - left_px) <= max_diff_px)
         # the right view's estimate of the same point, linear along the row at x - d
         x_at = np.clip(np.where(inside, xs - left_px, 0), 0, width - 1)

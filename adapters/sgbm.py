@@ -28,6 +28,7 @@ import numpy as np
 from srde_fusion.errors import BackboneError
 
 from ._pipeline import check_pair
+from .consistency import seen_from_right
 
 __all__ = ["SGBMSpec", "SGBMStereo", "SGBM_FIXED_POINT"]
 
@@ -327,13 +328,7 @@ def _left_right_consistent(left_px: np.ndarray, right_px: np.ndarray,
     that pixel has a disparity, it must be ``d`` within ``max_diff_px``. Where it has
     none (the right image's own unmatched border), nothing contradicts the left value.
     """
-    h, w = left_px.shape
-    xs = np.arange(w, dtype=np.float32)[None, :]
-    with np.errstate(invalid="ignore"):  # NaN disparities give NaN columns, dropped below
-        x_right = np.rint(xs - left_px)
-    inside = np.isfinite(x_right) & (x_right >= 0) & (x_right < w)
-    columns = np.where(inside, x_right, 0).astype(np.intp)
-    seen = right_px[np.arange(h)[:, None], columns]
+    inside, seen = seen_from_right(left_px, right_px)
     with np.errstate(invalid="ignore"):
         contradicted = inside & (np.abs(seen - left_px) > max_diff_px)
     return np.where(contradicted, np.float32(np.nan), left_px).astype(np.float32)

@@ -190,12 +190,16 @@ def test_several_lights_need_the_default_method(grid):
         SRDE(grid, light=LIGHTS, method="paper")
 
 
-def test_srde_with_three_rendered_lights_solves_the_plane_and_reports_the_assignment():
+def lit_scene(seed: int, n_lights: int):
+    """A rendered random scene with several lights, the rig that knows them, the mask."""
     rig = default_rig()
-    scene = random_scene(7003, rig, config=RandomSceneConfig(n_lights=3))
+    scene = random_scene(seed, rig, config=RandomSceneConfig(n_lights=n_lights))
     out = render(scene, rig)
-    lit = rig.with_lights(rig_lights(scene))
-    mask = out.object_masks[0]
+    return rig, scene, out, rig.with_lights(rig_lights(scene)), out.object_masks[0]
+
+
+def test_srde_with_three_rendered_lights_solves_the_plane_and_reports_the_assignment():
+    rig, scene, out, lit, mask = lit_scene(7003, 3)
     result = SRDE(lit, refine=False).estimate(out.views, mask)
     assert result.ok, result.reason
     assert result.lights is not None and result.lights.ok
@@ -238,11 +242,7 @@ def test_merged_highlights_are_solved_by_one_lobe_per_light(seed):
     # Two lights' highlights merge into one blob in every view: no blob centre measures
     # either light (the geometric assignment fails), but a fit of both lobes on one
     # plane recovers it.
-    rig = default_rig()
-    scene = random_scene(seed, rig, config=RandomSceneConfig(n_lights=2))
-    out = render(scene, rig)
-    lit = rig.with_lights(rig_lights(scene))
-    mask = out.object_masks[0]
+    rig, scene, out, lit, mask = lit_scene(seed, 2)
     geometric = SRDE(lit, refine=False).estimate(out.views, mask)
     assert not geometric.ok
     assert len(geometric.lights.merged_blobs) >= 8
@@ -266,11 +266,7 @@ def test_centres_and_lobes_that_disagree_beside_merged_blobs_go_to_the_joint_fit
     # off, which the photometric fit contradicts by many pixels. Rather than keep the
     # centres' plane, the lobes of both lights are fitted from the best plane and its
     # rival, and they agree.
-    rig = default_rig()
-    scene = random_scene(7068, rig, config=RandomSceneConfig(n_lights=2))
-    out = render(scene, rig)
-    lit = rig.with_lights(rig_lights(scene))
-    mask = out.object_masks[0]
+    rig, scene, out, lit, mask = lit_scene(7068, 2)
 
     def epe(result):
         return np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
