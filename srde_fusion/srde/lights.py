@@ -967,8 +967,10 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
 
     No blob centre measures a light, but the blobs' light does: a joint photometric fit
     (:class:`~.refine.joint.JointLobeModel`) of every light present on the object,
-    started from the best plane and from its rival, must end on one plane. Otherwise
-    (no fit explains the blobs, or the starts end on different planes) ``failed``.
+    started from the best plane and from its rival, must end on one plane, or on two of
+    which one explains both fits' samples :data:`DECISIVE_COST_RATIO` times better.
+    Otherwise ``failed``, with a note (no fit explains the blobs) or as ``"ambiguous"``
+    (two planes the images do not tell apart).
     """
     from .refine import refine_plane
     from .refine.plane import compare_planes
