@@ -122,3 +122,17 @@ def run_cli(capsys, *argv):
     code = main([str(a) for a in argv])
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def write_capture_folders(root, rig: CameraRig, view_sets) -> list:
+    """Write each capture's views as ``root/capture<c>/<camera>.png``; return the folders."""
+    from srde_fusion.io import write_image
+
+    folders = []
+    for c, views in enumerate(view_sets):
+        folder = root / f"capture{c}"
+        folder.mkdir()
+        for name, view in zip(rig.camera_names, views, strict=True):
+            write_image(folder / f"{name}.png", view)
+        folders.append(folder)
+    return folders

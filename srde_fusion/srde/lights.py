@@ -651,25 +651,37 @@ class _Context:
                 matched[light, j] = q
                 distance[light, j] = gaps[light, q]
                 taken.add(q)
-        blobs, covered = self._blends(uv, on_object, matched, distance)
+        bright = self._bright(uv, on_object & (matched < 0))
+        blobs, covered = self._blends(uv, matched, distance, bright)
         missing = on_object & (matched < 0) & ~covered
-        if self.lit is not None and self.blend_px > 0.0:
+        if bright is not None and self.blend_px > 0.0:
             # Unexplained but bright where another light's highlight is predicted close by
             # (one blob of both) or where the outline cuts the blob: not a missing one.
             gaps = np.linalg.norm(uv[:, None, :, :] - uv[None, :, :, :], axis=3)  # (K, K, N)
             gaps[np.arange(n_lights), np.arange(n_lights)] = np.inf
             excusable = np.any(gaps < self.blend_px, axis=1) | near_edge
-            for j in range(n_views):
-                ask = np.flatnonzero(missing[:, j] & excusable[:, j])
-                if ask.size:
-                    missing[ask, j] &= ~self.lit(j, uv[ask, j])
+            missing &= ~(excusable & bright)
         if np.count_nonzero(matched >= 0) + len(blobs) < 2:
             return None
         return _Score(plane, matched, distance, uv, on_object, missing,
                       self._strays(plane, matched, blobs), tuple(blobs))
 
-    def _blends(self, uv: np.ndarray, on_object: np.ndarray, matched: np.ndarray,
-                distance: np.ndarray):
+    def _bright(self, uv: np.ndarray, ask: np.ndarray) -> np.ndarray | None:
+        """Whether each asked prediction ``(K, N)`` falls where its view is bright.
+
+        False where not asked; None without ``lit``.
+        """
+        if self.lit is None:
+            return None
+        bright = np.zeros(ask.shape, dtype=bool)
+        for j in range(ask.shape[1]):
+            lights = np.flatnonzero(ask[:, j])
+            if lights.size:
+                bright[lights, j] = self.lit(j, uv[lights, j])
+        return bright
+
+    def _blends(self, uv: np.ndarray, matched: np.ndarray, distance: np.ndarray,
+                bright: np.ndarray | None):
         """Find the blobs that hold more than one light's highlight; unmatch them (in place).
 
         A blob whose box holds the on-object prediction of a light it was not matched to
@@ -684,13 +696,12 @@ class _Context:
         """
         covered = np.zeros(matched.shape, dtype=bool)
         blobs: list[tuple[int, int]] = []
-        if self.boxes is None or self.lit is None:
+        if self.boxes is None or bright is None:
             return blobs, covered
         for j in range(matched.shape[1]):
-            free = np.flatnonzero(on_object[:, j] & (matched[:, j] < 0))
+            free = np.flatnonzero(bright[:, j])  # on the object, unmatched, bright there
             if free.size == 0:
                 continue
-            free = free[self.lit(j, uv[free, j])]
             p = uv[free, j]
             for q, (u0, v0, u1, v1) in enumerate(self.boxes[j]):
                 inside = free[(p[:, 0] >= u0) & (p[:, 0] < u1) & (p[:, 1] >= v0)

@@ -26,8 +26,8 @@ from srde_fusion.calibration import (
 from srde_fusion.cli import main
 from srde_fusion.errors import FileFormatError, LightError
 from srde_fusion.geometry import CameraRig
-from srde_fusion.io import write_image
 from srde_fusion.synthetic import highlight_normal, plate_scene, render
+from tests.support import write_capture_folders
 
 # The light sits about 1 m from the plates (the paper: 1.15 m).
 LIGHT_M = np.array([0.15, -0.35, 0.1])
@@ -372,14 +372,7 @@ def capture_dirs(tmp_path_factory, captures, rig3x3, board):
     root = tmp_path_factory.mktemp("light")
     board.to_json(root / "board.json")
     rig3x3.to_json(root / "rig.json")
-    dirs = []
-    for c, (views, _, _) in enumerate(captures[:2]):
-        folder = root / f"capture{c}"
-        folder.mkdir()
-        for name, view in zip(rig3x3.camera_names, views, strict=True):
-            write_image(folder / f"{name}.png", view)
-        dirs.append(folder)
-    return root, dirs
+    return root, write_capture_folders(root, rig3x3, [views for views, _, _ in captures[:2]])
 
 
 def test_read_capture(capture_dirs, captures, rig3x3):

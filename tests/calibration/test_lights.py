@@ -20,9 +20,8 @@ from srde_fusion.calibration import (
 )
 from srde_fusion.errors import LightError
 from srde_fusion.geometry import CameraRig, RigLight
-from srde_fusion.io import write_image
 from srde_fusion.synthetic import highlight_normal, plate_scene, render
-from tests.support import run_cli
+from tests.support import run_cli, write_capture_folders
 
 # Three lights about 1 m from the plates, 12-17 cm apart, mostly side by side: their
 # highlights lie side by side on the plate's free centre.
@@ -257,14 +256,7 @@ def test_estimate_lights_input_errors(rig3x3, board, two):
 def capture_dirs(tmp_path_factory, two, rig3x3, board):
     root = tmp_path_factory.mktemp("lights")
     board.to_json(root / "board.json")
-    dirs = []
-    for c, (views, _, _) in enumerate(two):
-        folder = root / f"capture{c}"
-        folder.mkdir()
-        for name, view in zip(rig3x3.camera_names, views, strict=True):
-            write_image(folder / f"{name}.png", view)
-        dirs.append(folder)
-    return root, dirs
+    return root, write_capture_folders(root, rig3x3, [views for views, _, _ in two])
 
 
 def test_calibrate_light_writes_every_light_keeping_names_and_radii(capture_dirs, rig3x3,

@@ -108,7 +108,7 @@ class JointLobeModel:
         """Intensities ``(K + 2,)`` (specular per light, diffuse, level) and the model."""
         solver = self.intensities
         y, k = solver.y, solver.n_unclipped
-        basis = np.vstack([lobes, diffuse[None, :], np.ones((1, len(y)))])
+        basis = self._basis(lobes, diffuse)
         norms = np.einsum("bp,bp->b", basis[:, :k], basis[:, :k])
         # A further light whose lobe does not reach the samples has no intensity to fit.
         used = np.ones(len(basis), dtype=bool)
@@ -124,6 +124,10 @@ class JointLobeModel:
         coef = np.zeros(len(basis))
         coef[used] = coef_used
         return coef, coef @ basis, basis
+
+    def _basis(self, lobes: np.ndarray, diffuse: np.ndarray) -> np.ndarray:
+        """Return the intensities' basis ``(K + 2, P)``: each light's lobe, diffuse, 1."""
+        return np.vstack([lobes, diffuse[None, :], np.ones((1, lobes.shape[1]))])
 
     def _theta_with(self, theta: np.ndarray, coef: np.ndarray) -> np.ndarray:
         out = theta.copy()
@@ -145,9 +149,11 @@ class JointLobeModel:
 
     def jacobian(self, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
         """Transposed Jacobian ``(len(free), P)`` (variable projection, Kaufman's form)."""
+        # ``theta`` comes from :meth:`evaluate`, its intensities already solved there.
         lobes, shading = self._lobes(theta)
-        coef, model, basis = self._solve(lobes, shading.diffuse)
+        basis = self._basis(lobes, shading.diffuse)
         spec = self.specular(theta)
+        model = np.concatenate([spec, theta[[I_DIFF, I_LEVEL]]]) @ basis
         jac = np.zeros((len(free), len(model)))
         for k, part in enumerate(self.parts):
             if spec[k] == 0.0 and k > 0:
