@@ -20,6 +20,8 @@ __all__ = [
     "BLOB_CENTERS",
     "DEFAULT_BLOB_CENTER",
     "BLOB_LEVEL",
+    "CLIPPED_MEDIAN",
+    "BRIGHT_REGION_QUANTILE",
     "PEAK_SMOOTHING_SIGMA_PX",
     "LOBE_FLOOR",
     "BLOB_MARGIN_PX",
@@ -38,6 +40,12 @@ DEFAULT_BLOB_CENTER = "weighted"
 
 #: Blob detector: the level between background and peak that delimits the blob (half max).
 BLOB_LEVEL = 0.5
+#: A search region whose median luminance is at least this (linear, 1 = the clipping
+#: level) and from which the peak does not stand out is mostly highlight: a clipped
+#: blob larger than half the region (a very glossy object under a near light) ...
+CLIPPED_MEDIAN = 0.9
+#: ... and its background is read at this quantile of the region instead of the median.
+BRIGHT_REGION_QUANTILE = 0.1
 #: The blob's peak is read from a slightly smoothed image so one hot pixel cannot set it.
 PEAK_SMOOTHING_SIGMA_PX = 1.0
 #: The lobe fit uses flank pixels above this fraction of the contrast (the log of small

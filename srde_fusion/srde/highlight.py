@@ -20,6 +20,11 @@ Two detectors share one result type:
     chosen by measuring each against the projected virtual light on rendered scenes
     (``benchmarks/srde_accuracy.py``).
 
+The blob detector's background is the search region's median luminance; where the
+median is itself nearly clipped and the peak does not stand out from it, the highlight
+covers most of the region and the background is read at a low quantile instead
+(:func:`region_background`).
+
 Both work only inside a search region (the object's eroded mask in the reference
 view); the region's bounding box, plus the margin the filters need, is all that is
 computed, so the cost scales with the object and not with the image.
@@ -37,6 +42,8 @@ from ..errors import SRDEError
 from ..imaging import luminance, saturation_mask
 from .config import (
     BLOB_LEVEL,
+    BRIGHT_REGION_QUANTILE,
+    CLIPPED_MEDIAN,
     DEFAULT_BLOB_CENTER,
     LOBE_FLOOR,
     MIN_CORE_PX,
@@ -57,6 +64,7 @@ __all__ = [
     "components",
     "crop_luminance",
     "median",
+    "region_background",
     "weighted_centroid",
     "lobe_center",
 ]
@@ -416,8 +424,8 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
     """Half-maximum blob on linear intensity and its sub-pixel centre, on a crop."""
     smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
     inside = lum[region]
-    background = median(inside)
     peak = float(smooth[region].max())
+    background = region_background(inside, peak, config.min_contrast)
     contrast = peak - background
     if level is None:
         level = background + BLOB_LEVEL * contrast
@@ -486,6 +494,31 @@ def median(values: np.ndarray) -> float:
         return float(upper)
     lower = part[:half].max()
     return float((lower + upper) / 2)
+
+
+def region_background(values: np.ndarray, peak: float, min_contrast: float) -> float:
+    """Return the level a highlight must stand out from in a search region (linear).
+
+    The region's median, unless the median is at least :data:`CLIPPED_MEDIAN` and
+    ``peak`` lies less than ``min_contrast`` above it: then a clipped highlight covers
+    more than half of the region (a very glossy object close to its light fills most of
+    the mask with one blob), the median is the blob's own level, and the background is
+    read at the :data:`BRIGHT_REGION_QUANTILE` quantile of the region instead. A region
+    that is bright all over (an overexposed object) still shows no contrast there.
+
+    Parameters
+    ----------
+    values : numpy.ndarray, (n,) float
+        The region's luminance, non-empty.
+    peak : float
+        The region's (smoothed) maximum.
+    min_contrast : float
+        The detector's ``min_contrast``.
+    """
+    background = median(values)
+    if background >= CLIPPED_MEDIAN and peak - background < min_contrast:
+        background = float(np.quantile(values, BRIGHT_REGION_QUANTILE))
+    return background
 
 
 def weighted_centroid(weights: np.ndarray) -> np.ndarray:

@@ -52,6 +52,7 @@ from .highlight import (
     HighlightDetection,
     detect_in_view,
     grown_box,
+    region_background,
     search_box,
     weighted_centroid,
 )
@@ -277,7 +278,7 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     u0, v0, u1, v1 = box
     lum = luminance(image[v0:v1, u0:u1], config.encoding)
     inside = region[v0:v1, u0:u1]
-    background = float(np.median(lum[inside]))
+    background = region_background(lum[inside], float(lum[inside].max()), config.min_contrast)
     # Everything below works on the part of the crop where something is bright: no peak
     # (smoothed luminance above background + min_contrast) lies farther than the blur's
     # reach from a pixel above that level, and no blob pixel (above half its peak's

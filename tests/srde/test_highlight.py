@@ -226,3 +226,32 @@ def test_input_errors(kwargs, error, match):
     image = args.pop("image")
     with pytest.raises(error, match=match):
         detect_highlight(image, **args)
+
+
+def test_a_clipped_blob_covering_most_of_the_region_is_still_found():
+    # A very glossy object close to its light: one clipped blob fills most of the
+    # search region, so the region's median is the blob's own level. The background is
+    # then read at a low quantile and the blob's centre is found.
+    center = np.array([64.3, 47.6])
+    image = to_srgb8(gaussian_blob(center, sigma=10.0, peak=6.0, background=0.05))
+    region = np.zeros((H, W), bool)
+    region[30:66, 44:86] = True
+    assert np.median(luminance(image)[region]) >= 0.9
+    det = detect_highlight(image, region)
+    assert det.found, det.reason
+    np.testing.assert_allclose(det.center_uv, center, atol=0.5)
+    # Told nothing new, a region that is clipped all over still shows no highlight.
+    white = np.full((H, W, 3), 255, np.uint8)
+    assert "no bright blob" in detect_highlight(white, region).reason
+
+
+def test_region_background_is_the_median_unless_the_median_is_clipped():
+    from srde_fusion.srde.highlight import region_background
+    values = np.linspace(0.0, 0.6, 101, dtype=np.float32)
+    assert region_background(values, 0.6, 0.05) == np.median(values)
+    mostly_clipped = np.concatenate([np.full(70, 1.0), np.linspace(0.1, 0.5, 30)])
+    assert region_background(mostly_clipped, 1.0, 0.05) == pytest.approx(
+        np.quantile(mostly_clipped, 0.1))
+    # a bright median with a peak that stands out keeps the median
+    bright = np.concatenate([np.full(70, 0.92), np.full(30, 1.0)])
+    assert region_background(bright, 1.0, 0.05) == pytest.approx(0.92)
