@@ -27,6 +27,7 @@ view's search region (every blob that stands out, not only the brightest).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -922,6 +923,8 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         if srde.refine and solution.merged_blobs and solution.plane is not None \
                 and solution.status in ("too_few_views", "ambiguous", "inconsistent"):
             return _solve_merged(srde, views, mask, solution, failed)
+        if srde.refine and solution.plane is None and solution.status == "too_few_views":
+            return _solve_from_single_lights(srde, views, mask, solution, failed)
         return failed
     # The light seen in most views (then with the smallest residual) carries the checks
     # and the refinement; the joint plane mirrors it onto its own virtual light.
@@ -977,28 +980,84 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
                   failed: SRDEResult) -> SRDEResult:
     """Solve an object whose highlights are merged blobs by one lobe per light.
 
-    No blob centre measures a light, but the blobs' light does: a joint photometric fit
-    (:class:`~.refine.joint.JointLobeModel`) of every light present on the object,
-    started from the best plane and from its rival, must end on one plane, or on two of
+    No blob centre measures a light, but the blobs' light does: the joint photometric
+    fit (:func:`_solve_by_lobes`) of every light present on the object, started from the
+    best plane and from its rival.
+    """
+    # Lights present on the object (a candidate, or a merged blob holding them).
+    present = np.stack([a.on_object & ~a.missing for a in solution.assignments])
+    starts = [solution.plane] + ([solution.rival_plane] if solution.rival_plane is not None
+                                 else [])
+    note = (f"lights: highlights merged in {len(solution.merged_blobs)} blob(s); a joint fit "
+            f"of one lobe per light")
+    return _solve_by_lobes(srde, views, mask, solution, failed, starts, present, note)
+
+
+def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
+                              failed: SRDEResult) -> SRDEResult:
+    """Solve an object whose candidates no plane explains, from each light on its own.
+
+    When highlights of two lights blend (one lit the object's middle, the other's flank
+    reaches in from beside the outline), every blob's centre is pulled off both lights'
+    and no depth is agreed on a baseline line. Each light alone, as single-light SRDE
+    sees it (the brightest blob of each view, triangulated with its outliers dropped),
+    still gives a plane near the right one: those planes start the joint fit of the
+    lights predicted on the object (:func:`_solve_by_lobes`), which decides as for
+    merged blobs.
+    """
+    rig, lights = srde.rig, srde.lights_m
+    starts: list[Plane] = []
+    for k in range(len(lights)):
+        alone = _one_light(srde, k).estimate(views, mask)
+        if alone.ok and alone.plane is not None:
+            starts.append(alone.plane)
+    if not starts:
+        return failed
+    context = _Context(rig, lights, mask, solution.candidates_uv, None, 0.0,
+                       srde.object_depth_m, srde.min_views, 0.0)
+    present = np.logical_or.reduce([context.predict(plane)[1] for plane in starts])
+    if not present.any():
+        return failed
+    note = (f"lights: no plane explains the blob centres; single-light planes of "
+            f"{len(starts)} light(s) start a joint fit of one lobe per light")
+    return _solve_by_lobes(srde, views, mask, solution, failed, starts, present, note)
+
+
+def _one_light(srde: SRDE, k: int) -> SRDE:
+    """Return the same estimator told of light ``k`` only, geometric (no refinement)."""
+    one = copy.copy(srde)
+    one.light_m = srde.lights_m[k]
+    one.lights_m = srde.lights_m[k:k + 1]
+    one.light_radii_m = srde.light_radii_m[k:k + 1]
+    one.refine = False
+    one.search = BaselineSearch(srde.rig, one.light_m, srde.object_depth_m)
+    return one
+
+
+def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
+                    failed: SRDEResult, starts: list[Plane], present: np.ndarray,
+                    note: str) -> SRDEResult:
+    """Fit one lobe per light on one plane from several starts, and decide.
+
+    The joint photometric fit (:class:`~.refine.joint.JointLobeModel`) of the lights
+    ``present`` on the object ``(K, N)`` bool, with the light present in most views as
+    the main one, runs from every start plane. It must end on one plane, or on two of
     which one explains both fits' samples :data:`DECISIVE_COST_RATIO` times better.
-    Otherwise ``failed``, with a note (no fit explains the blobs) or as ``"ambiguous"``
+    Otherwise ``failed``, with a note (no fit explains the images) or as ``"ambiguous"``
     (two planes the images do not tell apart).
     """
     from .refine import refine_plane
     from .refine.plane import compare_planes
 
     rig, lights = srde.rig, srde.lights_m
-    # Lights present on the object (a candidate, or a merged blob holding them).
-    present = np.stack([a.on_object & ~a.missing for a in solution.assignments])
     main = int(np.argmax(present.sum(axis=1)))
     modelled = [k for k in range(len(lights)) if k != main and present[k].any()]
     others = [k for k in range(len(lights)) if k != main and k not in modelled]
     used = present[main]
-    starts = [solution.plane] + ([solution.rival_plane] if solution.rival_plane is not None
-                                 else [])
     options = dict(lobe=srde.refine_lobe, other_lights_m=lights[others] if others else None,
                    modelled_lights_m=lights[modelled] if modelled else None,
                    light_radius_m=srde.light_radii_m[main])
+    note = f"{note} ({[main, *modelled]})"
 
     def centers_for(plane: Plane) -> np.ndarray:
         virtual = plane.mirror(lights[main])
@@ -1006,17 +1065,18 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
                                  np.arange(rig.n_cameras))
         return np.where(used[:, None], centers, np.nan)
 
-    refined = [fit for fit in (refine_plane(views, rig, lights[main], mask, start,
-                                            centers_uv=centers_for(start), **options)
-                               for start in starts) if fit.ok]
-    note = (f"lights: highlights merged in {len(solution.merged_blobs)} blob(s); a joint fit "
-            f"of one lobe per light ({[main, *modelled]})")
+    corners = _box_corners(mask)
+    refined: list = []
+    for start in starts:
+        fit = refine_plane(views, rig, lights[main], mask, start,
+                           centers_uv=centers_for(start), **options)
+        if fit.ok and all(_plane_gap_px(rig, corners, fit.plane, other.plane) > SAME_PLANE_PX
+                          for other in refined):
+            refined.append(fit)
     if not refined:
         return dataclasses.replace(failed, notes=(*failed.notes, note + " explained none"))
     fit = refined[0]
-    corners = _box_corners(mask)
-    if len(refined) > 1 and _plane_gap_px(rig, corners, refined[0].plane,
-                                          refined[1].plane) > SAME_PLANE_PX:
+    if len(refined) > 1:
         # Two fits, two planes: compare them on the same samples, each fit's in turn.
         a, b = refined[0].plane, refined[1].plane
         on_a = compare_planes(views, rig, lights[main], mask, [a, b], centers_for(a), **options)
@@ -1027,10 +1087,10 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
             fit = refined[1]
         else:
             gap_px = _plane_gap_px(rig, corners, a, b)
-            reason = (f"{note} ends on planes {gap_px:.1f} px apart from the best plane and its "
-                      f"rival, neither explaining the images {DECISIVE_COST_RATIO:g}x better "
-                      f"(costs {on_a[0]:.3g} vs {on_a[1]:.3g} and {on_b[1]:.3g} vs "
-                      f"{on_b[0]:.3g}); {solution.evidence}")
+            reason = (f"{note} ends on planes {gap_px:.1f} px apart from two starts, neither "
+                      f"explaining the images {DECISIVE_COST_RATIO:g}x better (costs "
+                      f"{on_a[0]:.3g} vs {on_a[1]:.3g} and {on_b[1]:.3g} vs {on_b[0]:.3g})"
+                      + (f"; {solution.evidence}" if solution.evidence else ""))
             return dataclasses.replace(failed, status="ambiguous", reason=reason)
     point = fit.plane.mirror(lights[main])
     w = 1.0 / (point[2] - rig.reference_center_m[2])

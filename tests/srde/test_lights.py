@@ -296,3 +296,28 @@ def test_a_reference_view_filled_by_one_clipped_blob_is_still_solved():
     assert result.ok, result.reason
     epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
     assert epe < 0.05
+
+
+def test_blob_centres_no_plane_explains_are_solved_from_each_light_alone():
+    # One light's highlight lies in the object's middle, the other's flank reaches in
+    # from beside the outline in three views and blends into it: every blob centre is
+    # pulled off both lights' highlights (by up to 14 px) and no depth is agreed along a
+    # baseline line. Each light alone gives a starting plane; the joint fit of both
+    # lobes ends on the right one.
+    from srde_fusion.synthetic.physics import Physics
+    rig = default_rig()
+    scene = random_scene(12221, rig, config=RandomSceneConfig(n_lights=2))
+    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
+    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+
+    def epe(result):
+        return np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
+
+    geometric = SRDE(lit, refine=False).estimate(out.views, mask)
+    assert geometric.status == "too_few_views" and geometric.lights.plane is None
+    result = SRDE(lit).estimate(out.views, mask)
+    assert result.ok, result.reason
+    assert any("single-light planes" in note for note in result.notes)
+    assert epe(result) < 0.05
+    first = rig.with_lights(rig_lights(scene)[:1])
+    assert epe(SRDE(first).estimate(out.views, mask)) > 0.1  # the first light alone
