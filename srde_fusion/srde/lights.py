@@ -925,6 +925,8 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             return _solve_merged(srde, views, mask, solution, failed)
         if srde.refine and solution.plane is None and solution.status == "too_few_views":
             return _solve_from_single_lights(srde, views, mask, solution, failed)
+        if srde.refine and solution.status == "ambiguous" and solution.rival_plane is not None:
+            return _solve_ambiguous(srde, views, mask, solution, failed)
         return failed
     # The light seen in most views (then with the smallest residual) carries the checks
     # and the refinement; the joint plane mirrors it onto its own virtual light.
@@ -990,7 +992,29 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
                                  else [])
     note = (f"lights: highlights merged in {len(solution.merged_blobs)} blob(s); a joint fit "
             f"of one lobe per light")
-    return _solve_by_lobes(srde, views, mask, solution, failed, starts, present, note)
+    return _solve_by_lobes(srde, views, mask, solution, failed, starts,
+                           [present] * len(starts), note)
+
+
+def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
+                     failed: SRDEResult) -> SRDEResult:
+    """Decide between two planes the blob centres explain alike by their lobes.
+
+    One virtual light seen in every view is the mirror image of each light across a
+    different plane: which light made it, the centres cannot say. The lobes can (their
+    shape and falloff across the views follow the light's direction and distance): each
+    plane's fit, its samples around the same blobs, must explain them
+    :data:`DECISIVE_COST_RATIO` times better than the other plane (:func:`_solve_by_lobes`).
+    """
+    rig, lights = srde.rig, srde.lights_m
+    starts = [solution.plane, solution.rival_plane]
+    context = _Context(rig, lights, mask, solution.candidates_uv, None, 0.0,
+                       srde.object_depth_m, srde.min_views, 0.0)
+    presents = [context.predict(plane)[1] for plane in starts]
+    if not all(p.any() for p in presents):
+        return failed
+    note = "lights: two planes explain the blob centres alike; a joint fit of one lobe per light"
+    return _solve_by_lobes(srde, views, mask, solution, failed, starts, presents, note)
 
 
 def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
@@ -1015,12 +1039,12 @@ def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: Lig
         return failed
     context = _Context(rig, lights, mask, solution.candidates_uv, None, 0.0,
                        srde.object_depth_m, srde.min_views, 0.0)
-    present = np.logical_or.reduce([context.predict(plane)[1] for plane in starts])
-    if not present.any():
+    presents = [context.predict(plane)[1] for plane in starts]
+    if not all(p.any() for p in presents):
         return failed
     note = (f"lights: no plane explains the blob centres; single-light planes of "
             f"{len(starts)} light(s) start a joint fit of one lobe per light")
-    return _solve_by_lobes(srde, views, mask, solution, failed, starts, present, note)
+    return _solve_by_lobes(srde, views, mask, solution, failed, starts, presents, note)
 
 
 def _one_light(srde: SRDE, k: int) -> SRDE:
@@ -1035,56 +1059,60 @@ def _one_light(srde: SRDE, k: int) -> SRDE:
 
 
 def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
-                    failed: SRDEResult, starts: list[Plane], present: np.ndarray,
+                    failed: SRDEResult, starts: list[Plane], presents: list[np.ndarray],
                     note: str) -> SRDEResult:
     """Fit one lobe per light on one plane from several starts, and decide.
 
-    The joint photometric fit (:class:`~.refine.joint.JointLobeModel`) of the lights
-    ``present`` on the object ``(K, N)`` bool, with the light present in most views as
-    the main one, runs from every start plane. It must end on one plane, or on two of
-    which one explains both fits' samples :data:`DECISIVE_COST_RATIO` times better.
-    Otherwise ``failed``, with a note (no fit explains the images) or as ``"ambiguous"``
-    (two planes the images do not tell apart).
+    ``presents[i]`` ``(K, N)`` bool: the lights start ``i`` puts on the object. Every light
+    present for some start is rendered (:class:`~.refine.joint.JointLobeModel`); each
+    start's fit places its samples around the highlights of its own main light (the one
+    present in most views), so two starts that explain one blob by different lights are
+    judged on that blob. The fits must end on one plane, or on two of which one explains
+    both fits' samples :data:`DECISIVE_COST_RATIO` times better. Otherwise ``failed``, with
+    a note (no fit explains the images) or as ``"ambiguous"`` (two planes the images do
+    not tell apart).
     """
     from .refine import refine_plane
     from .refine.plane import compare_planes
 
     rig, lights = srde.rig, srde.lights_m
-    main = int(np.argmax(present.sum(axis=1)))
-    modelled = [k for k in range(len(lights)) if k != main and present[k].any()]
-    others = [k for k in range(len(lights)) if k != main and k not in modelled]
-    used = present[main]
-    options = dict(lobe=srde.refine_lobe, other_lights_m=lights[others] if others else None,
-                   modelled_lights_m=lights[modelled] if modelled else None,
-                   light_radius_m=srde.light_radii_m[main])
-    note = f"{note} ({[main, *modelled]})"
+    everywhere = np.logical_or.reduce(presents).any(axis=1)  # (K,)
 
-    def centers_for(plane: Plane) -> np.ndarray:
-        virtual = plane.mirror(lights[main])
-        centers = project_points(rig, np.repeat(virtual[None], rig.n_cameras, axis=0),
-                                 np.arange(rig.n_cameras))
-        return np.where(used[:, None], centers, np.nan)
+    def setup(present: np.ndarray, plane: Plane):
+        main = int(np.argmax(present.sum(axis=1)))
+        modelled = [k for k in np.flatnonzero(everywhere) if k != main]
+        others = [k for k in range(len(lights)) if k != main and k not in modelled]
+        options = dict(lobe=srde.refine_lobe,
+                       other_lights_m=lights[others] if others else None,
+                       modelled_lights_m=lights[modelled] if modelled else None,
+                       light_radius_m=srde.light_radii_m[main])
+        return main, present[main], _centres(rig, plane, lights[main], present[main]), options
 
     corners = _box_corners(mask)
-    refined: list = []
-    for start in starts:
-        fit = refine_plane(views, rig, lights[main], mask, start,
-                           centers_uv=centers_for(start), **options)
-        if fit.ok and all(_plane_gap_px(rig, corners, fit.plane, other.plane) > SAME_PLANE_PX
-                          for other in refined):
-            refined.append(fit)
-    if not refined:
+    fits: list = []  # (fit, main, used, options) of distinct planes
+    for start, present in zip(starts, presents, strict=True):
+        main, used, centers, options = setup(present, start)
+        fit = refine_plane(views, rig, lights[main], mask, start, centers_uv=centers, **options)
+        if fit.ok and all(_plane_gap_px(rig, corners, fit.plane, f.plane) > SAME_PLANE_PX
+                          for f, *_ in fits):
+            fits.append((fit, main, used, options))
+    mains = sorted({setup(p, s)[0] for s, p in zip(starts, presents, strict=True)})
+    note = f"{note} (lights {np.flatnonzero(everywhere).tolist()}, main {mains})"
+    if not fits:
         return dataclasses.replace(failed, notes=(*failed.notes, note + " explained none"))
-    fit = refined[0]
-    if len(refined) > 1:
+    fit, main, used, _ = fits[0]
+    if len(fits) > 1:
         # Two fits, two planes: compare them on the same samples, each fit's in turn.
-        a, b = refined[0].plane, refined[1].plane
-        on_a = compare_planes(views, rig, lights[main], mask, [a, b], centers_for(a), **options)
-        on_b = compare_planes(views, rig, lights[main], mask, [b, a], centers_for(b), **options)
+        (a, main_a, used_a, opt_a), (b, main_b, used_b, opt_b) = fits[0], fits[1]
+        a, b = a.plane, b.plane
+        on_a = compare_planes(views, rig, lights[main_a], mask, [a, b],
+                              _centres(rig, a, lights[main_a], used_a), **opt_a)
+        on_b = compare_planes(views, rig, lights[main_b], mask, [b, a],
+                              _centres(rig, b, lights[main_b], used_b), **opt_b)
         if on_a[1] > DECISIVE_COST_RATIO * on_a[0] and on_b[0] > DECISIVE_COST_RATIO * on_b[1]:
-            fit = refined[0]
+            fit, main, used, _ = fits[0]
         elif on_a[0] > DECISIVE_COST_RATIO * on_a[1] and on_b[1] > DECISIVE_COST_RATIO * on_b[0]:
-            fit = refined[1]
+            fit, main, used, _ = fits[1]
         else:
             gap_px = _plane_gap_px(rig, corners, a, b)
             reason = (f"{note} ends on planes {gap_px:.1f} px apart from two starts, neither "
@@ -1094,8 +1122,7 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
             return dataclasses.replace(failed, status="ambiguous", reason=reason)
     point = fit.plane.mirror(lights[main])
     w = 1.0 / (point[2] - rig.reference_center_m[2])
-    centers = project_points(rig, np.repeat(point[None], rig.n_cameras, axis=0),
-                             np.arange(rig.n_cameras))
+    centers = _centres(rig, fit.plane, lights[main], np.ones(rig.n_cameras, bool))
     detections = tuple(HighlightDetection.missing(f"light {main}: in a merged blob")
                        for _ in range(rig.n_cameras))
     result = srde._finish(mask, point, w, used, centers, detections,
@@ -1105,6 +1132,14 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
         return dataclasses.replace(failed, notes=(*failed.notes, note + f": {result.reason}"))
     solved = dataclasses.replace(solution, status="ok", reason="", plane=result.plane)
     return dataclasses.replace(result, refinement=fit, lights=solved)
+
+
+def _centres(rig: CameraRig, plane: Plane, light: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """Return the light's highlight centre in every used view, ``(N, 2)``; NaN elsewhere."""
+    virtual = plane.mirror(light)
+    centers = project_points(rig, np.repeat(virtual[None], rig.n_cameras, axis=0),
+                             np.arange(rig.n_cameras))
+    return np.where(used[:, None], centers, np.nan)
 
 
 def _box_corners(mask: np.ndarray) -> np.ndarray:
