@@ -20,11 +20,6 @@ Two detectors share one result type:
     chosen by measuring each against the projected virtual light on rendered scenes
     (``benchmarks/srde_accuracy.py``).
 
-The blob detector's background is the search region's median luminance; where the
-median is itself nearly clipped and the peak does not stand out from it, the highlight
-covers most of the region and the background is read at a low quantile instead
-(:func:`region_background`).
-
 Both work only inside a search region (the object's eroded mask in the reference
 view); the region's bounding box, plus the margin the filters need, is all that is
 computed, so the cost scales with the object and not with the image.
@@ -424,8 +419,8 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
     """Half-maximum blob on linear intensity and its sub-pixel centre, on a crop."""
     smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
     inside = lum[region]
+    background = median(inside)
     peak = float(smooth[region].max())
-    background = region_background(inside, peak, config.min_contrast)
     contrast = peak - background
     if level is None:
         level = background + BLOB_LEVEL * contrast
@@ -501,10 +496,17 @@ def region_background(values: np.ndarray, peak: float, min_contrast: float) -> f
 
     The region's median, unless the median is at least :data:`CLIPPED_MEDIAN` and
     ``peak`` lies less than ``min_contrast`` above it: then a clipped highlight covers
-    more than half of the region (a very glossy object close to its light fills most of
+    more than half of the region (a very glossy object close to its lights fills most of
     the mask with one blob), the median is the blob's own level, and the background is
     read at the :data:`BRIGHT_REGION_QUANTILE` quantile of the region instead. A region
     that is bright all over (an overexposed object) still shows no contrast there.
+
+    Only the several-lights candidates of the reference view use it
+    (:func:`~.lights.find_candidates` with ``object_region``), where no blob centre is
+    taken for a measurement before the lobes of every light are fitted on one plane. The
+    single-light detector keeps the median: its geometric plane is the blob's centre
+    triangulated, and the centre of a blob that fills the object is cut by the outline
+    (a scene's plane came out 22 px off, and the refinement did not recover it).
 
     Parameters
     ----------

@@ -53,6 +53,7 @@ from .highlight import (
     HighlightDetection,
     detect_in_view,
     grown_box,
+    median,
     region_background,
     search_box,
     weighted_centroid,
@@ -245,7 +246,8 @@ class LightsSolution:
 
 # ---------------------------------------------------------------------- candidates
 def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
-                    max_candidates: int = MAX_CANDIDATES) -> list[HighlightDetection]:
+                    max_candidates: int = MAX_CANDIDATES,
+                    object_region: bool = False) -> list[HighlightDetection]:
     """Every highlight in a view's search region, brightest first.
 
     Two highlights of different lights can lie close enough to merge above one
@@ -267,6 +269,10 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     config : DetectorConfig
         The blob detector's options (encoding, minimum contrast).
     max_candidates : int
+    object_region : bool
+        The region is the object's own search region (the reference view): a region
+        mostly filled by one clipped blob then has its background read at a low quantile
+        (:func:`~.highlight.region_background`); elsewhere the median stays.
 
     Returns
     -------
@@ -279,7 +285,8 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     u0, v0, u1, v1 = box
     lum = luminance(image[v0:v1, u0:u1], config.encoding)
     inside = region[v0:v1, u0:u1]
-    background = region_background(lum[inside], float(lum[inside].max()), config.min_contrast)
+    background = (region_background(lum[inside], float(lum[inside].max()), config.min_contrast)
+                  if object_region else median(lum[inside]))
     # Everything below works on the part of the crop where something is bright: no peak
     # (smoothed luminance above background + min_contrast) lies farther than the blur's
     # reach from a pixel above that level, and no blob pixel (above half its peak's
@@ -878,7 +885,7 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     """
     rig, config = srde.rig, srde.config
     ref = rig.reference
-    ref_found = find_candidates(views[ref], search, config)
+    ref_found = find_candidates(views[ref], search, config, object_region=True)
     if not ref_found:
         reason = detect_in_view(views[ref], search, config).reason
         return srde._failed("no_highlight", f"{srde._view(ref)}: {reason}")

@@ -39,8 +39,6 @@ from .backends import REDUCED_SMOOTHING_SIGMA_PX, DetectionRequest
 from .backends import smooth_at as smooth_on_host
 from .config import (
     BLOB_LEVEL,
-    BRIGHT_REGION_QUANTILE,
-    CLIPPED_MEDIAN,
     MIN_CORE_PX,
     PEAK_SMOOTHING_SIGMA_PX,
     WHITE_FLOOR,
@@ -308,12 +306,6 @@ class TorchBackend:
         smooth = self.smooth(lum, crops.sizes, self.blob_kernel)
         background = median_of(lum, region)
         peak = torch.where(region, smooth, -torch.inf).flatten(1).amax(dim=1).double()
-        # highlight.region_background: a region that is mostly one clipped blob (rare;
-        # read on the host, exactly as numpy reads it)
-        for i in torch.nonzero((background >= CLIPPED_MEDIAN)
-                               & (peak - background < config.min_contrast)).flatten().tolist():
-            values = lum[i][region[i]].cpu().numpy()
-            background[i] = float(np.quantile(values, BRIGHT_REGION_QUANTILE))
         contrast = peak - background
         given = torch.tensor([math.nan if lv is None else lv for lv in levels],
                              dtype=torch.float64, device=dev)

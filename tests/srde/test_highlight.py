@@ -228,21 +228,26 @@ def test_input_errors(kwargs, error, match):
         detect_highlight(image, **args)
 
 
-def test_a_clipped_blob_covering_most_of_the_region_is_still_found():
+def test_a_clipped_blob_covering_most_of_the_region():
     # A very glossy object close to its light: one clipped blob fills most of the
-    # search region, so the region's median is the blob's own level. The background is
-    # then read at a low quantile and the blob's centre is found.
+    # search region, so the region's median is the blob's own level. The single-light
+    # detector says so (its centre would be cut by the outline); the several-lights
+    # candidates of the object's own region read the background low and find the blob.
+    from srde_fusion.srde.config import DetectorConfig
+    from srde_fusion.srde.lights import find_candidates
     center = np.array([64.3, 47.6])
     image = to_srgb8(gaussian_blob(center, sigma=10.0, peak=6.0, background=0.05))
     region = np.zeros((H, W), bool)
     region[30:66, 44:86] = True
     assert np.median(luminance(image)[region]) >= 0.9
-    det = detect_highlight(image, region)
-    assert det.found, det.reason
-    np.testing.assert_allclose(det.center_uv, center, atol=0.5)
-    # Told nothing new, a region that is clipped all over still shows no highlight.
+    assert "no bright blob" in detect_highlight(image, region).reason
+    assert find_candidates(image, region, DetectorConfig()) == []
+    found = find_candidates(image, region, DetectorConfig(), object_region=True)
+    assert len(found) == 1
+    np.testing.assert_allclose(found[0].center_uv, center, atol=0.5)
+    # A region that is clipped all over still shows no highlight.
     white = np.full((H, W, 3), 255, np.uint8)
-    assert "no bright blob" in detect_highlight(white, region).reason
+    assert find_candidates(white, region, DetectorConfig(), object_region=True) == []
 
 
 def test_region_background_is_the_median_unless_the_median_is_clipped():

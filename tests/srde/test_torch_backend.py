@@ -248,25 +248,3 @@ def test_srde_takes_a_backend_by_name_or_instance():
     with pytest.raises(SRDEError, match="device: expected None or 'cpu' for the numpy backend"):
         SRDE(rig, light, device="cuda")
 
-
-def test_a_region_filled_by_one_clipped_blob_reads_its_background_as_numpy_does():
-    rig = default_rig()
-    scene = random_scene(5, rig, n_objects=1)
-    out = render(scene, rig)
-    config = DetectorConfig(encoding=rig.image_encoding)
-    views = [v.copy() for v in out.views]
-    h, w = views[0].shape[:2]
-    vv, uu = np.mgrid[0:h, 0:w]
-    region = np.zeros((h, w), bool)
-    region[200:260, 300:380] = True
-    for j, view in enumerate(views):  # a clipped disc over most of the region, per view
-        disc = (uu - 338 - j) ** 2 + (vv - 231) ** 2 < 34 ** 2
-        view[disc] = 255
-    requests = [DetectionRequest(j, region) for j in range(rig.n_cameras)]
-    numpy_backend, torch_backend = NumpyBackend(rig, config), TorchBackend(rig, config)
-    expected = numpy_backend.detect(numpy_backend.prepare(views), requests)
-    got = torch_backend.detect(torch_backend.prepare(views), requests)
-    assert all(e.found for e in expected)
-    for e, g in zip(expected, got, strict=True):
-        assert (e.found, e.area_px, e.bbox) == (g.found, g.area_px, g.bbox)
-        np.testing.assert_allclose(g.center_uv, e.center_uv, atol=CENTER_TOL_PX)
