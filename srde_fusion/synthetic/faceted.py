@@ -98,7 +98,7 @@ def faceted_scene(seed: int, rig: CameraRig, *, n_faces: int = 2, convex: bool =
                   distance_m=(0.7, 1.2), edge_length_m=(0.16, 0.28),
                   face_width_m=(0.08, 0.14), max_tilt_deg: float = 20.0,
                   roughness=(0.005, 0.03), light_distance_m=(0.5, 1.4),
-                  highlight_margin_m: float = 0.012, min_views: int = 3,
+                  highlight_margin_m: float = 0.02, min_views: int = 3,
                   clip_ratio=(1.5, 4.0), diffuse_level=(0.03, 0.12),
                   noise_std: float = 0.002, max_attempts: int = 2000) -> FacetedScene:
     """Sample a faceted object and its lights, deterministically from ``seed``.
