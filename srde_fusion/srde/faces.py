@@ -216,11 +216,15 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
         return None, None, ""
     splits: list[_Split] = []
     why = ""
+    # Evidence of a second face: a plane explaining, in min_views views, one light's
+    # highlights the plane that explains the most does not.
+    first = _explained(pool[0])
+    second = any(_own_views(p, first) >= min_views for p in pool[1:])
     for a, b in combinations(range(len(pool)), 2):
         split, reason = _evaluate(context, (pool[a], pool[b]), min_views, box, inside)
         if split is not None:
             splits.append(split)
-        elif not why and _own_views(pool[b], _explained(pool[a])) >= min_views:
+        elif not why and second:
             why = reason
     if max_faces > 2 and splits:
         for pair in sorted(splits, key=lambda s: s.value, reverse=True)[:3]:
@@ -230,6 +234,8 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
                 split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside)
                 if split is not None and split.value > pair.value:
                     splits.append(split)
+    # Faces must explain more highlights than the first plane does alone.
+    splits = [s for s in splits if s.value[0] > len(first)]
     if not splits:
         return None, None, why
     splits.sort(key=lambda s: s.value, reverse=True)
