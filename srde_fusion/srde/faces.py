@@ -15,8 +15,10 @@ lines, a light) are the same, only more than one of them is the answer:
    planes (the ray enters the solid last through it), a concave one (a valley) the
    *nearer*. The rule kept is the one under which every face's own highlights (their
    mirror points seen from the reference camera) fall in that face's part of the mask;
-   if neither or both do, or a face's part is too small, the object fails with
-   ``status="face_split"`` and a reason: never a guess.
+   if no set of planes splits the mask so, the object takes the one-plane path (whose
+   own checks weigh the highlights its plane does not explain); if the chosen split
+   fails later (after refinement, or a reference highlight that no face explains), the
+   object fails with ``status="face_split"`` and a reason: never a guess.
 3. **Per face.** The face's highlights of its best-seen light go through the usual
    checks and photometric refinement on the face's part of the mask
    (``SRDE._finish``), and the mask is split again with the refined planes; the
@@ -28,6 +30,7 @@ The split is geometric only; the image is not used to move the edge.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field, replace
 from itertools import combinations
@@ -52,6 +55,8 @@ from .result import SRDEResult
 
 if TYPE_CHECKING:
     from .estimator import SRDE
+
+_log = logging.getLogger(__name__)
 
 __all__ = [
     "FACE_RULES",
@@ -415,9 +420,10 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
                                     min_views=srde.min_views, box=box, inside=inside)
     if best is None:
         if why:
-            return srde._failed("face_split", "faces: planes explain highlights the first "
-                                "plane does not, but no set of them splits the mask so that "
-                                f"each face holds its own highlights ({why})")
+            # Evidence of a second plane that splits nothing consistently: the one-plane
+            # path weighs the unexplained highlights itself (several lights' merged or cut
+            # blobs on one plane look like this too).
+            _log.debug("faces: no split holds each face's highlights (%s)", why)
         return None
     if rival is not None and rival.value == best.value:
         return srde._failed("ambiguous", f"faces: two sets of {len(best.scores)} planes split "
