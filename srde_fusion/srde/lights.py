@@ -882,7 +882,7 @@ def check_lights(lights: Any) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class Candidates:
+class ViewCandidates:
     """Highlight candidates of every view, and how to ask whether a view is bright.
 
     Parameters
@@ -904,7 +904,7 @@ class Candidates:
     blob_radius_px: float
 
 
-def gather_candidates(srde: SRDE, views, search: np.ndarray) -> Candidates | None:
+def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates | None:
     """Candidates in the reference search region and in every other view's band.
 
     The band is where a highlight of the object can appear for any light (the search
@@ -946,7 +946,7 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> Candidates | Non
 
     blob_radius_px = float(np.median([math.sqrt(d.area_px / math.pi) for dets in found
                                       for d in dets]))
-    return Candidates(found, cands, lit, blob_radius_px)
+    return ViewCandidates(found, cands, lit, blob_radius_px)
 
 
 def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
