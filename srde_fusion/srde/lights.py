@@ -622,6 +622,8 @@ class _Context:
         t = height[None, :] / (direction @ n)
         points = centers[None, :, :] + t[..., None] * direction
         ref_uv = rig.project(points.reshape(-1, 3)).reshape(uv.shape)
+        # (NaN where a light behind a face's plane has no mirror point: off the image.)
+        ref_uv = np.where(np.isfinite(ref_uv), ref_uv, -1.0)
         ru = np.rint(ref_uv[..., 0]).astype(np.int64)
         rv = np.rint(ref_uv[..., 1]).astype(np.int64)
         h, w = self.mask.shape
