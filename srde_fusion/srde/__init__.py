@@ -34,6 +34,10 @@ from .estimator import (
     SRDE,
     SRDE_METHODS,
 )
+from .faces import (
+    FaceResult,
+    Faces,
+)
 from .highlight import (
     HighlightDetection,
     blob_rejection,
@@ -91,6 +95,8 @@ __all__ = [
     "lobe_center",
     "SRDEResult",
     "SRDE_STATUSES",
+    "Faces",
+    "FaceResult",
     "Candidates",
     "BaselineSearch",
     "shifted_window",

@@ -51,6 +51,7 @@ from ..geometry import (
 )
 from .backends import DetectionRequest, HighlightBackend, NumpyBackend
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
+from .faces import MAX_FACES, estimate_faces
 from .highlight import HighlightDetection, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
@@ -157,6 +158,11 @@ class SRDE:
         :class:`~srde_fusion.srde.BatchedSRDE`). Results agree to about 1e-5 px.
     device : str or torch.device, optional
         The torch backend's device (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ...).
+    max_faces : int
+        Up to this many flat faces per object (1-3; default 1, one plane). With 2 or 3,
+        an object whose highlights show several planes is split into faces, each with
+        its plane (:mod:`~srde_fusion.srde.faces`); one that shows a single plane takes
+        the usual path. Needs ``method="default"`` and the numpy backend.
 
     Raises
     ------
@@ -189,7 +195,8 @@ class SRDE:
                  object_depth_m: tuple[float, float] = (0.2, 10.0),
                  max_incidence_deg: float = 85.0, white_references=None,
                  refine: bool | None = None, refine_lobe: str = DEFAULT_LOBE,
-                 backend: str | HighlightBackend = "numpy", device=None) -> None:
+                 backend: str | HighlightBackend = "numpy", device=None,
+                 max_faces: int = 1) -> None:
         if not isinstance(rig, CameraRig):
             raise RigError(f"rig: expected a CameraRig, got {type(rig).__name__}")
         if method not in SRDE_METHODS:
@@ -215,6 +222,13 @@ class SRDE:
         if len(lights_m) > 1 and (method != "default" or backend != "numpy"):
             raise SRDEError(f"light: several lights need method='default' and backend='numpy', "
                             f"got method={method!r}, backend={backend!r}")
+        if (isinstance(max_faces, bool) or not isinstance(max_faces, (int, np.integer))
+                or not 1 <= max_faces <= MAX_FACES):
+            raise SRDEError(f"max_faces: expected an integer in [1, {MAX_FACES}], got "
+                            f"{max_faces!r}")
+        if max_faces > 1 and (method != "default" or backend != "numpy"):
+            raise SRDEError(f"max_faces: faces need method='default' and backend='numpy', got "
+                            f"method={method!r}, backend={backend!r}")
         if (isinstance(mask_erosion_px, bool) or not isinstance(mask_erosion_px, (int, np.integer))
                 or mask_erosion_px < 0):
             raise SRDEError(f"mask_erosion_px: expected an integer >= 0 (pixels), got "
@@ -250,6 +264,7 @@ class SRDE:
         self.config = config
         self.mask_erosion_px = int(mask_erosion_px)
         self.min_views = int(min_views)
+        self.max_faces = int(max_faces)
         self.object_depth_m = (z_near, z_far)
         whites = None
         if white_references is not None:
@@ -306,6 +321,10 @@ class SRDE:
                 return self._failed(
                     "mask_too_small", f"mask: nothing left to search after eroding the "
                     f"{int(mask.sum())}-px mask by {self.mask_erosion_px} px")
+        if self.max_faces > 1:
+            faceted = estimate_faces(self, views, mask, search)
+            if faceted is not None:
+                return faceted
         if len(self.lights_m) > 1:
             return estimate_with_lights(self, views, mask, search)
         ref = rig.reference

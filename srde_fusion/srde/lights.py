@@ -519,7 +519,11 @@ class _Context:
 
     def __init__(self, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, cands, lit,
                  tolerance_px: float, object_depth_m, min_views: int,
-                 blob_radius_px: float, boxes=None) -> None:
+                 blob_radius_px: float, boxes=None, *, all_lights_in_front: bool = True
+                 ) -> None:
+        # One plane per object has every light in front of it; a face of a faceted
+        # object may turn its back on the other faces' lights (they then predict nothing).
+        self.all_lights_in_front = all_lights_in_front
         self.rig = rig
         self.lit = lit
         self.boxes = boxes
@@ -607,7 +611,8 @@ class _Context:
             return False
         if np.any(plane.signed_distance(self.rig.centers_m) <= 0.0):
             return False
-        return bool(np.all(plane.signed_distance(self.lights) > 0.0))
+        in_front = plane.signed_distance(self.lights) > 0.0
+        return bool(np.all(in_front) if self.all_lights_in_front else np.any(in_front))
 
     # -------------------------------------------------------------- scoring
     def predict(self, plane: Plane):
@@ -626,10 +631,14 @@ class _Context:
         t = height[None, :] / (direction @ n)
         points = centers[None, :, :] + t[..., None] * direction
         ref_uv = rig.project(points.reshape(-1, 3)).reshape(uv.shape)
+        # (NaN where a light behind a face's plane has no mirror point: off the image.)
+        ref_uv = np.where(np.isfinite(ref_uv), ref_uv, -1.0)
         ru = np.rint(ref_uv[..., 0]).astype(np.int64)
         rv = np.rint(ref_uv[..., 1]).astype(np.int64)
         h, w = self.mask.shape
         inside = (ru >= 0) & (ru < w) & (rv >= 0) & (rv < h) & (t > 0) & (t < 1)
+        if not self.all_lights_in_front:
+            inside &= (plane.signed_distance(self.lights) > 0.0)[:, None]
         on_object = np.zeros(inside.shape, dtype=bool)
         on_object[inside] = self.mask[rv[inside], ru[inside]]
         near_edge = on_object.copy()
@@ -763,6 +772,10 @@ class _Context:
                 break
         return score
 
+    def fit(self, score: _Score) -> Plane | None:
+        """Least-squares plane to the highlights ``score.matched`` assigns (no rematching)."""
+        return self._fit(score)
+
     def _fit(self, score: _Score) -> Plane | None:
         """Least-squares plane: predicted minus assigned centres over every assignment."""
         rig = self.rig
@@ -855,6 +868,12 @@ class _Context:
                               None if rival is None else rival.plane)
 
 
+#: The hypothesis machinery (proposals, scores, refits) that :mod:`.faces` shares: one
+#: plane per face instead of one per object.
+AssignmentContext = _Context
+PlaneScore = _Score
+
+
 # ---------------------------------------------------------------------- in SRDE
 def check_lights(lights: Any) -> np.ndarray:
     """Validate one light ``(3,)`` or several ``(K, 3)`` (metres); return ``(K, 3)`` float64."""
@@ -873,22 +892,41 @@ def check_lights(lights: Any) -> np.ndarray:
     return arr
 
 
-def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
-                         ) -> SRDEResult:
-    """:meth:`SRDE.estimate` with several known lights (``srde.lights_m``).
+@dataclass(frozen=True)
+class ViewCandidates:
+    """Highlight candidates of every view, and how to ask whether a view is bright.
 
-    Candidates in the reference search region and, in every other view, in the band
-    where a highlight of the object can appear for any light; :func:`assign_lights`
-    matches them to the lights and fits the plane. The plane then goes through the same
-    checks (and, with ``srde.refine``, the same photometric refinement, on the
-    highlights of the light seen in most views) as a single light's.
+    Parameters
+    ----------
+    found : list of list of HighlightDetection
+        The candidates of each view, brightest first.
+    centers_uv : list of numpy.ndarray, each (m_j, 2)
+        Their centres, pixels.
+    lit : callable
+        ``lit(j, uv)`` -> ``(M,)`` bool: view j is bright at pixels ``uv`` ``(M, 2)`` (above
+        the half-maximum level of its dimmest candidate).
+    blob_radius_px : float
+        Median half-maximum radius of the candidates, pixels.
+    """
+
+    found: list
+    centers_uv: list
+    lit: Any
+    blob_radius_px: float
+
+
+def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates | None:
+    """Candidates in the reference search region and in every other view's band.
+
+    The band is where a highlight of the object can appear for any light (the search
+    region's box swept along the baseline over the virtual-light depths of every
+    reference candidate and light). None when the reference region holds no candidate.
     """
     rig, config = srde.rig, srde.config
     ref = rig.reference
     ref_found = find_candidates(views[ref], search, config, object_region=True)
     if not ref_found:
-        reason = detect_in_view(views[ref], search, config).reason
-        return srde._failed("no_highlight", f"{srde._view(ref)}: {reason}")
+        return None
     # Inverse depths of a virtual light seen at any reference candidate, for any light.
     w_range = [BaselineSearch(rig, light, srde.object_depth_m).inverse_depth_range(d.center_uv)
                for light in srde.lights_m for d in ref_found]
@@ -917,9 +955,30 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             & (uv[:, 1] <= rig.height - 1)
         return inside & (lum > levels[j])
 
-    tolerance_px = 2.0 * srde.max_residual_px
     blob_radius_px = float(np.median([math.sqrt(d.area_px / math.pi) for dets in found
                                       for d in dets]))
+    return ViewCandidates(found, cands, lit, blob_radius_px)
+
+
+def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
+                         ) -> SRDEResult:
+    """:meth:`SRDE.estimate` with several known lights (``srde.lights_m``).
+
+    Candidates in the reference search region and, in every other view, in the band
+    where a highlight of the object can appear for any light; :func:`assign_lights`
+    matches them to the lights and fits the plane. The plane then goes through the same
+    checks (and, with ``srde.refine``, the same photometric refinement, on the
+    highlights of the light seen in most views) as a single light's.
+    """
+    rig = srde.rig
+    ref = rig.reference
+    gathered = gather_candidates(srde, views, search)
+    if gathered is None:
+        reason = detect_in_view(views[ref], search, srde.config).reason
+        return srde._failed("no_highlight", f"{srde._view(ref)}: {reason}")
+    found, cands, lit = gathered.found, gathered.centers_uv, gathered.lit
+    blob_radius_px = gathered.blob_radius_px
+    tolerance_px = 2.0 * srde.max_residual_px
     solution = assign_lights(rig, srde.lights_m, mask, cands, tolerance_px=tolerance_px,
                              min_views=srde.min_views, object_depth_m=srde.object_depth_m,
                              lit=lit, blob_boxes=[[d.bbox for d in dets] for dets in found],

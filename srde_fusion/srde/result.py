@@ -7,6 +7,7 @@ view and the numbers, never an exception (DESIGN §2).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from ..geometry import (
 from .highlight import HighlightDetection
 from .lights import LightsSolution
 from .refine import PlaneRefinement
+
+if TYPE_CHECKING:
+    from .faces import Faces
 
 __all__ = [
     "SRDEResult",
@@ -36,6 +40,7 @@ SRDE_STATUSES = (
     "light_behind_plane",  # L on the far side of the plane from the cameras
     "grazing",           # some mask pixel rays meet the plane (nearly) edge-on, or behind
     "ambiguous",         # several lights: two different planes explain the highlights alike
+    "face_split",        # faces: the faces' planes do not split the mask as their highlights say
 )
 
 
@@ -83,6 +88,11 @@ class SRDEResult:
     lights : LightsSolution or None
         With several lights: which highlight belongs to which light, the evidence, and the
         joint plane (:func:`~srde_fusion.srde.lights.assign_lights`); None with one light.
+    faces : Faces or None
+        A faceted object (``SRDE(max_faces=2 or 3)``): the split rule, the faces' label map
+        over ``box`` and each face's plane (:mod:`~srde_fusion.srde.faces`); ``plane`` and
+        the fields above are then the largest face's, and ``disparity_box`` holds every
+        face's plane on its part. None for a single plane.
     """
 
     status: str
@@ -100,6 +110,7 @@ class SRDEResult:
     detections: tuple[HighlightDetection, ...] = field(default=(), repr=False)
     refinement: PlaneRefinement | None = field(default=None, repr=False)
     lights: LightsSolution | None = field(default=None, repr=False)
+    faces: Faces | None = field(default=None, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -133,6 +144,7 @@ class SRDEResult:
             "used_views": np.asarray(self.used_views, dtype=bool).ravel(),
             "residual_px": self.residual_px,
             **({} if self.lights is None else {"lights": self.lights.to_dict()}),
+            **({} if self.faces is None else {"faces": self.faces.to_dict()}),
         })
 
     def __bool__(self) -> bool:

@@ -41,7 +41,7 @@ __all__ = [
 ]
 
 # ---------------------------------------------------------------------------------- sampling
-def _light_visible(
+def light_visible(
     position_m: np.ndarray, radius_m: float, rig: CameraRig, *, margin_px: float = 2.0
 ) -> bool:
     """Whether any camera could image any part of the light sphere directly."""
@@ -356,7 +356,7 @@ def random_scene(seed: int, rig: CameraRig, *, config: RandomSceneConfig | None 
         )
         r = rng.uniform(*radius)
         if (
-            _light_visible(pos, r, rig)
+            light_visible(pos, r, rig)
             or np.min(np.linalg.norm(rig.centers_m - pos, axis=1)) < 0.05
         ):
             return None
@@ -531,7 +531,7 @@ def _further_lights(rng: np.random.Generator, config: RandomSceneConfig, rig: Ca
             r = rng.uniform(*config.light_radius_m)
             if (
                 min(np.linalg.norm(p - pos) for p in positions) < spacing[0]
-                or _light_visible(pos, r, rig)
+                or light_visible(pos, r, rig)
                 or np.min(np.linalg.norm(rig.centers_m - pos, axis=1)) < 0.05
             ):
                 continue

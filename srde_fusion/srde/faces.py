@@ -1,0 +1,578 @@
+"""Faceted objects: a mask holding two or three flat faces, one plane per face.
+
+A box seen on an edge is one mask but two planes. Each face mirrors the known lights on
+its own plane, so each face's highlights triangulate to its own virtual lights; the
+plane hypotheses of :mod:`.lights` (a reference candidate, partners on its baseline
+lines, a light) are the same, only more than one of them is the answer:
+
+1. **Planes.** The plane explaining the most highlights is the first face; each further
+   face is the plane (more than ``SAME_PLANE_PX`` away from those chosen) that explains
+   the most highlights the chosen ones do not, at least one light's in ``min_views``
+   views. A plane that explains no highlight of its own is not a face. With one plane
+   the object is a single plane and the caller takes its usual path.
+2. **Split.** Two planes meet in a 3-D line whose image is the faces' edge. Along a
+   reference pixel's ray a convex object (a ridge) shows the *farther* of the faces'
+   planes (the ray enters the solid last through it), a concave one (a valley) the
+   *nearer*. The rule kept is the one under which every face's own highlights (their
+   mirror points seen from the reference camera) fall in that face's part of the mask;
+   if no set of planes splits the mask so, the object takes the one-plane path (whose
+   own checks weigh the highlights its plane does not explain); if the chosen split
+   fails later (after refinement, or a reference highlight that no face explains), the
+   object fails with ``status="face_split"`` and a reason: never a guess.
+3. **Per face.** The face's highlights of its best-seen light go through the usual
+   checks and photometric refinement on the face's part of the mask
+   (``SRDE._finish``), and the mask is split again with the refined planes; the
+   disparity is each face's plane on its part, pieced together, so fusion (which reads
+   the disparity map) carries the edge.
+
+The split is geometric only; the image is not used to move the edge.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field, replace
+from itertools import combinations
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from .._json import json_safe
+from ..geometry import Plane, plane_depth, plane_disparity
+from .highlight import HighlightDetection, search_box
+from .lights import (
+    BLEND_RADII,
+    SAME_PLANE_PX,
+    AssignmentContext,
+    PlaneScore,
+    gather_candidates,
+)
+from .refine import PlaneRefinement
+from .refine.samples import WINDOW_PER_BLOB_RADIUS
+from .result import SRDEResult
+
+if TYPE_CHECKING:
+    from .estimator import SRDE
+
+_log = logging.getLogger(__name__)
+
+__all__ = [
+    "FACE_RULES",
+    "MAX_FACES",
+    "FaceResult",
+    "Faces",
+    "estimate_faces",
+]
+
+#: Most faces an object may be split into.
+MAX_FACES = 3
+
+#: Which plane a pixel of a faceted object sees: the farther (a convex ridge) or the
+#: nearer (a concave valley) of its faces' planes.
+FACE_RULES = ("ridge", "valley")
+
+#: A face's part of the mask must hold at least this many pixels ...
+MIN_FACE_PX = 200
+
+#: ... and this fraction of the mask.
+MIN_FACE_FRACTION = 0.03
+
+#: Most distinct planes tried as faces (those explaining the most highlights).
+MAX_FACE_HYPOTHESES = 12
+
+#: Under the kept rule each face's own highlights must outnumber those of it that fall
+#: on another face's part by this factor.
+OWN_HIGHLIGHT_RATIO = 2.0
+
+
+@dataclass(frozen=True)
+class FaceResult:
+    """One face of a faceted object.
+
+    Parameters
+    ----------
+    label : int
+        The face's value in :attr:`Faces.labels_box` (1, 2, ...).
+    plane : Plane
+        The face's plane, array frame.
+    light : int
+        Index of the light whose highlights fixed the plane.
+    virtual_light_m : numpy.ndarray, (3,) float64
+        That light mirrored across the plane, metres.
+    highlight_centers : numpy.ndarray, (N, 2) float64
+        That light's highlight centre per view on this face, pixels; NaN where none.
+    used_views : numpy.ndarray, (N,) bool
+        Views whose centre was used.
+    residual_px : float
+        RMS reprojection residual of the virtual light over the used views, pixels.
+    n_px : int
+        Mask pixels of the face.
+    refinement : PlaneRefinement or None
+        The photometric refinement on the face's part of the mask.
+    notes : tuple of str
+        What was left out for this face.
+    """
+
+    label: int
+    plane: Plane
+    light: int
+    virtual_light_m: np.ndarray
+    highlight_centers: np.ndarray
+    used_views: np.ndarray
+    residual_px: float
+    n_px: int
+    refinement: PlaneRefinement | None = field(default=None, repr=False)
+    notes: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (non-finite numbers become None)."""
+        return json_safe({
+            "label": self.label,
+            "plane": {"normal": self.plane.normal, "offset_m": self.plane.offset_m},
+            "light": self.light,
+            "virtual_light_m": self.virtual_light_m,
+            "used_views": [int(j) for j in np.flatnonzero(self.used_views)],
+            "residual_px": self.residual_px,
+            "n_px": self.n_px,
+            "refined": self.refinement is not None and self.refinement.ok,
+            "notes": list(self.notes),
+        })
+
+
+@dataclass(frozen=True)
+class Faces:
+    """How an object was split into faces.
+
+    Parameters
+    ----------
+    rule : {"ridge", "valley"}
+        Which plane each pixel sees: the farther (ridge, convex) or the nearer (valley).
+    labels_box : numpy.ndarray, (v1 - v0, u1 - u0) uint8
+        Over the result's ``box``: 0 outside the mask, k on ``faces[k - 1]``'s part.
+    faces : tuple of FaceResult
+        In the order they were found (the first explains the most highlights).
+    """
+
+    rule: str
+    labels_box: np.ndarray = field(repr=False)
+    faces: tuple[FaceResult, ...]
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (no pixel maps)."""
+        return {"rule": self.rule, "faces": [f.to_dict() for f in self.faces]}
+
+
+# ---------------------------------------------------------------------- planes
+def _explained(score: PlaneScore) -> set[tuple[int, int]]:
+    """``(view, candidate)`` of every highlight the plane explains."""
+    lights, views = np.nonzero(score.matched >= 0)
+    return {(int(j), int(score.matched[k, j])) for k, j in zip(lights, views, strict=True)}
+
+
+def _own_views(score: PlaneScore, covered: set[tuple[int, int]]) -> int:
+    """Most views in which one light's highlight is explained by this plane and no other."""
+    best = 0
+    for k in range(score.matched.shape[0]):
+        views = np.flatnonzero(score.matched[k] >= 0)
+        best = max(best, sum((int(j), int(score.matched[k, j])) not in covered for j in views))
+    return best
+
+
+@dataclass(frozen=True)
+class _Split:
+    """One set of face planes, the rule that splits the mask among them, and its worth."""
+
+    scores: tuple[PlaneScore, ...]
+    rule: str
+    labels: np.ndarray
+    value: tuple[int, int]  # (own highlights less foreign ones, the planes' net support)
+
+
+def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
+                 min_views: int, box, inside: np.ndarray
+                 ) -> tuple[_Split | None, _Split | None, str]:
+    """Choose the face planes: the set whose split best agrees with the highlights.
+
+    The distinct refitted planes explaining the most highlights (at most
+    :data:`MAX_FACE_HYPOTHESES`) are tried in pairs, and the best pair with each further
+    plane: a set counts when some rule puts every face's highlights on its own part
+    (:func:`_evaluate`). The best set is the one with the most highlights on their own
+    faces (less those elsewhere), then the most net support.
+
+    Returns
+    -------
+    best, rival : _Split or None
+        The best set, and the best one with a different plane (None if none).
+    why : str
+        Why no set counts, when some plane explains highlights the first one does not
+        ("" when none does: the object is one plane).
+    """
+    ranked = sorted(scores, key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
+    pool: list[PlaneScore] = []
+    for score in ranked:
+        score = context.refit(score)
+        if all(context.plane_gap_px(score.plane, p.plane) > SAME_PLANE_PX for p in pool):
+            pool.append(score)
+        if len(pool) == MAX_FACE_HYPOTHESES:
+            break
+    if len(pool) < 2:
+        return None, None, ""
+    splits: list[_Split] = []
+    why = ""
+    # Evidence of a second face: a plane explaining, in min_views views, one light's
+    # highlights the plane that explains the most does not.
+    first = _explained(pool[0])
+    second = any(_own_views(p, first) >= min_views for p in pool[1:])
+    for a, b in combinations(range(len(pool)), 2):
+        split, reason = _evaluate(context, (pool[a], pool[b]), min_views, box, inside)
+        if split is not None:
+            splits.append(split)
+        elif not why and second:
+            why = reason
+    if max_faces > 2 and splits:
+        for pair in sorted(splits, key=lambda s: s.value, reverse=True)[:3]:
+            for third in pool:
+                if any(third is s for s in pair.scores):
+                    continue
+                split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside)
+                if split is not None and split.value > pair.value:
+                    splits.append(split)
+    # Faces must explain more highlights than the first plane does alone.
+    splits = [s for s in splits if s.value[0] > len(first)]
+    if not splits:
+        return None, None, why
+    splits.sort(key=lambda s: s.value, reverse=True)
+    best = splits[0]
+    rival = next((s for s in splits[1:] if len(s.scores) == len(best.scores) and any(
+        context.plane_gap_px(x.plane, y.plane) > SAME_PLANE_PX
+        for x, y in zip(s.scores, best.scores, strict=True))), None)
+    return best, rival, ""
+
+
+def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
+              inside: np.ndarray) -> tuple[_Split | None, str]:
+    """Split the mask among ``faces`` by the rule their highlights agree with, if one does.
+
+    Each face must have one light's highlights on its own part in ``min_views`` views,
+    and :data:`OWN_HIGHLIGHT_RATIO` times more of its highlights there than elsewhere;
+    each part must be large enough. Both rules passing with the same count is no split.
+    """
+    rig, lights = context.rig, context.lights
+    passing, problems = [], []
+    for rule in FACE_RULES:
+        labels = split_faces([f.plane for f in faces], rig, box, inside, rule)
+        where = _highlights_by_face(rig, lights, list(faces), labels, box,
+                                    context.blob_radius_px)
+        ok, _, problem = _rule_fit(where, min_views)
+        small = _too_small(labels, inside)
+        if not ok or small:
+            problems.append(f"{rule}: {problem or small}")
+            continue
+        own: set[tuple[int, int]] = set()
+        foreign = 0
+        for f, (score, w) in enumerate(zip(faces, where, strict=True)):
+            for k, j in zip(*np.nonzero(w == f + 1), strict=True):
+                own.add((int(j), int(score.matched[k, j])))
+            foreign += int(np.count_nonzero((w >= 0) & (w != f + 1)))
+        value = (len(own) - foreign, sum(f.key[0] for f in faces))
+        passing.append(_Split(faces, rule, labels, value))
+    if len(passing) == 2 and passing[0].value == passing[1].value:
+        return None, "both the ridge and the valley rule fit the highlights alike"
+    if not passing:
+        return None, "; ".join(problems)
+    return max(passing, key=lambda s: s.value), ""
+
+
+# ---------------------------------------------------------------------- split
+def split_faces(planes: list[Plane], rig, box: tuple[int, int, int, int], inside: np.ndarray,
+                rule: str) -> np.ndarray:
+    """Label each mask pixel with the face whose plane it sees under ``rule``.
+
+    Parameters
+    ----------
+    planes : list of Plane
+        The faces' planes, array frame.
+    rig : CameraRig
+    box : (int, int, int, int)
+        ``(u0, v0, u1, v1)`` of ``inside``, pixels.
+    inside : numpy.ndarray, (v1 - v0, u1 - u0) bool
+        The mask over the box.
+    rule : {"ridge", "valley"}
+        Ridge: the farther plane along the pixel's ray; valley: the nearer. A plane the
+        ray meets behind the camera (or never) is never seen.
+
+    Returns
+    -------
+    numpy.ndarray, (v1 - v0, u1 - u0) uint8
+        0 outside the mask, k for ``planes[k - 1]``.
+    """
+    fill = -np.inf if rule == "ridge" else np.inf
+    depths = []
+    for plane in planes:
+        z = np.asarray(plane_depth(plane, rig, window=box), dtype=np.float64)
+        depths.append(np.where(np.isfinite(z) & (z > 0), z, fill))
+    stack = np.stack(depths)  # (F, h, w)
+    pick = np.argmax(stack, axis=0) if rule == "ridge" else np.argmin(stack, axis=0)
+    seen = np.isfinite(np.take_along_axis(stack, pick[None], axis=0)[0])
+    return np.where(inside & seen, pick + 1, 0).astype(np.uint8)
+
+
+def _mirror_points_ref(rig, plane: Plane, light_m: np.ndarray, views: np.ndarray) -> np.ndarray:
+    """Return the reference pixels ``(M, 2)`` of the points reflecting the light into views."""
+    virtual = plane.mirror(light_m)
+    centers = rig.centers_m[views]
+    toward = virtual - centers
+    t = (plane.offset_m - centers @ plane.n) / (toward @ plane.n)
+    return rig.project(centers + t[:, None] * toward)
+
+
+def _label_at(labels: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
+    """Labels ``(M,)`` at reference pixels ``uv`` ``(M, 2)``; 0 outside the box."""
+    u0, v0, u1, v1 = box
+    u = np.rint(uv[:, 0]).astype(np.intp) - u0
+    v = np.rint(uv[:, 1]).astype(np.intp) - v0
+    ok = (u >= 0) & (u < u1 - u0) & (v >= 0) & (v < v1 - v0)
+    out = np.zeros(len(uv), dtype=np.intp)
+    out[ok] = labels[v[ok], u[ok]]
+    return out
+
+
+#: Marks a highlight whose mirror point lies within a blob radius of another face's part:
+#: the faces' edge cuts its blob, so its centre measures neither face.
+CUT_BY_EDGE = -2
+
+
+def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], labels, box,
+                        edge_px: float) -> list[np.ndarray]:
+    """Per face: the label under each explained highlight, ``(K, N)`` int.
+
+    -1 where the face's plane explains no highlight, :data:`CUT_BY_EDGE` where the
+    highlight's mirror point lies within ``edge_px`` of another face's part.
+    """
+    near_other = _near_other_face(labels, edge_px)
+    out = []
+    for score in scores:
+        where = np.full(score.matched.shape, -1, dtype=np.intp)
+        for k in range(score.matched.shape[0]):
+            views = np.flatnonzero(score.matched[k] >= 0)
+            if views.size:
+                ref_uv = _mirror_points_ref(rig, score.plane, lights_m[k], views)
+                label = _label_at(labels, box, ref_uv)
+                cut = _label_at(near_other, box, ref_uv) > 0
+                where[k, views] = np.where(cut & (label > 0), CUT_BY_EDGE, label)
+        out.append(where)
+    return out
+
+
+def _near_other_face(labels: np.ndarray, edge_px: float) -> np.ndarray:
+    """Mask pixels within ``edge_px`` of another face's part, ``(h, w)`` uint8 (1 = near)."""
+    side = 2 * int(math.ceil(edge_px)) + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side))
+    near = np.zeros(labels.shape, dtype=bool)
+    for f in range(1, int(labels.max()) + 1):
+        grown = cv2.dilate((labels == f).view(np.uint8), kernel).view(bool)
+        near |= grown & (labels > 0) & (labels != f)
+    return near.view(np.uint8)
+
+
+def _rule_fit(where: list[np.ndarray], min_views: int) -> tuple[bool, int, str]:
+    """Whether every face's highlights fall on its own part; own count; what failed."""
+    total, problems = 0, []
+    for f, w in enumerate(where):
+        own_per_light = (w == f + 1).sum(axis=1)
+        foreign = int(np.count_nonzero((w >= 0) & (w != f + 1)))
+        own = int(own_per_light.sum())
+        total += own
+        if own_per_light.max() < min_views or own < OWN_HIGHLIGHT_RATIO * foreign:
+            problems.append(f"face {f + 1}: {own} highlight(s) on its part, {foreign} elsewhere")
+    return not problems, total, "; ".join(problems)
+
+
+# ---------------------------------------------------------------------- the estimate
+def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
+                   ) -> SRDEResult | None:
+    """:meth:`SRDE.estimate` for an object of up to ``srde.max_faces`` flat faces.
+
+    Returns None when the highlights show one plane only (or none): the caller then
+    takes its usual path, unchanged. Otherwise an ``ok`` result whose ``faces`` holds
+    every face and whose disparity is the faces' planes pieced together, or a failure
+    with its reason (``"face_split"`` when the planes do not split the mask consistently
+    with the highlights; a face's own failure, named, otherwise).
+    """
+    rig = srde.rig
+    lights = srde.lights_m
+    gathered = gather_candidates(srde, views, search)
+    if gathered is None:
+        return None
+    boxes = [np.asarray([d.bbox for d in dets], dtype=np.float64).reshape(-1, 4)
+             for dets in gathered.found]
+    context = AssignmentContext(rig, lights, mask, gathered.centers_uv, gathered.lit,
+                                2.0 * srde.max_residual_px, srde.object_depth_m,
+                                srde.min_views, gathered.blob_radius_px, boxes,
+                                all_lights_in_front=False)
+    scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
+    box = search_box(mask, 0)
+    u0, v0, u1, v1 = box
+    inside = mask[v0:v1, u0:u1]
+    best, rival, why = choose_faces(context, scores, max_faces=srde.max_faces,
+                                    min_views=srde.min_views, box=box, inside=inside)
+    if best is None:
+        if why:
+            # Evidence of a second plane that splits nothing consistently: the one-plane
+            # path weighs the unexplained highlights itself (several lights' merged or cut
+            # blobs on one plane look like this too).
+            _log.debug("faces: no split holds each face's highlights (%s)", why)
+        return None
+    if rival is not None and rival.value == best.value:
+        return srde._failed("ambiguous", f"faces: two sets of {len(best.scores)} planes split "
+                            f"the mask with the same support ({best.value[0]} highlights on "
+                            f"their own faces; {best.rule} and {rival.rule})")
+    rule, edge_px = best.rule, gathered.blob_radius_px
+    tolerance_px = 2.0 * srde.max_residual_px
+    # Each face's plane refitted to its own highlights alone (not those the faces' edge
+    # cuts, nor those on another face), and the mask split again by the refitted planes.
+    chosen = []
+    where = _highlights_by_face(rig, lights, list(best.scores), best.labels, box, edge_px)
+    for f, (score, w) in enumerate(zip(best.scores, where, strict=True)):
+        own = replace(score, matched=np.where(w == f + 1, score.matched, -1))
+        plane = context.fit(own) if own.n_matched >= 2 else None
+        chosen.append(own if plane is None else replace(own, plane=plane))
+    labels = split_faces([s.plane for s in chosen], rig, box, inside, rule)
+    faces: list[FaceResult] = []
+    results = []
+    for f, score in enumerate(chosen):
+        face_mask = np.zeros(mask.shape, dtype=bool)
+        face_mask[v0:v1, u0:u1] = labels == f + 1
+        result, face = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
+                                   gathered)
+        if not result.ok:
+            return srde._failed(result.status, f"face {f + 1} of {len(chosen)}: {result.reason}",
+                                plane=result.plane)
+        if srde.refine and not face.refinement:
+            # A face's highlights are few and may lie near its edge: without the image's
+            # confirmation its plane from the centres alone is not trusted.
+            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
+                                f"photometric refinement did not confirm its plane "
+                                f"({face.refinement.reason})", plane=face.plane)
+        miss_px = _worst_miss_px(rig, lights[face.light], face)
+        if miss_px > tolerance_px:
+            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: its refined "
+                                f"plane misses its own highlights by up to {miss_px:.1f} px "
+                                f"(limit {tolerance_px:g} px)", plane=face.plane)
+        results.append(result)
+        faces.append(face)
+    # The refined planes move the edge a little: split again, and check again.
+    planes = [face.plane for face in faces]
+    labels = split_faces(planes, rig, box, inside, rule)
+    refined = [replace(s, plane=p) for s, p in zip(chosen, planes, strict=True)]
+    ok, _, problems = _rule_fit(_highlights_by_face(rig, lights, refined, labels, box, edge_px),
+                                srde.min_views)
+    if not ok:
+        return srde._failed("face_split", f"faces: after refinement the {rule} rule no longer "
+                            f"puts each face's highlights on its own part ({problems})")
+    small = _too_small(labels, inside)
+    if small:
+        return srde._failed("face_split", small)
+    stray = _unexplained_reference(rig, gathered, refined, labels, box, edge_px)
+    if stray:
+        # With every light known, each highlight on the object is some light's on some
+        # face: one that no face explains means a face is missing or a plane is wrong.
+        return srde._failed("face_split", f"faces: the reference view's highlight(s) at "
+                            f"{stray} lie on the object away from the faces' edges, and none of "
+                            f"the {len(faces)} faces explains them")
+    disparity = np.full(inside.shape, np.nan, dtype=np.float32)
+    for f, face in enumerate(faces):
+        part = labels == f + 1
+        disparity[part] = plane_disparity(face.plane, rig, window=box)[part]
+        faces[f] = FaceResult(face.label, face.plane, face.light, face.virtual_light_m,
+                              face.highlight_centers, face.used_views, face.residual_px,
+                              int(part.sum()), face.refinement, face.notes)
+    main = max(range(len(faces)), key=lambda f: faces[f].n_px)
+    first = results[main]
+    notes = (f"faces: {len(faces)} faces ({rule}: each pixel sees the "
+             f"{'farther' if rule == 'ridge' else 'nearer'} plane), "
+             + ", ".join(f"face {f.label} {f.n_px} px by light {f.light}" for f in faces),
+             *(f"face {f.label}: {note}" for f in faces for note in f.notes))
+    return SRDEResult("ok", "", disparity, box, mask.shape, first.plane, first.virtual_light_m,
+                      first.highlight_centers, first.used_views, first.residual_px,
+                      srde.method, notes, first.detections, first.refinement,
+                      faces=Faces(rule, labels, tuple(faces)))
+
+
+def _unexplained_reference(rig, gathered, scores: list[PlaneScore], labels, box,
+                           edge_px: float) -> str:
+    """List the reference candidates on a face's part, off its edges, that no face explains."""
+    ref = rig.reference
+    explained = {int(q) for s in scores for q in s.matched[:, ref] if q >= 0}
+    near = _near_other_face(labels, edge_px)
+    stray = []
+    for q, uv in enumerate(gathered.centers_uv[ref]):
+        point = np.asarray(uv, dtype=np.float64)[None]
+        if q not in explained and _label_at(labels, box, point)[0] > 0 \
+                and not _label_at(near, box, point)[0]:
+            stray.append(f"({uv[0]:.0f}, {uv[1]:.0f})")
+    return ", ".join(stray)
+
+
+def _worst_miss_px(rig, light_m: np.ndarray, face: FaceResult) -> float:
+    """Largest distance from a face's used highlight centre to where its plane puts it."""
+    views = np.flatnonzero(face.used_views)
+    virtual = face.plane.mirror(light_m)
+    predicted = np.stack([rig.project(virtual, camera=int(j)) for j in views])
+    return float(np.max(np.linalg.norm(predicted - face.highlight_centers[views], axis=1)))
+
+
+def _too_small(labels: np.ndarray, inside: np.ndarray) -> str:
+    """Why a face's part is too small ("" if none is)."""
+    total = int(np.count_nonzero(inside))
+    limit = max(MIN_FACE_PX, int(math.ceil(MIN_FACE_FRACTION * total)))
+    counts = np.bincount(labels.ravel(), minlength=int(labels.max()) + 1)[1:]
+    small = [f"face {f + 1}: {int(n)} px" for f, n in enumerate(counts) if n < limit]
+    if small:
+        return (f"faces: a face's part of the {total}-px mask is too small ("
+                + ", ".join(small) + f"; needs {limit} px)")
+    return ""
+
+
+def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, label: int,
+                labels: np.ndarray, box, gathered):
+    """Check and refine one face on its part of the mask; ``(SRDEResult, FaceResult)``."""
+    rig, lights = srde.rig, srde.lights_m
+    where = _highlights_by_face(rig, lights, [score], labels, box,
+                                gathered.blob_radius_px)[0]
+    own = (where == label) & (score.matched >= 0)
+    # The light seen on this face in most views (then the closest fit) fixes its plane.
+    counts = own.sum(axis=1)
+    distance = np.where(own, score.distance_px, np.inf)
+    main = int(max(range(len(lights)),
+                   key=lambda k: (counts[k], -float(np.min(distance[k])))))
+    if counts[main] < srde.min_views:
+        return srde._failed("too_few_views", f"faces: face {label} keeps its own highlights "
+                            f"in {int(counts[main])} view(s) away from the faces' edge (min_views "
+                            f"{srde.min_views})", plane=score.plane), None
+    centers = np.full((rig.n_cameras, 2), np.nan)
+    for j in np.flatnonzero(own[main]):
+        centers[j] = gathered.centers_uv[j][score.matched[main, j]]
+    used = np.isfinite(centers[:, 0])
+    detections = tuple(
+        next((d for d in gathered.found[j] if np.allclose(d.center_uv, centers[j])),
+             HighlightDetection.missing(f"no highlight of light {main} on face {label}"))
+        for j in range(rig.n_cameras))
+    point = score.plane.mirror(lights[main])
+    w = 1.0 / (point[2] - rig.reference_center_m[2])
+    # Lights whose highlights on this face come near the main one's are rendered with it.
+    reach_px = (WINDOW_PER_BLOB_RADIUS + BLEND_RADII) * gathered.blob_radius_px
+    modelled = [lights[k] for k in range(len(lights)) if k != main
+                and np.any(score.on_object[k] & score.on_object[main] & (np.linalg.norm(
+                    score.predicted_uv[k] - score.predicted_uv[main], axis=1) < reach_px))
+                and np.any(where[k] == label)]
+    result = srde._finish(face_mask, point, w, used, centers, detections, (), views=views,
+                          light=lights[main], modelled_lights=modelled)
+    face = None
+    if result.ok:
+        face = FaceResult(label, result.plane, main, result.virtual_light_m, centers, used,
+                          result.residual_px, int(face_mask.sum()), result.refinement,
+                          result.notes)
+    return result, face

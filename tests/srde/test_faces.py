@@ -1,0 +1,198 @@
+"""Faceted objects: the ridge/valley split, rendered 2- and 3-face objects, fusion's edge."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from srde_fusion.errors import SceneError, SRDEError
+from srde_fusion.fusion import fuse
+from srde_fusion.geometry import plane_disparity
+from srde_fusion.srde import SRDE
+from srde_fusion.srde.faces import FACE_RULES, split_faces
+from srde_fusion.srde.highlight import search_box
+from srde_fusion.synthetic import default_rig, random_scene, render
+from srde_fusion.synthetic.faceted import faceted_scene
+from srde_fusion.synthetic.physics import Physics
+from srde_fusion.synthetic.scene import rig_lights
+
+#: Per-face masked EPE the issue asks for, pixels.
+FACE_EPE_PX = 0.05
+
+# Seeds of benchmarks/faceted.py's scenes (2 faces ridge, 2 faces valley, 3 faces ridge).
+RIDGE_SEED, VALLEY_SEED, THREE_SEED = 31001, 32001, 33008
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return default_rig()
+
+
+def _rendered(rig, seed, n_faces, convex, *, physics=None):
+    faceted = faceted_scene(seed, rig, n_faces=n_faces, convex=convex)
+    rendering = render(faceted.scene, rig, physics=physics, supersample=2)
+    return faceted, rendering, rig.with_lights(rig_lights(faceted.scene))
+
+
+def _face_epes(disparity, rendering, n_faces):
+    return [float(np.mean(np.abs(disparity[rendering.instance_mask == k + 1]
+                                 - rendering.disparity_px[rendering.instance_mask == k + 1])))
+            for k in range(n_faces)]
+
+
+@pytest.mark.parametrize("convex", [True, False])
+def test_split_rule_matches_the_visible_face(rig, convex):
+    # Exact planes: the rule of the object's kind labels every pixel with the face the
+    # renderer's rays hit (but for the pixels the edge runs through); the other rule
+    # labels nearly every pixel with the wrong face.
+    faceted = faceted_scene(5, rig, n_faces=2, convex=convex)
+    truth = render(faceted.scene, rig).instance_mask
+    box = search_box(truth > 0, 0)
+    u0, v0, u1, v1 = box
+    inside = truth[v0:v1, u0:u1] > 0
+    planes = [face.plane for face in faceted.scene.objects]
+    right, wrong = ("ridge", "valley") if convex else ("valley", "ridge")
+    labels = split_faces(planes, rig, box, inside, right)
+    crop = truth[v0:v1, u0:u1]
+    assert np.count_nonzero(labels != crop) <= 0.01 * inside.sum()
+    flipped = split_faces(planes, rig, box, inside, wrong)
+    assert np.count_nonzero(flipped != crop) >= 0.9 * inside.sum()
+    assert set(FACE_RULES) == {"ridge", "valley"}
+
+
+def test_split_leaves_pixels_outside_the_mask_unlabelled(rig):
+    faceted = faceted_scene(5, rig, n_faces=3, convex=True)
+    truth = render(faceted.scene, rig).instance_mask
+    box = search_box(truth > 0, 0)
+    u0, v0, u1, v1 = box
+    inside = truth[v0:v1, u0:u1] > 0
+    labels = split_faces([f.plane for f in faceted.scene.objects], rig, box, inside, "ridge")
+    assert np.all(labels[~inside] == 0)
+    assert set(np.unique(labels[inside]).tolist()) == {1, 2, 3}
+    assert np.count_nonzero(labels != truth[v0:v1, u0:u1]) <= 0.01 * inside.sum()
+
+
+@pytest.mark.parametrize(("seed", "convex", "rule"), [(RIDGE_SEED, True, "ridge"),
+                                                      (VALLEY_SEED, False, "valley")])
+def test_two_faces_are_solved_within_the_target(rig, seed, convex, rule):
+    _, rendering, lit = _rendered(rig, seed, 2, convex, physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert result.ok, result.reason
+    assert result.faces is not None and result.faces.rule == rule
+    assert len(result.faces.faces) == 2
+    assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
+    # The plane reported is the largest face's; the report lists every face.
+    largest = max(result.faces.faces, key=lambda f: f.n_px)
+    assert result.plane == largest.plane
+    record = result.to_dict()
+    assert record["faces"]["rule"] == rule and len(record["faces"]["faces"]) == 2
+    assert sum(f.n_px for f in result.faces.faces) == int(mask.sum())
+
+
+def test_three_faces_are_solved_within_the_target(rig):
+    _, rendering, lit = _rendered(rig, THREE_SEED, 3, True, physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert result.ok, result.reason
+    assert len(result.faces.faces) == 3
+    assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+
+
+def test_two_faces_found_with_max_faces_2_on_a_three_face_object_is_refused(rig):
+    # Two planes cannot explain the third face's highlights: a reasoned failure.
+    _, rendering, lit = _rendered(rig, THREE_SEED, 3, True)
+    result = SRDE(lit, max_faces=2).estimate(rendering.views, rendering.instance_mask > 0)
+    assert not result.ok
+    assert result.reason.startswith("face")
+
+
+def test_fused_map_carries_the_faces_edge(rig):
+    _, rendering, lit = _rendered(rig, RIDGE_SEED, 2, True)
+    mask = rendering.instance_mask > 0
+    backbone = np.full(mask.shape, 5.0, np.float32)
+    fused = fuse(backbone, rendering.views, lit, [mask], SRDE(lit, max_faces=3),
+                 border_check=None)
+    assert fused.objects[0].status == "srde", fused.objects[0].reason
+    epes = _face_epes(fused.disparity, rendering, 2)
+    assert max(epes) <= FACE_EPE_PX
+    # Across the edge the two faces' disparities differ: one plane could not do this.
+    for k, face in enumerate(rendering.planes):
+        part = rendering.instance_mask == k + 1
+        own = plane_disparity(face, lit)[part]
+        assert np.max(np.abs(fused.disparity[part] - own)) <= 5 * FACE_EPE_PX
+    assert np.all(fused.disparity[~mask] == 5.0)
+
+
+def test_a_face_without_a_highlight_is_not_a_face(rig):
+    # The second face's light is switched off: its face shows no highlight, so only one
+    # plane is seen and the object takes the usual one-plane path.
+    faceted, _, _ = _rendered(rig, RIDGE_SEED, 2, True)
+    scene = dataclasses.replace(faceted.scene, lights=(faceted.scene.lights[0],))
+    rendering = render(scene, rig, supersample=2)
+    lit = rig.with_lights(rig_lights(scene))
+    mask = rendering.instance_mask > 0
+    faces = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    plain = SRDE(lit).estimate(rendering.views, mask)
+    assert faces.faces is None
+    assert faces.to_dict() == plain.to_dict()
+
+
+def test_max_faces_leaves_single_plane_objects_as_they_were(rig):
+    scene = random_scene(12201, rig, n_lights=2)
+    rendering = render(scene, rig)
+    lit = rig.with_lights(rig_lights(scene))
+    mask = rendering.object_masks[0]
+    plain = SRDE(lit).estimate(rendering.views, mask)
+    for max_faces in (1, 3):
+        other = SRDE(lit, max_faces=max_faces).estimate(rendering.views, mask)
+        assert other.faces is None
+        assert other.to_dict() == plain.to_dict()
+        np.testing.assert_array_equal(other.disparity_box, plain.disparity_box)
+
+
+@pytest.mark.parametrize(("options", "match"), [
+    ({"max_faces": 4}, "max_faces: expected an integer in \\[1, 3\\]"),
+    ({"max_faces": 0}, "max_faces"),
+    ({"max_faces": True}, "max_faces"),
+    ({"max_faces": 2, "method": "paper"}, "faces need method='default'"),
+])
+def test_max_faces_is_checked(rig, options, match):
+    with pytest.raises(SRDEError, match=match):
+        SRDE(rig.with_light((0.3, -0.3, 0.1)), **options)
+
+
+@pytest.mark.parametrize(("options", "match"), [
+    ({"n_faces": 4}, "n_faces: expected 2 or 3"),
+    ({"convex": 1}, "convex: expected a bool"),
+    ({"extra_lights": -1}, "extra_lights"),
+    ({"min_views": 0}, "min_views"),
+    ({"dihedral_deg": (40.0, 20.0)}, "dihedral_deg"),
+])
+def test_faceted_scene_options_are_checked(rig, options, match):
+    with pytest.raises(SceneError, match=match):
+        faceted_scene(0, rig, **options)
+
+
+def test_faceted_scene_is_deterministic_and_lit(rig):
+    a = faceted_scene(7, rig, n_faces=3, convex=False, extra_lights=1)
+    b = faceted_scene(7, rig, n_faces=3, convex=False, extra_lights=1)
+    assert a == b
+    assert a.n_faces == 3 and len(a.scene.lights) == 4 and not a.convex
+    assert all(15.0 <= angle <= 60.0 for angle in a.dihedral_deg)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("n_faces", "convex"), [(2, True), (2, False), (3, True)])
+def test_no_face_is_ok_and_wrong(rig, n_faces, convex):
+    # Over several scenes: every ok result holds each face within the target; every
+    # failure says why.
+    for seed in range(40, 46):
+        _, rendering, lit = _rendered(rig, seed, n_faces, convex, physics=Physics.faithful())
+        result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
+        if result.ok and result.faces is not None:
+            assert max(_face_epes(result.disparity, rendering, n_faces)) <= FACE_EPE_PX
+        elif not result.ok:
+            assert result.reason
