@@ -22,7 +22,7 @@ growth with k shows), beside the single-light estimate on the same images; and t
 default call (with the photometric refinement, which renders the lobes of lights whose
 highlights come near each other and solves objects whose blobs are all merged).
 
-Run: ``python benchmarks/multi_light.py [--scenes 20]``; writes
+Run: ``python benchmarks/multi_light.py [--scenes 40]``; writes
 ``benchmarks/results/multi_light.md`` and ``.json``.
 """
 
@@ -47,6 +47,9 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "multi_light"
 LIGHT_COUNTS = (1, 2, 3, 4)
 WRONG_PLANE_PX = 1.0
+#: "Worse than the best single light" is also counted beyond this margin, px: the
+#: several-light and a single-light estimate often end on the same plane to 1e-5 px.
+WORSE_MARGIN_PX = 0.001
 SEED0 = 12000
 
 
@@ -121,7 +124,7 @@ def run_scene(rig, seed: int, k: int) -> dict:
 def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
     lines = ["| lights | scenes | solved (all lights) | wrong assignments | ambiguous | "
              "inconsistent | EPE all lights | EPE best single light | EPE first light only | "
-             "worse than best single light (scenes) | "
+             "worse than best single light (scenes; by > 0.001 px) | "
              "first light only: solved / wrong plane | time all lights (ms) | time one light "
              "(ms) | time with refinement (ms) |",
              "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -148,6 +151,9 @@ def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
             if first_ok else float("nan"),
             "first_solved": len(first_ok) / len(rs), "first_wrong_plane": len(first_wrong),
             "worse_than_best_single": int(sum(r["epe"] > r["best_single"] for r in both)),
+            "worse_beyond_margin": int(sum(r["epe"] > r["best_single"] + WORSE_MARGIN_PX
+                                           for r in both)),
+            "worst_excess_px": max((r["epe"] - r["best_single"] for r in both), default=0.0),
             "solved_with_merged_blobs": int(sum(r.get("merged", 0) > 0 for r in ok)),
             "default_time_ms": 1000 * float(np.median([r["default_time_s"] for r in rs])),
             "time_ms": 1000 * float(np.median([r["time_s"] for r in rs])),
@@ -158,7 +164,8 @@ def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
             f"| {k} | {row['scenes']} | {row['solved']:.0%} | {row['wrong_assignments']} "
             f"({row['scenes_with_wrong']} scenes) | {row['ambiguous']} | {row['inconsistent']} | "
             f"{row['epe_all_same']:.4f} | {row['epe_best_single_same']:.4f} | "
-            f"{row['epe_first']:.4f} | {row['worse_than_best_single']} of {len(both)} | "
+            f"{row['epe_first']:.4f} | {row['worse_than_best_single']} of {len(both)}; "
+            f"{row['worse_beyond_margin']} | "
             f"{row['first_solved']:.0%} / {row['first_wrong_plane']} | "
             f"{row['time_ms']:.0f} | {row['single_time_ms']:.0f} | "
             f"{row['default_time_ms']:.0f} |")
@@ -167,7 +174,7 @@ def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", type=int, default=20, help="scenes per number of lights")
+    parser.add_argument("--scenes", type=int, default=40, help="scenes per number of lights")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
     parser.add_argument("--tables-only", action="store_true",
                         help="rewrite the tables from the results folder's JSON records")
