@@ -1196,8 +1196,40 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
                           refine=False, light=lights[main])
     if not result.ok:
         return dataclasses.replace(failed, notes=(*failed.notes, note + f": {result.reason}"))
-    solved = dataclasses.replace(solution, status="ok", reason="", plane=result.plane)
-    return dataclasses.replace(result, refinement=fit, lights=solved)
+    return dataclasses.replace(result, refinement=fit,
+                               lights=_solved_on(srde, mask, solution, result.plane))
+
+
+def _solved_on(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
+               plane: Plane) -> LightsSolution:
+    """Return the solution of the joint lobe fit's plane: blobs assigned on that plane.
+
+    The fit may end on the rival plane, or on one no hypothesis proposed; the assignment
+    of the geometric hypothesis it started from then belongs to another plane. The
+    candidates are matched again to the lights' highlights this plane predicts (within
+    the assignment's tolerance); a light none of them explains keeps no centre.
+    """
+    rig, lights = srde.rig, srde.lights_m
+    context = _Context(rig, lights, mask, solution.candidates_uv, None,
+                       2.0 * srde.max_residual_px, srde.object_depth_m, srde.min_views, 0.0)
+    score = context.score(plane)
+    if score is not None:
+        on_plane = context.solution(score, None)
+        assignments, residual_px = on_plane.assignments, on_plane.residual_px
+        evidence = on_plane.evidence
+    else:
+        uv, on_object, _ = context.predict(plane)
+        virtual = plane.mirror(lights)
+        none = np.full((rig.n_cameras, 2), np.nan)
+        assignments = tuple(
+            LightAssignment(k, none.copy(), uv[k], on_object[k],
+                            np.zeros(rig.n_cameras, bool), np.full(rig.n_cameras, np.nan),
+                            virtual[k]) for k in range(len(lights)))
+        residual_px, evidence = math.nan, "no blob centre lies on a highlight of this plane"
+    return dataclasses.replace(
+        solution, status="ok", reason="", plane=plane, assignments=assignments,
+        residual_px=residual_px,
+        evidence=f"{evidence}; the plane from the joint fit of one lobe per light")
 
 
 def _centres(rig: CameraRig, plane: Plane, light: np.ndarray, used: np.ndarray) -> np.ndarray:

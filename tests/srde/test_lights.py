@@ -340,3 +340,23 @@ def test_two_planes_the_centres_explain_alike_are_told_apart_by_their_lobes():
     assert any("two planes explain the blob centres alike" in note for note in result.notes)
     epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
     assert epe < 0.05
+
+
+@pytest.mark.parametrize("seed", [12236, 51203])
+def test_the_blobs_are_assigned_on_the_plane_the_lobes_chose(seed):
+    # In 51203 the geometric best plane gives the blobs to the wrong light and the lobe
+    # fit chooses its rival: the reported assignment must be the rival's.
+    from srde_fusion.synthetic.physics import Physics
+    rig = default_rig()
+    scene = random_scene(seed, rig, config=RandomSceneConfig(n_lights=2))
+    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
+    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    result = SRDE(lit).estimate(out.views, mask)
+    assert result.ok, result.reason
+    assert result.lights.plane == result.plane
+    assert result.lights.n_observations >= 8
+    for a in result.lights.assignments:
+        for j in np.flatnonzero(np.isfinite(a.centers_uv[:, 0])):
+            assert out.highlight_on_object[a.light, 0, j]
+            truth = out.highlight_uv_by_light[a.light, 0, j]
+            assert np.linalg.norm(a.centers_uv[j] - truth) < 2.0
