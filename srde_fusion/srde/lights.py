@@ -1034,6 +1034,18 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             doubt = dataclasses.replace(solution, status="inconsistent", reason=reason)
             return _solve_merged(srde, views, mask, doubt, dataclasses.replace(
                 srde._failed("inconsistent", reason), lights=doubt))
+        if worst_px > limit_px and _lobes_prefer(srde, views, mask, main.light, modelled,
+                                                 main.on_object, refinement.plane,
+                                                 solution.plane):
+            # Centres cut by the outline or pulled by a neighbour's flank can tilt the joint
+            # plane while the lobes, which model both, settle it: the refined plane stands
+            # when it explains the images decisively better on both planes' samples.
+            note = (f"refinement: the refined plane misses light highlights by up to "
+                    f"{worst_px:.1f} px (limit {limit_px:g} px) but explains the images "
+                    f"{DECISIVE_COST_RATIO:g}x better than the joint plane; it stands")
+            result = dataclasses.replace(result, notes=(*result.notes, note))
+            return dataclasses.replace(result, lights=_solved_on(srde, mask, solution,
+                                                                 result.plane))
         if worst_px > limit_px:
             note = (f"refinement: kept the joint plane; the refined plane misses light "
                     f"highlights by up to {worst_px:.1f} px (limit {limit_px:g} px)")
@@ -1042,6 +1054,33 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
                                   refine=False)
             result = dataclasses.replace(result, refinement=refinement)
     return dataclasses.replace(result, lights=solution)
+
+
+def _lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled, used: np.ndarray,
+                  refined: Plane, joint: Plane) -> bool:
+    """Whether the refined plane explains the images decisively better than the joint one.
+
+    Both planes' photometric costs on the samples placed for each in turn
+    (``refine.plane.compare_planes``), with the same lights rendered as the refinement
+    did: the refined plane must be at least :data:`DECISIVE_COST_RATIO` times cheaper on
+    both. ``used`` ``(N,)`` bool: the views whose samples count (the main light's
+    highlight on the object).
+    """
+    from .refine.plane import compare_planes
+
+    rig, lights = srde.rig, srde.lights_m
+    modelled = np.asarray(modelled, dtype=np.float64).reshape(-1, 3)
+    kept = [k for k in range(len(lights)) if k != main
+            and not any(np.array_equal(lights[k], m) for m in modelled)]
+    options = dict(lobe=srde.refine_lobe, other_lights_m=lights[kept] if kept else None,
+                   modelled_lights_m=modelled if len(modelled) else None,
+                   light_radius_m=srde.light_radii_m[main])
+    on_refined = compare_planes(views, rig, lights[main], mask, [refined, joint],
+                                _centres(rig, refined, lights[main], used), **options)
+    on_joint = compare_planes(views, rig, lights[main], mask, [joint, refined],
+                              _centres(rig, joint, lights[main], used), **options)
+    return bool(on_refined[1] > DECISIVE_COST_RATIO * on_refined[0]
+                and on_joint[0] > DECISIVE_COST_RATIO * on_joint[1])
 
 
 def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
