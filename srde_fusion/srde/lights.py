@@ -991,7 +991,8 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             return _solve_merged(srde, views, mask, solution, failed)
         if srde.refine and solution.plane is None and solution.status == "too_few_views":
             return _solve_from_single_lights(srde, views, mask, solution, failed)
-        if srde.refine and solution.status == "ambiguous" and solution.rival_plane is not None:
+        if srde.refine and solution.status in ("ambiguous", "inconsistent") \
+                and solution.rival_plane is not None:
             return _solve_ambiguous(srde, views, mask, solution, failed)
         return failed
     # The light seen in most views (then with the smallest residual) carries the checks
@@ -1103,13 +1104,16 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
 
 def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
                      failed: SRDEResult) -> SRDEResult:
-    """Decide between two planes the blob centres explain alike by their lobes.
+    """Decide between the best plane and its rival by their lobes.
 
-    One virtual light seen in every view is the mirror image of each light across a
-    different plane: which light made it, the centres cannot say. The lobes can (their
-    shape and falloff across the views follow the light's direction and distance): each
-    plane's fit, its samples around the same blobs, must explain them
-    :data:`DECISIVE_COST_RATIO` times better than the other plane (:func:`_solve_by_lobes`).
+    ``ambiguous``: one virtual light seen in every view is the mirror image of each light
+    across a different plane: which light made it, the centres cannot say. The lobes can
+    (their shape and falloff across the views follow the light's direction and
+    distance). ``inconsistent``: the best plane is contradicted by highlights it predicts
+    and does not find (centres pulled by blended or cut blobs tilt every hypothesis).
+    Either way the joint fit runs from both planes (:func:`_solve_by_lobes`): the fits
+    must end on one plane, or one plane must explain both fits' samples
+    :data:`DECISIVE_COST_RATIO` times better.
     """
     rig, lights = srde.rig, srde.lights_m
     starts = [solution.plane, solution.rival_plane]
@@ -1118,7 +1122,10 @@ def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSoluti
     presents = [context.predict(plane)[1] for plane in starts]
     if not all(p.any() for p in presents):
         return failed
-    note = "lights: two planes explain the blob centres alike; a joint fit of one lobe per light"
+    note = ("lights: two planes explain the blob centres alike; a joint fit of one lobe per light"
+            if solution.status == "ambiguous" else
+            "lights: the best plane is contradicted by highlights it predicts; a joint fit of "
+            "one lobe per light from it and its rival")
     return _solve_by_lobes(srde, views, mask, solution, failed, starts, presents, note)
 
 
