@@ -988,7 +988,12 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
                                      lights=solution)
         if srde.refine and solution.merged_blobs and solution.plane is not None \
                 and solution.status in ("too_few_views", "ambiguous", "inconsistent"):
-            return _solve_merged(srde, views, mask, solution, failed)
+            merged = _solve_merged(srde, views, mask, solution, failed)
+            if merged.ok or merged.status == "ambiguous":
+                return merged
+            # Neither start led the lobes to a plane: the lights alone may.
+            return _solve_from_single_lights(srde, views, mask, solution, merged,
+                                             why="the merged-blob fit found no plane")
         if srde.refine and solution.plane is None and solution.status == "too_few_views":
             return _solve_from_single_lights(srde, views, mask, solution, failed)
         if srde.refine and solution.status in ("ambiguous", "inconsistent") \
@@ -1130,7 +1135,8 @@ def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSoluti
 
 
 def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
-                              failed: SRDEResult) -> SRDEResult:
+                              failed: SRDEResult, *,
+                              why: str = "no plane explains the blob centres") -> SRDEResult:
     """Solve an object whose candidates no plane explains, from each light on its own.
 
     When highlights of two lights blend (one lit the object's middle, the other's flank
@@ -1139,7 +1145,8 @@ def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: Lig
     sees it (the brightest blob of each view, triangulated with its outliers dropped),
     still gives a plane near the right one: those planes start the joint fit of the
     lights predicted on the object (:func:`_solve_by_lobes`), which decides as for
-    merged blobs.
+    merged blobs. The same starts serve when the fit from the merged blobs' best plane
+    and its rival found no plane (``why`` says which case, in the note).
     """
     rig, lights = srde.rig, srde.lights_m
     starts: list[Plane] = []
@@ -1154,7 +1161,7 @@ def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: Lig
     presents = [context.predict(plane)[1] for plane in starts]
     if not all(p.any() for p in presents):
         return failed
-    note = (f"lights: no plane explains the blob centres; single-light planes of "
+    note = (f"lights: {why}; single-light planes of "
             f"{len(starts)} light(s) start a joint fit of one lobe per light")
     return _solve_by_lobes(srde, views, mask, solution, failed, starts, presents, note)
 

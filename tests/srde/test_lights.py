@@ -400,3 +400,19 @@ def test_an_inconsistent_best_plane_and_its_rival_go_to_the_joint_lobe_fit():
     assert any("contradicted by highlights it predicts" in note for note in result.notes)
     epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
     assert epe < 0.01
+
+
+def test_when_the_merged_blob_fit_finds_no_plane_each_light_alone_starts_it():
+    # Four lights, four merged blobs: fitted from the best plane and its rival the lobes
+    # pass no check; started from each light's own single-light plane (0.25-3.6 px off)
+    # they end on the true plane.
+    from srde_fusion.synthetic.physics import Physics
+    rig = default_rig()
+    scene = random_scene(71407, rig, config=RandomSceneConfig(n_lights=4))
+    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
+    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    result = SRDE(lit).estimate(out.views, mask)
+    assert result.ok, result.reason
+    assert any("the merged-blob fit found no plane" in note for note in result.notes)
+    epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
+    assert epe < 0.01
