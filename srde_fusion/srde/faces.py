@@ -192,7 +192,7 @@ class _Split:
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
                  min_views: int, box, inside: np.ndarray
-                 ) -> tuple[_Split | None, _Split | None, str]:
+                 ) -> tuple[_Split | None, _Split | None, str, list[PlaneScore]]:
     """Choose the face planes: the set whose split best agrees with the highlights.
 
     The distinct refitted planes explaining the most highlights (at most
@@ -208,6 +208,8 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     why : str
         Why no set counts, when some plane explains highlights the first one does not
         ("" when none does: the object is one plane).
+    pool : list of PlaneScore
+        The distinct refitted planes tried, most highlights first.
     """
     ranked = sorted(scores, key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
     pool: list[PlaneScore] = []
@@ -218,7 +220,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
         if len(pool) == MAX_FACE_HYPOTHESES:
             break
     if len(pool) < 2:
-        return None, None, ""
+        return None, None, "", pool
     splits: list[_Split] = []
     why = ""
     # Evidence of a second face: a plane explaining, in min_views views, one light's
@@ -242,13 +244,13 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     # Faces must explain more highlights than the first plane does alone.
     splits = [s for s in splits if s.value[0] > len(first)]
     if not splits:
-        return None, None, why
+        return None, None, why, pool
     splits.sort(key=lambda s: s.value, reverse=True)
     best = splits[0]
     rival = next((s for s in splits[1:] if len(s.scores) == len(best.scores) and any(
         context.plane_gap_px(x.plane, y.plane) > SAME_PLANE_PX
         for x, y in zip(s.scores, best.scores, strict=True))), None)
-    return best, rival, ""
+    return best, rival, "", pool
 
 
 def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
@@ -416,8 +418,8 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     box = search_box(mask, 0)
     u0, v0, u1, v1 = box
     inside = mask[v0:v1, u0:u1]
-    best, rival, why = choose_faces(context, scores, max_faces=srde.max_faces,
-                                    min_views=srde.min_views, box=box, inside=inside)
+    best, rival, why, pool = choose_faces(context, scores, max_faces=srde.max_faces,
+                                          min_views=srde.min_views, box=box, inside=inside)
     if best is None:
         if why:
             # Evidence of a second plane that splits nothing consistently: the one-plane
@@ -482,6 +484,15 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         return srde._failed("face_split", f"faces: the reference view's highlight(s) at "
                             f"{stray} lie on the object away from the faces' edges, and none of "
                             f"the {len(faces)} faces explains them")
+    left_out = _unexplained_plane(context, pool, planes, srde.min_views)
+    if left_out is not None:
+        # Near the faces' edge the reference check above excuses a blob (the edge cuts
+        # highlights); a whole light's highlights in several views are not cut blobs.
+        views_left = sorted({int(j) for k in range(left_out.matched.shape[0])
+                             for j in np.flatnonzero(left_out.matched[k] >= 0)})
+        return srde._failed("face_split", f"faces: a plane explains highlights in views "
+                            f"{views_left} that none of the {len(faces)} faces explains: a face "
+                            f"is missing or a plane is wrong", plane=left_out.plane)
     disparity = np.full(inside.shape, np.nan, dtype=np.float32)
     for f, face in enumerate(faces):
         part = labels == f + 1
@@ -514,6 +525,38 @@ def _unexplained_reference(rig, gathered, scores: list[PlaneScore], labels, box,
                 and not _label_at(near, box, point)[0]:
             stray.append(f"({uv[0]:.0f}, {uv[1]:.0f})")
     return ", ".join(stray)
+
+
+def _unexplained_plane(context: AssignmentContext, pool: list[PlaneScore],
+                       planes: list[Plane], min_views: int) -> PlaneScore | None:
+    """Return a hypothesis explaining one light's highlights that no face accounts for.
+
+    With every light known, a highlight on the object is some light's on some face. A
+    face accounts for a blob its plane explains, and for one whose box holds its
+    plane's on-object prediction of some light or whose centre lies within
+    :data:`~.lights.BLEND_RADII` blob radii of one (a blob merged with another, or cut
+    by the faces' edge with the predicted centre on the hidden side, has its centre
+    moved by up to a few radii). A plane (from
+    the hypotheses the faces were chosen from) that explains one light's highlights in
+    ``min_views`` views none of the faces accounts for is a face left out: its
+    highlights lie on the parts given to its neighbours (the middle face of three left
+    out), so the pieced disparity would be wrong there. None when there is none.
+    """
+    reach_px = BLEND_RADII * context.blob_radius_px
+    covered: set[tuple[int, int]] = set()
+    for plane in planes:
+        score = context.score(plane)
+        if score is not None:
+            covered |= _explained(score)
+        uv, on_object, _ = context.predict(plane)
+        for j, boxes in enumerate(context.boxes):
+            p = uv[on_object[:, j], j]  # (M, 2)
+            near = np.linalg.norm(context.cands[j][:, None] - p[None], axis=2) <= reach_px
+            for q, (a0, b0, a1, b1) in enumerate(boxes):
+                held = (p[:, 0] >= a0) & (p[:, 0] < a1) & (p[:, 1] >= b0) & (p[:, 1] < b1)
+                if np.any(held | near[q]):
+                    covered.add((j, q))
+    return next((p for p in pool if _own_views(p, covered) >= min_views), None)
 
 
 def _worst_miss_px(rig, light_m: np.ndarray, face: FaceResult) -> float:
