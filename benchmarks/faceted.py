@@ -10,6 +10,13 @@ union of the faces. Every scene is estimated two ways on the same images and mas
 * ``faces``: ``SRDE(max_faces=3)`` with a rig that knows every light;
 * ``one plane``: ``SRDE`` with the same rig (today's several-light path: one plane).
 
+Fusion: the ``faces`` estimate goes through ``fuse`` with the default border check,
+the backbone being OpenCV SGBM on the rig's stereo pair (the background is black, so
+the textured band is the object's silhouette edge). An object is *kept* when fusion uses
+SRDE's disparity and *sent back* when it falls back to the backbone although SRDE
+succeeded. Fused per-face EPE: the fused map on each face's true pixels, over the kept
+objects; backbone per-face EPE over the same faces and SGBM's valid pixels.
+
 Per face: masked EPE (px) of the estimate on the face's true pixels. A face counts as
 *lit* when the renderer puts its own light's highlight on it in at least 2 views
 (``Rendering.highlight_on_object``); *found* when the estimate is ``ok`` with faces and
@@ -31,8 +38,10 @@ import platform
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from srde_fusion.fusion import fuse
 from srde_fusion.geometry import plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.synthetic import default_rig, render
@@ -46,11 +55,41 @@ KINDS = (("2 faces, ridge", 2, True), ("2 faces, valley", 2, False), ("3 faces, 
 FOUND_PX = 0.5
 TARGET_PX = 0.05
 SEED0 = 31000
+#: SGBM settings for 640x480 (as benchmarks/fusion_eval.py).
+SGBM_MAX_DISPARITY_PX = 128
+SGBM_BLOCK_PX = 5
+SGBM_FIXED_POINT = 16.0
 
 
-def face_epe(disparity: np.ndarray, truth: np.ndarray, part: np.ndarray) -> float:
+def sgbm(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """OpenCV semi-global matching, invalid = NaN."""
+    matcher = cv2.StereoSGBM_create(
+        minDisparity=0, numDisparities=SGBM_MAX_DISPARITY_PX, blockSize=SGBM_BLOCK_PX,
+        P1=8 * 3 * SGBM_BLOCK_PX**2, P2=32 * 3 * SGBM_BLOCK_PX**2, uniquenessRatio=5,
+        speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    gray = [cv2.cvtColor(v, cv2.COLOR_RGB2GRAY) for v in (left, right)]
+    d = matcher.compute(*gray).astype(np.float32) / SGBM_FIXED_POINT
+    d[d <= 0] = np.nan
+    return d
+
+
+class Estimated:
+    """An estimator that returns a result already computed (fusion without re-running)."""
+
+    def __init__(self, result) -> None:
+        self.result = result
+
+    def estimate(self, views, mask):
+        return self.result
+
+
+def face_epe(disparity: np.ndarray, truth: np.ndarray, part: np.ndarray,
+             valid_only: bool = False) -> float:
     values = disparity[part]
-    if not np.all(np.isfinite(values)):
+    finite = np.isfinite(values)
+    if valid_only and finite.any():
+        return float(np.mean(np.abs(values[finite] - truth[part][finite])))
+    if not np.all(finite):
         return float("nan")
     return float(np.mean(np.abs(values - truth[part])))
 
@@ -97,6 +136,13 @@ def run_scene(rig, seed: int, n_faces: int, convex: bool) -> dict:
             gap = np.abs(plane_disparity(face.plane, rig)[p] - truth[p])
             found[k] = bool(np.max(gap) <= FOUND_PX)
     record.update(found=found, wrong_split_pct=wrong_split)
+    backbone = sgbm(*(rendering.views[j] for j in rig.stereo_pair))
+    fused = fuse(backbone, rendering.views, lit_rig, [mask], Estimated(result))
+    report = fused.objects[0]
+    record.update(fused_status=report.status, fused_reason=report.reason,
+                  fused_epe=[face_epe(fused.disparity, truth, p) for p in parts],
+                  backbone_epe=[face_epe(backbone, truth, p, valid_only=True) for p in parts],
+                  backbone_coverage=[float(np.mean(np.isfinite(backbone[p]))) for p in parts])
     return record
 
 
@@ -105,6 +151,9 @@ def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
              "per-face EPE mean / max (px) | faces <= 0.05 px | wrong split (% of mask, mean / "
              "max) | one plane: per-face EPE mean / max (px) | time faces / one plane (ms) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    fused_lines = ["| object | SRDE ok with faces | kept by fusion | sent back | fused per-face "
+                   "EPE mean / max (px) | fused faces <= 0.05 px | SGBM per-face EPE mean "
+                   "(valid px) | SGBM coverage |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
     numbers = {}
     for label, n_faces, convex in KINDS:
         rs = [r for r in records if r["faces"] == n_faces and r["convex"] == convex]
@@ -132,7 +181,26 @@ def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
             "time_ms": 1000 * float(np.median([r["time_s"] for r in rs])),
             "single_time_ms": 1000 * float(np.median([r["single_time_s"] for r in rs])),
         }
+        kept = [r for r in ok if r.get("fused_status") == "srde"]
+        fused_epes = [e for r in kept for e in r["fused_epe"]]
+        backbone_epes = [e for r in ok for e in r.get("backbone_epe", [])]
+        coverage = [c for r in rs for c in r.get("backbone_coverage", [])]
+        row.update({
+            "fused_kept": len(kept), "fused_sent_back": len(ok) - len(kept),
+            "fused_epe_mean": float(np.nanmean(fused_epes)) if fused_epes else float("nan"),
+            "fused_epe_max": float(np.nanmax(fused_epes)) if fused_epes else float("nan"),
+            "fused_faces_within_target": int(sum(e <= TARGET_PX for e in fused_epes)),
+            "fused_faces": len(fused_epes),
+            "backbone_epe_mean": (float(np.nanmean(backbone_epes)) if backbone_epes
+                                  else float("nan")),
+            "backbone_coverage": float(np.mean(coverage)) if coverage else float("nan"),
+        })
         numbers[label] = row
+        fused_lines.append(
+            f"| {label} | {len(ok)} | {row['fused_kept']} | {row['fused_sent_back']} | "
+            f"{row['fused_epe_mean']:.4f} / {row['fused_epe_max']:.4f} | "
+            f"{row['fused_faces_within_target']} of {row['fused_faces']} | "
+            f"{row['backbone_epe_mean']:.2f} | {100 * row['backbone_coverage']:.0f} % |")
         lines.append(
             f"| {label} | {row['scenes']} | {lit} | {found} | {len(ok)} | "
             f"{row['epe_mean']:.4f} / {row['epe_max']:.4f} | {row['faces_within_target']} of "
@@ -140,7 +208,8 @@ def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
             f"{row['wrong_split_max_pct']:.2f} | {row['single_epe_mean']:.3f} / "
             f"{row['single_epe_max']:.3f} ({row['single_ok']} ok) | {row['time_ms']:.0f} / "
             f"{row['single_time_ms']:.0f} |")
-    return lines, numbers
+    return lines + ["", "Fused (SGBM backbone, default border check), over the objects SRDE "
+                    "solved with faces:", "", *fused_lines], numbers
 
 
 def main(argv: list[str] | None = None) -> int:
