@@ -247,9 +247,15 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
         return None, None, why, pool
     splits.sort(key=lambda s: s.value, reverse=True)
     best = splits[0]
-    rival = next((s for s in splits[1:] if len(s.scores) == len(best.scores) and any(
-        context.plane_gap_px(x.plane, y.plane) > SAME_PLANE_PX
-        for x, y in zip(s.scores, best.scores, strict=True))), None)
+
+    def same_planes(a: _Split, b: _Split) -> bool:
+        # The same set in another order (a pair and a third, or another pair and a third).
+        return len(a.scores) == len(b.scores) and all(
+            any(context.plane_gap_px(x.plane, y.plane) <= SAME_PLANE_PX for y in b.scores)
+            for x in a.scores)
+
+    rival = next((s for s in splits[1:] if len(s.scores) == len(best.scores)
+                  and not same_planes(s, best)), None)
     return best, rival, "", pool
 
 
@@ -340,6 +346,9 @@ def _label_at(labels: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
     out[ok] = labels[v[ok], u[ok]]
     return out
 
+
+#: With three faces each face's own highlights must be seen in this many views (at least).
+THREE_FACE_VIEWS = 3
 
 #: Marks a highlight whose mirror point lies within a blob radius of another face's part:
 #: the faces' edge cuts its blob, so its centre measures neither face.
@@ -447,8 +456,11 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     for f, score in enumerate(chosen):
         face_mask = np.zeros(mask.shape, dtype=bool)
         face_mask[v0:v1, u0:u1] = labels == f + 1
+        # Three faces are triples of hypotheses: more ways to piece a wrong set together
+        # from blobs that pair up by chance, so each face needs a view more of its own.
+        need = srde.min_views if len(chosen) < 3 else max(srde.min_views, THREE_FACE_VIEWS)
         result, face = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
-                                   gathered)
+                                   gathered, need)
         if not result.ok:
             return srde._failed(result.status, f"face {f + 1} of {len(chosen)}: {result.reason}",
                                 plane=result.plane)
@@ -458,6 +470,15 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
                                 f"photometric refinement did not confirm its plane "
                                 f"({face.refinement.reason})", plane=face.plane)
+        moved_px = context.plane_gap_px(face.refinement.initial_plane, face.plane) \
+            if face.refinement is not None else 0.0
+        if moved_px > SAME_PLANE_PX:
+            # The image and the highlight centres disagree about the face: a plane pieced
+            # from the wrong highlights, or windows the edge cuts, that the lobe fit bent.
+            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
+                                f"photometric refinement moved its plane by {moved_px:.2f} px "
+                                f"over the object (limit {SAME_PLANE_PX:g} px)",
+                                plane=face.plane)
         miss_px = _worst_miss_px(rig, lights[face.light], face)
         if miss_px > tolerance_px:
             return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: its refined "
@@ -580,8 +601,11 @@ def _too_small(labels: np.ndarray, inside: np.ndarray) -> str:
 
 
 def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, label: int,
-                labels: np.ndarray, box, gathered):
-    """Check and refine one face on its part of the mask; ``(SRDEResult, FaceResult)``."""
+                labels: np.ndarray, box, gathered, min_views: int):
+    """Check and refine one face on its part of the mask; ``(SRDEResult, FaceResult)``.
+
+    The face's light must be seen on its own part in ``min_views`` views.
+    """
     rig, lights = srde.rig, srde.lights_m
     where = _highlights_by_face(rig, lights, [score], labels, box,
                                 gathered.blob_radius_px)[0]
@@ -591,10 +615,10 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     distance = np.where(own, score.distance_px, np.inf)
     main = int(max(range(len(lights)),
                    key=lambda k: (counts[k], -float(np.min(distance[k])))))
-    if counts[main] < srde.min_views:
+    if counts[main] < min_views:
         return srde._failed("too_few_views", f"faces: face {label} keeps its own highlights "
-                            f"in {int(counts[main])} view(s) away from the faces' edge (min_views "
-                            f"{srde.min_views})", plane=score.plane), None
+                            f"in {int(counts[main])} view(s) away from the faces' edge (needs "
+                            f"{min_views})", plane=score.plane), None
     centers = np.full((rig.n_cameras, 2), np.nan)
     for j in np.flatnonzero(own[main]):
         centers[j] = gathered.centers_uv[j][score.matched[main, j]]

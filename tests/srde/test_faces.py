@@ -27,6 +27,11 @@ FACE_EPE_PX = 0.05
 RIDGE_SEED, VALLEY_SEED, THREE_SEED = 31001, 32001, 33008
 # A 3-face scene whose middle face two planes left out (benchmarks/faceted.py's 3-face seed 15).
 LEFT_OUT_SEED = 33015
+# A 3-face scene whose set of planes is reached twice (a pair and a third, in two
+# orders): one set, not two rival ones.
+REORDERED_SEED = 33003
+# A 3-face scene where a face is seen in 2 views only (its pieced set would be 1.7 px off).
+TWO_VIEW_SEED = 33001
 # A valley whose edge cuts one face's highlights in 6 of 9 views (the cut blobs are no
 # face's left out).
 CUT_SEED = 32002
@@ -100,8 +105,9 @@ def test_two_faces_are_solved_within_the_target(rig, seed, convex, rule):
     assert sum(f.n_px for f in result.faces.faces) == int(mask.sum())
 
 
-def test_three_faces_are_solved_within_the_target(rig):
-    _, rendering, lit = _rendered(rig, THREE_SEED, 3, True, physics=Physics.faithful())
+@pytest.mark.parametrize("seed", [THREE_SEED, REORDERED_SEED])
+def test_three_faces_are_solved_within_the_target(rig, seed):
+    _, rendering, lit = _rendered(rig, seed, 3, True, physics=Physics.faithful())
     mask = rendering.instance_mask > 0
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert result.ok, result.reason
@@ -118,6 +124,13 @@ def test_a_face_left_out_is_refused(rig):
     result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
     assert result.status == "face_split", result.reason
     assert "none of the 2 faces explains" in result.reason
+
+
+def test_a_face_of_three_seen_in_two_views_is_refused(rig):
+    _, rendering, lit = _rendered(rig, TWO_VIEW_SEED, 3, True, physics=Physics.faithful())
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
+    assert result.status == "too_few_views", result.reason
+    assert "(needs 3)" in result.reason
 
 
 def test_two_faces_found_with_max_faces_2_on_a_three_face_object_is_refused(rig):
