@@ -22,7 +22,9 @@ Per face: masked EPE (px) of the estimate on the face's true pixels. A face coun
 (``Rendering.highlight_on_object``); *found* when the estimate is ``ok`` with faces and
 one of its faces' planes is within 0.5 px of the face's true plane over the face (the
 faces are matched by their pixels). Wrong split: mask pixels whose estimated face is not
-their true face (the faces matched by the most shared pixels), % of the mask. Times:
+their true face (the faces matched by the most shared pixels), % of the mask. *Wrong
+objects*: ``ok`` results (with faces, or one plane from the faces estimator) with a face
+not found or more than 5 % of the mask on the wrong face. Times:
 median of the whole ``estimate`` call (two processes may share the two cores).
 
 Run: ``python benchmarks/faceted.py [--scenes 20]``; writes
@@ -54,6 +56,7 @@ NAME = "faceted"
 KINDS = (("2 faces, ridge", 2, True), ("2 faces, valley", 2, False), ("3 faces, ridge", 3, True))
 FOUND_PX = 0.5
 TARGET_PX = 0.05
+WRONG_SPLIT_PCT = 5.0
 SEED0 = 31000
 #: SGBM settings for 640x480 (as benchmarks/fusion_eval.py).
 SGBM_MAX_DISPARITY_PX = 128
@@ -148,9 +151,9 @@ def run_scene(rig, seed: int, n_faces: int, convex: bool) -> dict:
 
 def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
     lines = ["| object | scenes | faces lit (>= 2 views) | faces found | objects ok | "
-             "per-face EPE mean / max (px) | faces <= 0.05 px | wrong split (% of mask, mean / "
-             "max) | one plane: per-face EPE mean / max (px) | time faces / one plane (ms) |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "wrong objects | per-face EPE mean / max (px) | faces <= 0.05 px | wrong split (% "
+             "of mask, mean / max) | one plane: per-face EPE mean / max (px) | time faces / one "
+             "plane (ms) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     fused_lines = ["| object | SRDE ok with faces | kept by fusion | sent back | fused per-face "
                    "EPE mean / max (px) | fused faces <= 0.05 px | SGBM per-face EPE mean "
                    "(valid px) | SGBM coverage |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
@@ -162,12 +165,16 @@ def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
         lit = sum(sum(r["lit"]) for r in rs)
         found = sum(sum(f and li for f, li in zip(r["found"], r["lit"], strict=True)) for r in rs)
         ok = [r for r in rs if r["status"] == "ok" and r["n_found_faces"] >= 2]
+        # Wrong: an ok result (with faces or one plane) with a face off by more than
+        # FOUND_PX, or more than WRONG_SPLIT_PCT of the mask on the wrong face.
+        wrong = [r for r in rs if r["status"] == "ok" and (
+            not all(r["found"]) or not r["wrong_split_pct"] <= WRONG_SPLIT_PCT)]
         epes = [e for r in ok for e in r["epe"]]
         single = [e for r in rs if r["single_status"] == "ok" for e in r["single_epe"]]
         splits = [r["wrong_split_pct"] for r in ok]
         row = {
             "scenes": len(rs), "faces_lit": lit, "faces_found": found,
-            "objects_ok": len(ok),
+            "objects_ok": len(ok), "objects_wrong": len(wrong),
             "statuses": {s: sum(r["status"] == s for r in rs)
                          for s in sorted({r["status"] for r in rs})},
             "epe_mean": float(np.nanmean(epes)) if epes else float("nan"),
@@ -202,7 +209,7 @@ def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
             f"{row['fused_faces_within_target']} of {row['fused_faces']} | "
             f"{row['backbone_epe_mean']:.2f} | {100 * row['backbone_coverage']:.0f} % |")
         lines.append(
-            f"| {label} | {row['scenes']} | {lit} | {found} | {len(ok)} | "
+            f"| {label} | {row['scenes']} | {lit} | {found} | {len(ok)} | {len(wrong)} | "
             f"{row['epe_mean']:.4f} / {row['epe_max']:.4f} | {row['faces_within_target']} of "
             f"{row['faces_ok']} | {row['wrong_split_mean_pct']:.2f} / "
             f"{row['wrong_split_max_pct']:.2f} | {row['single_epe_mean']:.3f} / "
