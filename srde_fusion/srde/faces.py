@@ -347,6 +347,13 @@ def _label_at(labels: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
     return out
 
 
+#: A reference candidate this many times the median candidate's area or more ...
+GLOW_AREA_RATIO = 10.0
+
+#: ... whose peak rises this fraction of the median candidate's or less is a face's
+#: diffuse glow, not a highlight (the reference check of a split does not count it).
+GLOW_SCORE_RATIO = 0.25
+
 #: With three faces each face's own highlights must be seen in this many views (at least).
 THREE_FACE_VIEWS = 3
 
@@ -535,14 +542,25 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
 
 def _unexplained_reference(rig, gathered, scores: list[PlaneScore], labels, box,
                            edge_px: float) -> str:
-    """List the reference candidates on a face's part, off its edges, that no face explains."""
+    """List the reference candidates on a face's part, off its edges, that no face explains.
+
+    A *glow* is not a highlight: a blob :data:`GLOW_AREA_RATIO` times the median
+    candidate's area or more whose peak rises :data:`GLOW_SCORE_RATIO` times the median
+    candidate's or less above its surroundings is a face's diffuse shading, brighter
+    than the object's background level, not a light's mirror image.
+    """
     ref = rig.reference
     explained = {int(q) for s in scores for q in s.matched[:, ref] if q >= 0}
     near = _near_other_face(labels, edge_px)
+    found = [d for dets in gathered.found for d in dets]
+    area = float(np.median([d.area_px for d in found]))
+    score = float(np.median([d.score for d in found]))
     stray = []
     for q, uv in enumerate(gathered.centers_uv[ref]):
         point = np.asarray(uv, dtype=np.float64)[None]
-        if q not in explained and _label_at(labels, box, point)[0] > 0 \
+        det = gathered.found[ref][q]
+        glow = det.area_px >= GLOW_AREA_RATIO * area and det.score <= GLOW_SCORE_RATIO * score
+        if q not in explained and not glow and _label_at(labels, box, point)[0] > 0 \
                 and not _label_at(near, box, point)[0]:
             stray.append(f"({uv[0]:.0f}, {uv[1]:.0f})")
     return ", ".join(stray)
