@@ -95,14 +95,14 @@ def _cli_fuse(args: argparse.Namespace) -> int:
                             f"frames (one --disparity map cannot serve several), got --disparity")
         dataset = fuse_dataset(args.scene_dir, args.out, backbone=backbone, mask=_mask_source(args),
                                auto_mask=args.auto_mask, light=args.light,
-                               progress=not args.quiet)
+                               progress=not args.quiet, max_faces=args.max_faces)
         for name, reason in dataset.failures.items():
             print(f"{name}: failed - {reason}")
         print(f"{dataset.summary()}; results in {Path(args.out)}/<scene>/")
         return 1 if dataset.failures else 0
     run = fuse_scene(args.scene_dir, args.out, backbone=backbone, disparity=args.disparity,
                      disparity_scale=args.disparity_scale, mask=_mask_source(args),
-                     auto_mask=args.auto_mask, light=args.light)
+                     auto_mask=args.auto_mask, light=args.light, max_faces=args.max_faces)
     _print_objects(run.fusion)
     _print_masks(run)
     if run.scores is not None:
@@ -114,7 +114,7 @@ def _cli_fuse(args: argparse.Namespace) -> int:
 
 def _cli_srde(args: argparse.Namespace) -> int:
     run = srde_scene(args.scene_dir, args.out, mask=_mask_source(args), auto_mask=args.auto_mask,
-                     light=args.light, method=args.method)
+                     light=args.light, method=args.method, max_faces=args.max_faces)
     for obj in run.fusion.objects:
         srde = obj.srde
         plane = getattr(srde, "plane", None)
@@ -156,6 +156,10 @@ def _add_mask_options(p: argparse.ArgumentParser) -> None:
                    "connected components")
     p.add_argument("--light", type=_light, default=None, metavar="X,Y,Z",
                    help="light position in metres (array frame), overriding rig.json")
+    p.add_argument("--max-faces", type=int, choices=(1, 2, 3), default=1, metavar="N",
+                   help="most flat faces an object may have, 1-3 (default 1): with 2 or 3, an "
+                   "object whose highlights show several planes (a box seen on an edge) gets "
+                   "one plane per face; needs rig.json to list every light")
 
 
 def _add_device_option(p: argparse.ArgumentParser) -> None:

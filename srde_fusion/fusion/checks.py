@@ -169,15 +169,25 @@ class BorderStats:
     ratio_low: float = math.nan
     ratio_high: float = math.nan
     median_diff_px: float = math.nan
+    n_faces_checked: int = 0
 
 
 def border_stats(plane: Plane | None, rig: CameraRig, backbone: np.ndarray, mask: np.ndarray,
-                  textured: np.ndarray, check: BorderCheck, origin: tuple[int, int] = (0, 0)
+                  textured: np.ndarray, check: BorderCheck, origin: tuple[int, int] = (0, 0),
+                  faces: tuple[Plane, ...] = (), face_labels: np.ndarray | None = None
                   ) -> BorderStats:
     """Compare SRDE's plane with the backbone on the textured band around the outline.
 
     The maps may be a window of the image whose top-left pixel is ``origin = (u0, v0)``,
     holding the band whole.
+
+    A faceted object (``faces``, with ``face_labels`` over the window: 0 outside the
+    mask, k on ``faces[k - 1]``'s part) is checked face by face: each band pixel belongs
+    to the face whose part is nearest, each face's plane is extended onto its own stretch
+    of the band only, and the quantiles are those of the worst face among those with
+    ``check.min_px`` band pixels (``ratio_low`` the largest, ``ratio_high`` the smallest),
+    so one face's contradiction is not averaged away by its neighbours. With no face
+    that large, the faces' stretches are pooled.
     """
     if plane is None:
         return BorderStats()
@@ -185,14 +195,46 @@ def border_stats(plane: Plane | None, rig: CameraRig, backbone: np.ndarray, mask
     vs, us = np.nonzero(band)
     # SRDE's plane, extended beyond the mask onto the outer half of the band.
     uv = np.stack([us + origin[0], vs + origin[1]], axis=-1).astype(np.float64)
-    srde_px = plane_disparity(plane, rig, uv)
+    if faces and face_labels is not None:
+        owner = nearest_face(face_labels)[vs, us]
+        srde_px = np.full(len(vs), np.nan)
+        for f, face in enumerate(faces):
+            mine = owner == f + 1
+            srde_px[mine] = plane_disparity(face, rig, uv[mine])
+    else:
+        owner = np.ones(len(vs), dtype=np.intp)
+        srde_px = plane_disparity(plane, rig, uv)
     keep = np.isfinite(srde_px) & (srde_px > 0)
     if not keep.any():
         return BorderStats()
     srde_px, backbone_px = srde_px[keep], backbone[vs[keep], us[keep]].astype(np.float64)
-    low, high = np.quantile(backbone_px / srde_px, [check.low_quantile, check.high_quantile])
-    return BorderStats(int(keep.sum()), float(low), float(high),
-                        float(np.median(srde_px - backbone_px)))
+    owner = owner[keep]
+    ratio = backbone_px / srde_px
+    quantiles = [np.quantile(ratio[owner == f], [check.low_quantile, check.high_quantile])
+                 for f in np.unique(owner) if np.count_nonzero(owner == f) >= check.min_px]
+    checked = len(quantiles)
+    if not quantiles:
+        quantiles = [np.quantile(ratio, [check.low_quantile, check.high_quantile])]
+    low = max(float(q[0]) for q in quantiles)
+    high = min(float(q[1]) for q in quantiles)
+    return BorderStats(int(keep.sum()), low, high, float(np.median(srde_px - backbone_px)),
+                       checked if faces else 0)
+
+
+def nearest_face(face_labels: np.ndarray) -> np.ndarray:
+    """Label every pixel with the face whose part of the mask is nearest, ``(h, w)`` uint8.
+
+    ``face_labels``: 0 outside the mask, k on face k's part. All 0 when it has no face.
+    """
+    inside = face_labels > 0
+    if not inside.any():
+        return np.zeros_like(face_labels)
+    # Distance to the nearest mask pixel, and which one: each mask pixel is its own label.
+    _, index = cv2.distanceTransformWithLabels((~inside).view(np.uint8), cv2.DIST_L2, 5,
+                                               labelType=cv2.DIST_LABEL_PIXEL)
+    lookup = np.zeros(int(index.max()) + 1, dtype=np.uint8)
+    lookup[index[inside]] = face_labels[inside]
+    return lookup[index]
 
 
 def gray_levels(image: np.ndarray) -> np.ndarray:

@@ -58,6 +58,12 @@ class ObjectEstimate:
         JSON-ready summary for the fusion report.
     result : object
         The estimator's result as it returned it.
+    face_planes : tuple of Plane
+        A faceted object's faces' planes (``SRDEResult.faces``), array frame; empty for
+        one plane.
+    face_labels_box : numpy.ndarray, (v1 - v0, u1 - u0) uint8 or None
+        Over ``box``: 0 outside the mask, k on ``face_planes[k - 1]``'s part; None for
+        one plane.
     """
 
     ok: bool
@@ -70,6 +76,8 @@ class ObjectEstimate:
     kept_initial_plane: bool
     record: dict = field(repr=False)
     result: Any = field(repr=False)
+    face_planes: tuple[Plane, ...] = ()
+    face_labels_box: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def disparity(self) -> np.ndarray | None:
@@ -85,15 +93,31 @@ class ObjectEstimate:
         """Return the disparity over ``box = (u0, v0, u1, v1)``, float32, NaN elsewhere."""
         u0, v0, u1, v1 = box
         out = np.full((v1 - v0, u1 - u0), np.nan, dtype=np.float32)
-        if self.disparity_box is None:
-            return out
-        a0, b0, a1, b1 = self.box
-        # The overlap of the two boxes, in image coordinates.
-        c0, d0, c1, d1 = max(a0, u0), max(b0, v0), min(a1, u1), min(b1, v1)
-        if c1 > c0 and d1 > d0:
-            out[d0 - v0:d1 - v0, c0 - u0:c1 - u0] = self.disparity_box[d0 - b0:d1 - b0,
-                                                                       c0 - a0:c1 - a0]
+        return _paste(out, self.disparity_box, self.box, box)
+
+    def face_labels(self, box: tuple[int, int, int, int]) -> np.ndarray | None:
+        """Return the face labels over ``box = (u0, v0, u1, v1)``, uint8, 0 elsewhere.
+
+        None for an object of one plane.
+        """
+        if self.face_labels_box is None:
+            return None
+        u0, v0, u1, v1 = box
+        out = np.zeros((v1 - v0, u1 - u0), dtype=np.uint8)
+        return _paste(out, self.face_labels_box, self.box, box)
+
+
+def _paste(out: np.ndarray, values: np.ndarray | None, values_box, box) -> np.ndarray:
+    """Copy ``values`` (over ``values_box``) into ``out`` (over ``box``) where they overlap."""
+    if values is None:
         return out
+    u0, v0, u1, v1 = box
+    a0, b0, a1, b1 = values_box
+    # The overlap of the two boxes, in image coordinates.
+    c0, d0, c1, d1 = max(a0, u0), max(b0, v0), min(a1, u1), min(b1, v1)
+    if c1 > c0 and d1 > d0:
+        out[d0 - v0:d1 - v0, c0 - u0:c1 - u0] = values[d0 - b0:d1 - b0, c0 - a0:c1 - a0]
+    return out
 
 
 def read_estimate(result: Any) -> ObjectEstimate:
@@ -108,12 +132,16 @@ def read_estimate(result: Any) -> ObjectEstimate:
     ObjectEstimate
     """
     if isinstance(result, SRDEResult):
-        refinement = result.refinement
+        faces = result.faces.faces if result.faces is not None else ()
+        # A faceted object's evidence is as weak as its weakest face's.
+        refinements = [f.refinement for f in faces] or [result.refinement]
+        kept = any(r is not None and not r.ok for r in refinements)
         return ObjectEstimate(
             result.ok, result.status, result.reason,
             np.asarray(result.disparity_box, np.float32), tuple(result.box),
-            tuple(result.image_shape), result.plane,
-            refinement is not None and not refinement.ok, result.to_dict(), result)
+            tuple(result.image_shape), result.plane, kept, result.to_dict(), result,
+            tuple(f.plane for f in faces),
+            None if result.faces is None else np.asarray(result.faces.labels_box, np.uint8))
     status = str(getattr(result, "status", "unknown"))
     reason = str(getattr(result, "reason", ""))
     disparity = getattr(result, "disparity", None)

@@ -244,8 +244,9 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
     object_mask = mask & ~trimmed
     stats = BorderStats()
     if check is not None:
+        # A faceted object's faces are each checked on their own stretch of the outline.
         stats = border_stats(estimate.plane, rig, backbone, object_mask, textured, check,
-                             origin)
+                             origin, estimate.face_planes, estimate.face_labels(window))
     photo = PhotoStats()
     if check is not None and check.photo_ring_px > 0:
         photo = photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check,
@@ -274,10 +275,13 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
         contradiction = (f"{suspicion}, and it puts the object far in front of anything the "
                          f"backbone sees there (q{check.high_quantile:g} of backbone/srde = "
                          f"{stats.ratio_high:.2f} < {check.suspect_front_ratio:g}")
+    where = (f" (the worst of its {stats.n_faces_checked} faces' stretches)"
+             if stats.n_faces_checked > 1 else "")
     if contradiction:
         return _Decision(ObjectReport(
-            k, "fallback", f"SRDE contradicts the backbone around the object's outline: "
-            f"{contradiction}, over {stats.n_px} textured px)", estimate, n_mask, 0, **common))
+            k, "fallback", f"SRDE contradicts the backbone around the object's outline"
+            f"{where}: {contradiction}, over {stats.n_px} textured px)", estimate, n_mask, 0,
+            **common))
     photo_checked = check is not None and photo.n_px >= check.min_px
     if photo_checked and (photo.cost_srde
                           > check.max_photo_ratio * photo.cost_backbone + check.photo_margin):
@@ -296,7 +300,7 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
         reason = (f"SRDE used unchecked: only {stats.n_px} textured px with a valid "
                   f"backbone around the outline (need {check.min_px})")
     else:
-        reason = (f"SRDE agrees with the backbone around the object's outline "
+        reason = (f"SRDE agrees with the backbone around the object's outline{where} "
                   f"(backbone/srde q{check.low_quantile:g} = {stats.ratio_low:.2f}, "
                   f"q{check.high_quantile:g} = {stats.ratio_high:.2f} over "
                   f"{stats.n_px} px)")

@@ -45,7 +45,8 @@ def _rig_with_light(rig: CameraRig, light: Any) -> CameraRig:
 
 def postprocess(disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraRig,
                 masks: Any = None, *, light: Any = None, srde_method: str = "default",
-                border_check: BorderCheck | None = DEFAULT_BORDER_CHECK) -> FusionResult:
+                border_check: BorderCheck | None = DEFAULT_BORDER_CHECK,
+                max_faces: int = 1) -> FusionResult:
     """Fix a disparity map an existing pipeline produced, on flat glossy objects.
 
     Parameters
@@ -67,6 +68,10 @@ def postprocess(disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraR
         SRDE variant, see :class:`~srde_fusion.srde.estimator.SRDE`.
     border_check : BorderCheck or None
         See :func:`fuse`.
+    max_faces : int
+        Most flat faces an object may have (1-3), see
+        :class:`~srde_fusion.srde.estimator.SRDE`; a faceted object's fused map carries
+        each face's plane on its part.
 
     Returns
     -------
@@ -77,8 +82,8 @@ def postprocess(disparity: np.ndarray, views: Sequence[np.ndarray], rig: CameraR
     w, h = rig.image_size
     backbone = check_disparity(disparity, (h, w), "disparity")
     masker = resolve_masker(masks).masker
-    return fuse(backbone, views, rig, masker(views, rig), SRDE(rig, method=srde_method),
-                border_check=border_check)
+    return fuse(backbone, views, rig, masker(views, rig),
+                SRDE(rig, method=srde_method, max_faces=max_faces), border_check=border_check)
 
 
 class HybridStereo:
@@ -101,6 +106,10 @@ class HybridStereo:
         SRDE variant, see :class:`~srde_fusion.srde.estimator.SRDE`.
     border_check : BorderCheck or None
         See :func:`fuse`.
+    max_faces : int
+        Most flat faces an object may have (1-3), see
+        :class:`~srde_fusion.srde.estimator.SRDE`; a faceted object's fused map carries
+        each face's plane on its part.
 
     Examples
     --------
@@ -117,7 +126,8 @@ class HybridStereo:
 
     def __init__(self, backbone: Backbone, rig: CameraRig, light: Any = None,
                  masker: Any = None, *, srde_method: str = "default",
-                 border_check: BorderCheck | None = DEFAULT_BORDER_CHECK) -> None:
+                 border_check: BorderCheck | None = DEFAULT_BORDER_CHECK,
+                 max_faces: int = 1) -> None:
         if not callable(backbone):
             raise BackboneError(f"backbone: expected a callable backbone(left, right), got "
                             f"{type(backbone).__name__}")
@@ -125,6 +135,7 @@ class HybridStereo:
         self.backbone = backbone
         self.masker = resolve_masker(masker).masker
         self.srde_method = srde_method
+        self.max_faces = max_faces
         self.border_check = border_check
         self._srde = None
 
@@ -132,7 +143,7 @@ class HybridStereo:
     def srde(self) -> SRDE:
         """The SRDE estimator for this rig (built on first use)."""
         if self._srde is None:
-            self._srde = SRDE(self.rig, method=self.srde_method)
+            self._srde = SRDE(self.rig, method=self.srde_method, max_faces=self.max_faces)
         return self._srde
 
     def __call__(self, views: Sequence[np.ndarray]) -> FusionResult:

@@ -192,7 +192,7 @@ class _Split:
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
                  min_views: int, box, inside: np.ndarray
-                 ) -> tuple[_Split | None, _Split | None, str]:
+                 ) -> tuple[_Split | None, _Split | None, str, list[PlaneScore]]:
     """Choose the face planes: the set whose split best agrees with the highlights.
 
     The distinct refitted planes explaining the most highlights (at most
@@ -208,6 +208,8 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     why : str
         Why no set counts, when some plane explains highlights the first one does not
         ("" when none does: the object is one plane).
+    pool : list of PlaneScore
+        The distinct refitted planes tried, most highlights first.
     """
     ranked = sorted(scores, key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
     pool: list[PlaneScore] = []
@@ -218,7 +220,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
         if len(pool) == MAX_FACE_HYPOTHESES:
             break
     if len(pool) < 2:
-        return None, None, ""
+        return None, None, "", pool
     splits: list[_Split] = []
     why = ""
     # Evidence of a second face: a plane explaining, in min_views views, one light's
@@ -242,13 +244,19 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     # Faces must explain more highlights than the first plane does alone.
     splits = [s for s in splits if s.value[0] > len(first)]
     if not splits:
-        return None, None, why
+        return None, None, why, pool
     splits.sort(key=lambda s: s.value, reverse=True)
     best = splits[0]
-    rival = next((s for s in splits[1:] if len(s.scores) == len(best.scores) and any(
-        context.plane_gap_px(x.plane, y.plane) > SAME_PLANE_PX
-        for x, y in zip(s.scores, best.scores, strict=True))), None)
-    return best, rival, ""
+
+    def same_planes(a: _Split, b: _Split) -> bool:
+        # The same set in another order (a pair and a third, or another pair and a third).
+        return len(a.scores) == len(b.scores) and all(
+            any(context.plane_gap_px(x.plane, y.plane) <= SAME_PLANE_PX for y in b.scores)
+            for x in a.scores)
+
+    rival = next((s for s in splits[1:] if len(s.scores) == len(best.scores)
+                  and not same_planes(s, best)), None)
+    return best, rival, "", pool
 
 
 def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
@@ -339,6 +347,16 @@ def _label_at(labels: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
     return out
 
 
+#: A reference candidate this many times the median candidate's area or more ...
+GLOW_AREA_RATIO = 10.0
+
+#: ... whose peak rises this fraction of the median candidate's or less is a face's
+#: diffuse glow, not a highlight (the reference check of a split does not count it).
+GLOW_SCORE_RATIO = 0.25
+
+#: With three faces each face's own highlights must be seen in this many views (at least).
+THREE_FACE_VIEWS = 3
+
 #: Marks a highlight whose mirror point lies within a blob radius of another face's part:
 #: the faces' edge cuts its blob, so its centre measures neither face.
 CUT_BY_EDGE = -2
@@ -416,8 +434,8 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     box = search_box(mask, 0)
     u0, v0, u1, v1 = box
     inside = mask[v0:v1, u0:u1]
-    best, rival, why = choose_faces(context, scores, max_faces=srde.max_faces,
-                                    min_views=srde.min_views, box=box, inside=inside)
+    best, rival, why, pool = choose_faces(context, scores, max_faces=srde.max_faces,
+                                          min_views=srde.min_views, box=box, inside=inside)
     if best is None:
         if why:
             # Evidence of a second plane that splits nothing consistently: the one-plane
@@ -445,8 +463,11 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     for f, score in enumerate(chosen):
         face_mask = np.zeros(mask.shape, dtype=bool)
         face_mask[v0:v1, u0:u1] = labels == f + 1
+        # Three faces are triples of hypotheses: more ways to piece a wrong set together
+        # from blobs that pair up by chance, so each face needs a view more of its own.
+        need = srde.min_views if len(chosen) < 3 else max(srde.min_views, THREE_FACE_VIEWS)
         result, face = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
-                                   gathered)
+                                   gathered, need)
         if not result.ok:
             return srde._failed(result.status, f"face {f + 1} of {len(chosen)}: {result.reason}",
                                 plane=result.plane)
@@ -456,6 +477,15 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
                                 f"photometric refinement did not confirm its plane "
                                 f"({face.refinement.reason})", plane=face.plane)
+        moved_px = context.plane_gap_px(face.refinement.initial_plane, face.plane) \
+            if face.refinement is not None else 0.0
+        if moved_px > SAME_PLANE_PX:
+            # The image and the highlight centres disagree about the face: a plane pieced
+            # from the wrong highlights, or windows the edge cuts, that the lobe fit bent.
+            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
+                                f"photometric refinement moved its plane by {moved_px:.2f} px "
+                                f"over the object (limit {SAME_PLANE_PX:g} px)",
+                                plane=face.plane)
         miss_px = _worst_miss_px(rig, lights[face.light], face)
         if miss_px > tolerance_px:
             return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: its refined "
@@ -482,6 +512,15 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         return srde._failed("face_split", f"faces: the reference view's highlight(s) at "
                             f"{stray} lie on the object away from the faces' edges, and none of "
                             f"the {len(faces)} faces explains them")
+    left_out = _unexplained_plane(context, pool, planes, srde.min_views)
+    if left_out is not None:
+        # Near the faces' edge the reference check above excuses a blob (the edge cuts
+        # highlights); a whole light's highlights in several views are not cut blobs.
+        views_left = sorted({int(j) for k in range(left_out.matched.shape[0])
+                             for j in np.flatnonzero(left_out.matched[k] >= 0)})
+        return srde._failed("face_split", f"faces: a plane explains highlights in views "
+                            f"{views_left} that none of the {len(faces)} faces explains: a face "
+                            f"is missing or a plane is wrong", plane=left_out.plane)
     disparity = np.full(inside.shape, np.nan, dtype=np.float32)
     for f, face in enumerate(faces):
         part = labels == f + 1
@@ -503,17 +542,60 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
 
 def _unexplained_reference(rig, gathered, scores: list[PlaneScore], labels, box,
                            edge_px: float) -> str:
-    """List the reference candidates on a face's part, off its edges, that no face explains."""
+    """List the reference candidates on a face's part, off its edges, that no face explains.
+
+    A *glow* is not a highlight: a blob :data:`GLOW_AREA_RATIO` times the median
+    candidate's area or more whose peak rises :data:`GLOW_SCORE_RATIO` times the median
+    candidate's or less above its surroundings is a face's diffuse shading, brighter
+    than the object's background level, not a light's mirror image.
+    """
     ref = rig.reference
     explained = {int(q) for s in scores for q in s.matched[:, ref] if q >= 0}
     near = _near_other_face(labels, edge_px)
+    found = [d for dets in gathered.found for d in dets]
+    area = float(np.median([d.area_px for d in found]))
+    score = float(np.median([d.score for d in found]))
     stray = []
     for q, uv in enumerate(gathered.centers_uv[ref]):
         point = np.asarray(uv, dtype=np.float64)[None]
-        if q not in explained and _label_at(labels, box, point)[0] > 0 \
+        det = gathered.found[ref][q]
+        glow = det.area_px >= GLOW_AREA_RATIO * area and det.score <= GLOW_SCORE_RATIO * score
+        if q not in explained and not glow and _label_at(labels, box, point)[0] > 0 \
                 and not _label_at(near, box, point)[0]:
             stray.append(f"({uv[0]:.0f}, {uv[1]:.0f})")
     return ", ".join(stray)
+
+
+def _unexplained_plane(context: AssignmentContext, pool: list[PlaneScore],
+                       planes: list[Plane], min_views: int) -> PlaneScore | None:
+    """Return a hypothesis explaining one light's highlights that no face accounts for.
+
+    With every light known, a highlight on the object is some light's on some face. A
+    face accounts for a blob its plane explains, and for one whose box holds its
+    plane's on-object prediction of some light or whose centre lies within
+    :data:`~.lights.BLEND_RADII` blob radii of one (a blob merged with another, or cut
+    by the faces' edge with the predicted centre on the hidden side, has its centre
+    moved by up to a few radii). A plane (from
+    the hypotheses the faces were chosen from) that explains one light's highlights in
+    ``min_views`` views none of the faces accounts for is a face left out: its
+    highlights lie on the parts given to its neighbours (the middle face of three left
+    out), so the pieced disparity would be wrong there. None when there is none.
+    """
+    reach_px = BLEND_RADII * context.blob_radius_px
+    covered: set[tuple[int, int]] = set()
+    for plane in planes:
+        score = context.score(plane)
+        if score is not None:
+            covered |= _explained(score)
+        uv, on_object, _ = context.predict(plane)
+        for j, boxes in enumerate(context.boxes):
+            p = uv[on_object[:, j], j]  # (M, 2)
+            near = np.linalg.norm(context.cands[j][:, None] - p[None], axis=2) <= reach_px
+            for q, (a0, b0, a1, b1) in enumerate(boxes):
+                held = (p[:, 0] >= a0) & (p[:, 0] < a1) & (p[:, 1] >= b0) & (p[:, 1] < b1)
+                if np.any(held | near[q]):
+                    covered.add((j, q))
+    return next((p for p in pool if _own_views(p, covered) >= min_views), None)
 
 
 def _worst_miss_px(rig, light_m: np.ndarray, face: FaceResult) -> float:
@@ -537,8 +619,11 @@ def _too_small(labels: np.ndarray, inside: np.ndarray) -> str:
 
 
 def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, label: int,
-                labels: np.ndarray, box, gathered):
-    """Check and refine one face on its part of the mask; ``(SRDEResult, FaceResult)``."""
+                labels: np.ndarray, box, gathered, min_views: int):
+    """Check and refine one face on its part of the mask; ``(SRDEResult, FaceResult)``.
+
+    The face's light must be seen on its own part in ``min_views`` views.
+    """
     rig, lights = srde.rig, srde.lights_m
     where = _highlights_by_face(rig, lights, [score], labels, box,
                                 gathered.blob_radius_px)[0]
@@ -548,10 +633,10 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     distance = np.where(own, score.distance_px, np.inf)
     main = int(max(range(len(lights)),
                    key=lambda k: (counts[k], -float(np.min(distance[k])))))
-    if counts[main] < srde.min_views:
+    if counts[main] < min_views:
         return srde._failed("too_few_views", f"faces: face {label} keeps its own highlights "
-                            f"in {int(counts[main])} view(s) away from the faces' edge (min_views "
-                            f"{srde.min_views})", plane=score.plane), None
+                            f"in {int(counts[main])} view(s) away from the faces' edge (needs "
+                            f"{min_views})", plane=score.plane), None
     centers = np.full((rig.n_cameras, 2), np.nan)
     for j in np.flatnonzero(own[main]):
         centers[j] = gathered.centers_uv[j][score.matched[main, j]]

@@ -299,7 +299,7 @@ def run_demo(out_dir: str | os.PathLike = "demo_out", *, seed: int = DEMO_SEED,
 def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
                backbone: Backbone | None = None, disparity: Any = None,
                disparity_scale: float = 1.0, mask: Any = None, auto_mask: bool = False,
-               light: Any = None) -> SceneRun:
+               light: Any = None, max_faces: int = 1) -> SceneRun:
     """Fuse a backbone's disparity with SRDE for one scene folder and write the outputs.
 
     Parameters
@@ -325,6 +325,8 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
         Use the built-in segmenter even if the scene has a mask.
     light : array_like (3,), optional
         Light position in metres, overriding the rig's.
+    max_faces : int
+        Most flat faces an object may have (1-3); see :class:`~srde_fusion.srde.SRDE`.
 
     Returns
     -------
@@ -344,11 +346,12 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     _log.info("%s: masks %s; %s", scene.name, source,
               "running the backbone" if backbone is not None else "using the given disparity")
     if backbone is not None:
-        result = HybridStereo(backbone, scene.rig, light, masker)(scene.views)
+        result = HybridStereo(backbone, scene.rig, light, masker,
+                              max_faces=max_faces)(scene.views)
     else:
         given = disparity if isinstance(disparity, np.ndarray) else read_disparity(disparity)
         result = postprocess(np.asarray(given, dtype=np.float32) * np.float32(disparity_scale),
-                             scene.views, scene.rig, masker, light=light)
+                             scene.views, scene.rig, masker, light=light, max_faces=max_faces)
     region = None
     if scene.mask_labels is not None:
         region = scene.mask_labels > 0
@@ -362,7 +365,7 @@ def fuse_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
 
 def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None = None, *,
                mask: Any = None, auto_mask: bool = False, light: Any = None,
-               method: str = "default") -> SceneRun:
+               method: str = "default", max_faces: int = 1) -> SceneRun:
     """Run SRDE alone on one scene folder (no backbone); write its disparity and report.
 
     Outside the objects there is no disparity (NaN, ``inf`` in the PFM). Parameters as
@@ -382,8 +385,8 @@ def srde_scene(scene_dir: str | os.PathLike, out_dir: str | os.PathLike | None =
     masker, source = choice.masker, choice.description
     masks = masker(list(scene.views), rig)
     nothing = np.full((rig.height, rig.width), np.nan, np.float32)
-    result = fuse(nothing, scene.views, rig, masks, SRDE(rig, method=method) if masks else None,
-                  border_check=None)
+    srde = SRDE(rig, method=method, max_faces=max_faces) if masks else None
+    result = fuse(nothing, scene.views, rig, masks, srde, border_check=None)
     region = scene.mask_labels > 0 if scene.mask_labels is not None else None
     if out_dir is None:
         scores = None
@@ -424,7 +427,8 @@ class DatasetRun:
 
 def fuse_dataset(dataset_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
                  backbone: Backbone, mask: Any = None, auto_mask: bool = False,
-                 light: Any = None, progress: bool = True, strict: bool = False) -> DatasetRun:
+                 light: Any = None, progress: bool = True, strict: bool = False,
+                 max_faces: int = 1) -> DatasetRun:
     """Fuse every scene folder of a dataset with one backbone, each into ``out_dir/<scene>``.
 
     Parameters
@@ -434,7 +438,7 @@ def fuse_dataset(dataset_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
     out_dir : path
     backbone : callable
         Loaded once, run on every scene.
-    mask, auto_mask, light
+    mask, auto_mask, light, max_faces
         As :func:`fuse_scene`, for every scene.
     progress : bool
         Show a progress bar on stderr.
@@ -452,7 +456,7 @@ def fuse_dataset(dataset_dir: str | os.PathLike, out_dir: str | os.PathLike, *,
         try:
             runs[folder.name] = fuse_scene(folder, Path(out_dir) / folder.name,
                                            backbone=backbone, mask=mask, auto_mask=auto_mask,
-                                           light=light)
+                                           light=light, max_faces=max_faces)
         except SRDEError as exc:
             if strict:
                 raise

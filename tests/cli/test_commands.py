@@ -8,6 +8,9 @@ import pytest
 
 from srde_fusion.cli import main
 from srde_fusion.io import read_disparity, read_image, read_mask, read_scene, write_scene
+from srde_fusion.synthetic import default_rig, render
+from srde_fusion.synthetic.faceted import faceted_scene
+from srde_fusion.synthetic.scene import rig_lights
 from srde_fusion.workflows import srde_scene
 from tests.support import FLAT_PX, export_constant_model, run_cli
 
@@ -120,6 +123,7 @@ def assert_one_line_error(code, out, err, command, match):
     (["demo", "--scale", "9"], "demo", "scale: expected a factor in [0.1, 4]"),
     (["fuse", "x", "--out", "y"], "fuse", "--backbone"),
     (["srde", "x", "--light", "1,2"], "srde", "expected X,Y,Z in metres"),
+    (["srde", "x", "--max-faces", "4"], "srde", "--max-faces: invalid choice"),
 ])
 def test_bad_input_exits_2_with_one_line(capsys, tmp_path, monkeypatch, argv, command, match):
     monkeypatch.chdir(tmp_path)
@@ -340,3 +344,33 @@ def test_a_binary_mask_is_split_unless_kept_as_one(dataset, tmp_path, capsys):
     code, _, err = run_cli(capsys, "fuse", dataset / "scene_0000", "--disparity", given,
                            "--mask-as-one", "--out", tmp_path / "x")
     assert code == 2 and "--mask-as-one: expected --mask FILE" in err
+
+
+def test_srde_and_fuse_commands_with_max_faces(tmp_path, capsys):
+    # A box seen on an edge, one mask for both faces: --max-faces 3 gives each face its
+    # plane (the fused map carries the edge); the rig lists both lights.
+    rig = default_rig()
+    faceted = faceted_scene(31001, rig, n_faces=2, convex=True)
+    rendering = render(faceted.scene, rig, supersample=2)
+    lit = rig.with_lights(rig_lights(faceted.scene))
+    mask = rendering.instance_mask > 0
+    scene = write_scene(tmp_path / "box", rendering.views, lit, mask=mask,
+                        gt_disparity=rendering.disparity_px)
+    code, out, err = run_cli(capsys, "srde", scene, "--max-faces", "3", "--out", tmp_path / "s")
+    assert code == 0, err
+    assert out.startswith("object 1: ok")
+    srde = read_disparity(tmp_path / "s" / "srde_disparity.pfm")
+    for k in (1, 2):
+        part = rendering.instance_mask == k
+        assert np.mean(np.abs(srde[part] - rendering.disparity_px[part])) < 0.05
+    # The given map is right along the outline and wrong deeper inside the object.
+    inner = np.zeros_like(mask)
+    inner[8:-8, 8:-8] = mask[:-16, 8:-8] & mask[16:, 8:-8] & mask[8:-8, :-16] & mask[8:-8, 16:]
+    disparity = np.where(inner, 1.0, rendering.disparity_px).astype(np.float32)
+    np.save(tmp_path / "given.npy", disparity)
+    code, out, err = run_cli(capsys, "fuse", scene, "--disparity", tmp_path / "given.npy",
+                             "--max-faces", "3", "--out", tmp_path / "f")
+    assert code == 0, err
+    assert "object 1: srde" in out and "2 faces' stretches" in out, out
+    fused = read_disparity(tmp_path / "f" / "fused_disparity.pfm")
+    assert np.mean(np.abs(fused[mask] - rendering.disparity_px[mask])) < 0.05
