@@ -512,7 +512,7 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         return srde._failed("face_split", f"faces: the reference view's highlight(s) at "
                             f"{stray} lie on the object away from the faces' edges, and none of "
                             f"the {len(faces)} faces explains them")
-    left_out = _unexplained_plane(context, pool, planes, srde.min_views)
+    left_out = unexplained_plane(context, pool, planes, srde.min_views)
     if left_out is not None:
         # Near the faces' edge the reference check above excuses a blob (the edge cuts
         # highlights); a whole light's highlights in several views are not cut blobs.
@@ -566,7 +566,7 @@ def _unexplained_reference(rig, gathered, scores: list[PlaneScore], labels, box,
     return ", ".join(stray)
 
 
-def _unexplained_plane(context: AssignmentContext, pool: list[PlaneScore],
+def unexplained_plane(context: AssignmentContext, pool: list[PlaneScore],
                        planes: list[Plane], min_views: int) -> PlaneScore | None:
     """Return a hypothesis explaining one light's highlights that no face accounts for.
 

@@ -986,20 +986,23 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     if not solution.ok:
         failed = dataclasses.replace(srde._failed(solution.status, solution.reason),
                                      lights=solution)
-        if srde.refine and solution.merged_blobs and solution.plane is not None \
+        if not srde.refine:
+            return failed
+        if solution.merged_blobs and solution.plane is not None \
                 and solution.status in ("too_few_views", "ambiguous", "inconsistent"):
-            merged = _solve_merged(srde, views, mask, solution, failed)
-            if merged.ok or merged.status == "ambiguous":
-                return merged
-            # Neither start led the lobes to a plane: the lights alone may.
-            return _solve_from_single_lights(srde, views, mask, solution, merged,
-                                             why="the merged-blob fit found no plane")
-        if srde.refine and solution.plane is None and solution.status == "too_few_views":
-            return _solve_from_single_lights(srde, views, mask, solution, failed)
-        if srde.refine and solution.status in ("ambiguous", "inconsistent") \
+            result = _solve_merged(srde, views, mask, solution, failed)
+            if not (result.ok or result.status == "ambiguous"):
+                # Neither start led the lobes to a plane: the lights alone may.
+                result = _solve_from_single_lights(srde, views, mask, solution, result,
+                                                   why="the merged-blob fit found no plane")
+        elif solution.plane is None and solution.status == "too_few_views":
+            result = _solve_from_single_lights(srde, views, mask, solution, failed)
+        elif solution.status in ("ambiguous", "inconsistent") \
                 and solution.rival_plane is not None:
-            return _solve_ambiguous(srde, views, mask, solution, failed)
-        return failed
+            result = _solve_ambiguous(srde, views, mask, solution, failed)
+        else:
+            return failed
+        return _no_highlights_left_out(srde, mask, gathered, result, failed)
     # The light seen in most views (then with the smallest residual) carries the checks
     # and the refinement; the joint plane mirrors it onto its own virtual light.
     main = max((a for a in solution.assignments if a.n_views),
@@ -1060,6 +1063,43 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
                                   refine=False)
             result = dataclasses.replace(result, refinement=refinement)
     return dataclasses.replace(result, lights=solution)
+
+
+def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
+                            result: SRDEResult, failed: SRDEResult) -> SRDEResult:
+    """Refuse a joint-lobe-fit plane that leaves out highlights another plane explains.
+
+    The lobe fit settles objects whose blob centres no plane explains cleanly; it cannot
+    see highlights it does not model. If a plane hypothesis explains one light's
+    highlights in ``min_views`` views that the fitted plane accounts for in none (neither
+    explains, nor predicts a highlight in or within a few blob radii of those blobs;
+    :func:`~.faces.unexplained_plane`), the object holds a second flat face (or another
+    surface) and one plane is the wrong answer: ``inconsistent``, with a note to ask for
+    faces. Two faces of a faceted object, each lit, were otherwise solved as one plane
+    0.9 and 7.9 px off on a face.
+    """
+    if not result.ok:
+        return result
+    from .faces import unexplained_plane
+
+    rig = srde.rig
+    boxes = [np.asarray([d.bbox for d in dets], dtype=np.float64).reshape(-1, 4)
+             for dets in gathered.found]
+    context = _Context(rig, srde.lights_m, mask, gathered.centers_uv, gathered.lit,
+                       2.0 * srde.max_residual_px, srde.object_depth_m, srde.min_views,
+                       gathered.blob_radius_px, boxes)
+    pool = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
+    pool += [s for s in (context.score(p) for p in context.proposals(loose=True))
+             if s is not None]
+    other = unexplained_plane(context, pool, [result.plane], srde.min_views)
+    if other is None:
+        return result
+    gap_px = _plane_gap_px(rig, _box_corners(mask), other.plane, result.plane)
+    reason = (f"lights: the joint lobe fit's plane leaves out highlights that another plane "
+              f"({gap_px:.1f} px away) explains ({other.n_matched} highlight(s)): a second face "
+              f"or surface (SRDE(max_faces=2..3) splits flat faces); "
+              + "; ".join(result.notes[-1:]))
+    return dataclasses.replace(failed, status="inconsistent", reason=reason)
 
 
 def _lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled, used: np.ndarray,

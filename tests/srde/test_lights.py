@@ -416,3 +416,19 @@ def test_when_the_merged_blob_fit_finds_no_plane_each_light_alone_starts_it():
     assert any("the merged-blob fit found no plane" in note for note in result.notes)
     epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
     assert epe < 0.01
+
+
+def test_a_lobe_fit_plane_that_leaves_out_another_faces_highlights_is_refused():
+    # Two lit faces of a ridge in one mask: the centres give two planes alike, and the
+    # joint lobe fit from both would settle on one, 0.9 px off on a face. Another plane
+    # explains highlights the fitted one does not account for: one plane is the wrong
+    # answer, and the faces estimator is named.
+    from srde_fusion.synthetic.faceted import faceted_scene
+    from srde_fusion.synthetic.physics import Physics
+    rig = default_rig()
+    faceted = faceted_scene(31004, rig, n_faces=2, convex=True)
+    out = render(faceted.scene, rig, physics=Physics.faithful(), supersample=2)
+    lit, mask = rig.with_lights(rig_lights(faceted.scene)), out.instance_mask > 0
+    result = SRDE(lit).estimate(out.views, mask)
+    assert result.status == "inconsistent"
+    assert "leaves out highlights" in result.reason and "max_faces" in result.reason
