@@ -41,8 +41,8 @@ import platform
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
+from fusion_eval import sgbm  # the fusion benchmark's SGBM (run from this folder)
 
 from srde_fusion.fusion import fuse
 from srde_fusion.geometry import plane_disparity
@@ -59,22 +59,6 @@ FOUND_PX = 0.5
 TARGET_PX = 0.05
 WRONG_SPLIT_PCT = 5.0
 SEED0 = 31000
-#: SGBM settings for 640x480 (as benchmarks/fusion_eval.py).
-SGBM_MAX_DISPARITY_PX = 128
-SGBM_BLOCK_PX = 5
-SGBM_FIXED_POINT = 16.0
-
-
-def sgbm(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """OpenCV semi-global matching, invalid = NaN."""
-    matcher = cv2.StereoSGBM_create(
-        minDisparity=0, numDisparities=SGBM_MAX_DISPARITY_PX, blockSize=SGBM_BLOCK_PX,
-        P1=8 * 3 * SGBM_BLOCK_PX**2, P2=32 * 3 * SGBM_BLOCK_PX**2, uniquenessRatio=5,
-        speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-    gray = [cv2.cvtColor(v, cv2.COLOR_RGB2GRAY) for v in (left, right)]
-    d = matcher.compute(*gray).astype(np.float32) / SGBM_FIXED_POINT
-    d[d <= 0] = np.nan
-    return d
 
 
 class Estimated:

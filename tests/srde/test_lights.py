@@ -198,6 +198,21 @@ def lit_scene(seed: int, n_lights: int):
     return rig, scene, out, rig.with_lights(rig_lights(scene)), out.object_masks[0]
 
 
+def faithful_scene(seed: int, n_lights: int):
+    """``lit_scene`` rendered with ``Physics.faithful()`` (2 x 2 samples per pixel)."""
+    from srde_fusion.synthetic.physics import Physics
+    rig = default_rig()
+    scene = random_scene(seed, rig, config=RandomSceneConfig(n_lights=n_lights))
+    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
+    return rig, scene, out, rig.with_lights(rig_lights(scene)), out.object_masks[0]
+
+
+def masked_epe(result, rig, out, mask) -> float:
+    """Mean |disparity error| of a result's plane over the mask, px."""
+    return float(np.mean(np.abs(plane_disparity(result.plane, rig)[mask]
+                                - out.disparity_px[mask])))
+
+
 def test_srde_with_three_rendered_lights_solves_the_plane_and_reports_the_assignment():
     rig, scene, out, lit, mask = lit_scene(7003, 3)
     result = SRDE(lit, refine=False).estimate(out.views, mask)
@@ -209,8 +224,7 @@ def test_srde_with_three_rendered_lights_solves_the_plane_and_reports_the_assign
             assert on[a.light, j]
             assert np.linalg.norm(a.centers_uv[j] - out.highlight_uv_by_light[a.light, 0, j]) < 3
     assert result.lights.n_observations >= 15
-    epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
-    assert epe < 0.05
+    assert masked_epe(result, lit, out, mask) < 0.05
     assert "lights" in result.to_dict()
 
 
@@ -269,7 +283,7 @@ def test_centres_and_lobes_that_disagree_beside_merged_blobs_go_to_the_joint_fit
     rig, scene, out, lit, mask = lit_scene(7068, 2)
 
     def epe(result):
-        return np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
+        return masked_epe(result, lit, out, mask)
 
     geometric = SRDE(lit, refine=False).estimate(out.views, mask)
     assert geometric.ok and geometric.lights.merged_blobs
@@ -285,17 +299,12 @@ def test_a_reference_view_filled_by_one_clipped_blob_is_still_solved():
     # covers most of the mask (its median is the clip level), so a median background
     # found no highlight there. The background is read lower, the blob is a candidate,
     # and the lobes of the lights fitted on one plane solve the object.
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    scene = random_scene(12300, rig, config=RandomSceneConfig(n_lights=3))
-    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
-    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    rig, scene, out, lit, mask = faithful_scene(12300, 3)
     cands = find_candidates(out.views[rig.reference], mask, DetectorConfig())
     assert cands
     result = SRDE(lit).estimate(out.views, mask)
     assert result.ok, result.reason
-    epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
-    assert epe < 0.05
+    assert masked_epe(result, lit, out, mask) < 0.05
 
 
 def test_blob_centres_no_plane_explains_are_solved_from_each_light_alone():
@@ -304,14 +313,10 @@ def test_blob_centres_no_plane_explains_are_solved_from_each_light_alone():
     # pulled off both lights' highlights (by up to 14 px) and no depth is agreed along a
     # baseline line. Each light alone gives a starting plane; the joint fit of both
     # lobes ends on the right one.
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    scene = random_scene(12221, rig, config=RandomSceneConfig(n_lights=2))
-    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
-    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    rig, scene, out, lit, mask = faithful_scene(12221, 2)
 
     def epe(result):
-        return np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
+        return masked_epe(result, lit, out, mask)
 
     geometric = SRDE(lit, refine=False).estimate(out.views, mask)
     assert geometric.status == "too_few_views" and geometric.lights.plane is None
@@ -328,29 +333,20 @@ def test_two_planes_the_centres_explain_alike_are_told_apart_by_their_lobes():
     # the true plane and of light 1 across another plane 3 px away: the centres cannot
     # say which. Fitted from each plane with its own light's lobe, only the true one
     # explains the blobs.
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    scene = random_scene(12236, rig, config=RandomSceneConfig(n_lights=2))
-    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
-    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    rig, scene, out, lit, mask = faithful_scene(12236, 2)
     geometric = SRDE(lit, refine=False).estimate(out.views, mask)
     assert geometric.status == "ambiguous"
     result = SRDE(lit).estimate(out.views, mask)
     assert result.ok, result.reason
     assert any("two planes explain the blob centres alike" in note for note in result.notes)
-    epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
-    assert epe < 0.05
+    assert masked_epe(result, lit, out, mask) < 0.05
 
 
 @pytest.mark.parametrize("seed", [12236, 51203])
 def test_the_blobs_are_assigned_on_the_plane_the_lobes_chose(seed):
     # In 51203 the geometric best plane gives the blobs to the wrong light and the lobe
     # fit chooses its rival: the reported assignment must be the rival's.
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    scene = random_scene(seed, rig, config=RandomSceneConfig(n_lights=2))
-    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
-    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    rig, scene, out, lit, mask = faithful_scene(seed, 2)
     result = SRDE(lit).estimate(out.views, mask)
     assert result.ok, result.reason
     assert result.lights.plane == result.plane
@@ -367,14 +363,10 @@ def test_a_refined_plane_that_explains_the_images_better_stands_against_tilted_c
     # their centres 1-2 px off, which tilts the joint plane of all centres by 1.3 px. The
     # refinement, which models the cut, moves the plane by more than the centres allow;
     # it stands because it explains the images decisively better on both planes' samples.
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    scene = random_scene(61309, rig, config=RandomSceneConfig(n_lights=3))
-    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
-    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    rig, scene, out, lit, mask = faithful_scene(61309, 3)
 
     def epe(result):
-        return np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
+        return masked_epe(result, lit, out, mask)
 
     geometric = SRDE(lit, refine=False).estimate(out.views, mask)
     assert geometric.ok and epe(geometric) > 1.0
@@ -388,34 +380,24 @@ def test_an_inconsistent_best_plane_and_its_rival_go_to_the_joint_lobe_fit():
     # Four lights: the best plane of the centres predicts four highlights that are not
     # there (5.3 px off), its rival is 1.7 px off; fitted from both, the lobes of all
     # lights end on the true plane.
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    scene = random_scene(61410, rig, config=RandomSceneConfig(n_lights=4))
-    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
-    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    rig, scene, out, lit, mask = faithful_scene(61410, 4)
     geometric = SRDE(lit, refine=False).estimate(out.views, mask)
     assert geometric.status == "inconsistent" and geometric.lights.rival_plane is not None
     result = SRDE(lit).estimate(out.views, mask)
     assert result.ok, result.reason
     assert any("contradicted by highlights it predicts" in note for note in result.notes)
-    epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
-    assert epe < 0.01
+    assert masked_epe(result, lit, out, mask) < 0.01
 
 
 def test_when_the_merged_blob_fit_finds_no_plane_each_light_alone_starts_it():
     # Four lights, four merged blobs: fitted from the best plane and its rival the lobes
     # pass no check; started from each light's own single-light plane (0.25-3.6 px off)
     # they end on the true plane.
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    scene = random_scene(71407, rig, config=RandomSceneConfig(n_lights=4))
-    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
-    lit, mask = rig.with_lights(rig_lights(scene)), out.object_masks[0]
+    rig, scene, out, lit, mask = faithful_scene(71407, 4)
     result = SRDE(lit).estimate(out.views, mask)
     assert result.ok, result.reason
     assert any("the merged-blob fit found no plane" in note for note in result.notes)
-    epe = np.mean(np.abs(plane_disparity(result.plane, lit)[mask] - out.disparity_px[mask]))
-    assert epe < 0.01
+    assert masked_epe(result, lit, out, mask) < 0.01
 
 
 def test_a_lobe_fit_plane_that_leaves_out_another_faces_highlights_is_refused():
