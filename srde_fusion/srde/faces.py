@@ -424,12 +424,7 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     gathered = gather_candidates(srde, views, search)
     if gathered is None:
         return None
-    boxes = [np.asarray([d.bbox for d in dets], dtype=np.float64).reshape(-1, 4)
-             for dets in gathered.found]
-    context = AssignmentContext(rig, lights, mask, gathered.centers_uv, gathered.lit,
-                                2.0 * srde.max_residual_px, srde.object_depth_m,
-                                srde.min_views, gathered.blob_radius_px, boxes,
-                                all_lights_in_front=False)
+    context = gathered.context(srde, mask, all_lights_in_front=False)
     scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
     box = search_box(mask, 0)
     u0, v0, u1, v1 = box

@@ -914,6 +914,21 @@ class ViewCandidates:
     lit: Any
     blob_radius_px: float
 
+    @property
+    def boxes(self) -> list[np.ndarray]:
+        """Each candidate's blob box ``(u0, v0, u1, v1)`` per view, ``(m_j, 4)`` float."""
+        return [np.asarray([d.bbox for d in dets], dtype=np.float64).reshape(-1, 4)
+                for dets in self.found]
+
+    def context(self, srde: SRDE, mask: np.ndarray, **options) -> _Context:
+        """Return the hypothesis machinery on these candidates, as :func:`assign_lights` has it.
+
+        With ``srde``'s lights and tolerances; ``options`` go to the context.
+        """
+        return _Context(srde.rig, srde.lights_m, mask, self.centers_uv, self.lit,
+                        2.0 * srde.max_residual_px, srde.object_depth_m, srde.min_views,
+                        self.blob_radius_px, self.boxes, **options)
+
 
 def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates | None:
     """Candidates in the reference search region and in every other view's band.
@@ -1020,12 +1035,12 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     # Lights whose highlights come near the main one's are rendered with it (their lobes
     # reach into its windows); the others are left out of the windows.
     reach_px = (WINDOW_PER_BLOB_RADIUS + BLEND_RADII) * blob_radius_px
-    modelled = [srde.lights_m[a.light] for a in solution.assignments if a.light != main.light
+    modelled = [a.light for a in solution.assignments if a.light != main.light
                 and np.any(a.on_object & main.on_object & (np.linalg.norm(
                     a.predicted_uv - main.predicted_uv, axis=1) < reach_px))]
     result = srde._finish(mask, point, w, used, main.centers_uv, detections, notes,
                           views=views, light=srde.lights_m[main.light],
-                          modelled_lights=modelled)
+                          modelled_lights=[srde.lights_m[k] for k in modelled])
     refinement = result.refinement
     if result.ok and refinement is not None and refinement.ok:
         # The refinement sees one light; every light's assigned highlights must still
@@ -1083,11 +1098,7 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
     from .faces import unexplained_plane
 
     rig = srde.rig
-    boxes = [np.asarray([d.bbox for d in dets], dtype=np.float64).reshape(-1, 4)
-             for dets in gathered.found]
-    context = _Context(rig, srde.lights_m, mask, gathered.centers_uv, gathered.lit,
-                       2.0 * srde.max_residual_px, srde.object_depth_m, srde.min_views,
-                       gathered.blob_radius_px, boxes)
+    context = gathered.context(srde, mask)
     pool = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
     pool += [s for s in (context.score(p) for p in context.proposals(loose=True))
              if s is not None]
@@ -1102,8 +1113,21 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
     return dataclasses.replace(failed, status="inconsistent", reason=reason)
 
 
-def _lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled, used: np.ndarray,
-                  refined: Plane, joint: Plane) -> bool:
+def _lobe_options(srde: SRDE, main: int, modelled: list[int]) -> dict:
+    """Return ``refine_plane``'s light options with light ``main`` fitted.
+
+    The ``modelled`` lights are rendered with it, every other light is cut out of its
+    windows.
+    """
+    lights = srde.lights_m
+    others = [k for k in range(len(lights)) if k != main and k not in modelled]
+    return dict(lobe=srde.refine_lobe, other_lights_m=lights[others] if others else None,
+                modelled_lights_m=lights[modelled] if modelled else None,
+                light_radius_m=srde.light_radii_m[main])
+
+
+def _lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled: list[int],
+                  used: np.ndarray, refined: Plane, joint: Plane) -> bool:
     """Whether the refined plane explains the images decisively better than the joint one.
 
     Both planes' photometric costs on the samples placed for each in turn
@@ -1115,18 +1139,31 @@ def _lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled, used
     from .refine.plane import compare_planes
 
     rig, lights = srde.rig, srde.lights_m
-    modelled = np.asarray(modelled, dtype=np.float64).reshape(-1, 3)
-    kept = [k for k in range(len(lights)) if k != main
-            and not any(np.array_equal(lights[k], m) for m in modelled)]
-    options = dict(lobe=srde.refine_lobe, other_lights_m=lights[kept] if kept else None,
-                   modelled_lights_m=modelled if len(modelled) else None,
-                   light_radius_m=srde.light_radii_m[main])
+    options = _lobe_options(srde, main, modelled)
     on_refined = compare_planes(views, rig, lights[main], mask, [refined, joint],
                                 _centres(rig, refined, lights[main], used), **options)
     on_joint = compare_planes(views, rig, lights[main], mask, [joint, refined],
                               _centres(rig, joint, lights[main], used), **options)
     return bool(on_refined[1] > DECISIVE_COST_RATIO * on_refined[0]
                 and on_joint[0] > DECISIVE_COST_RATIO * on_joint[1])
+
+
+def _plain_context(srde: SRDE, mask: np.ndarray, solution: LightsSolution) -> _Context:
+    """Return the hypothesis machinery on the solution's blob centres alone.
+
+    No brightness test and no blob boxes: predictions, and matches within the
+    assignment's tolerance.
+    """
+    return _Context(srde.rig, srde.lights_m, mask, solution.candidates_uv, None,
+                    2.0 * srde.max_residual_px, srde.object_depth_m, srde.min_views, 0.0)
+
+
+def _lights_on_object(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
+                      starts: list[Plane]) -> list[np.ndarray] | None:
+    """Each start's predicted on-object highlights ``(K, N)`` bool; None if one has none."""
+    context = _plain_context(srde, mask, solution)
+    presents = [context.predict(plane)[1] for plane in starts]
+    return presents if all(p.any() for p in presents) else None
 
 
 def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
@@ -1160,12 +1197,9 @@ def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSoluti
     must end on one plane, or one plane must explain both fits' samples
     :data:`DECISIVE_COST_RATIO` times better.
     """
-    rig, lights = srde.rig, srde.lights_m
     starts = [solution.plane, solution.rival_plane]
-    context = _Context(rig, lights, mask, solution.candidates_uv, None, 0.0,
-                       srde.object_depth_m, srde.min_views, 0.0)
-    presents = [context.predict(plane)[1] for plane in starts]
-    if not all(p.any() for p in presents):
+    presents = _lights_on_object(srde, mask, solution, starts)
+    if presents is None:
         return failed
     note = ("lights: two planes explain the blob centres alike; a joint fit of one lobe per light"
             if solution.status == "ambiguous" else
@@ -1188,18 +1222,13 @@ def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: Lig
     merged blobs. The same starts serve when the fit from the merged blobs' best plane
     and its rival found no plane (``why`` says which case, in the note).
     """
-    rig, lights = srde.rig, srde.lights_m
     starts: list[Plane] = []
-    for k in range(len(lights)):
+    for k in range(len(srde.lights_m)):
         alone = _one_light(srde, k).estimate(views, mask)
         if alone.ok and alone.plane is not None:
             starts.append(alone.plane)
-    if not starts:
-        return failed
-    context = _Context(rig, lights, mask, solution.candidates_uv, None, 0.0,
-                       srde.object_depth_m, srde.min_views, 0.0)
-    presents = [context.predict(plane)[1] for plane in starts]
-    if not all(p.any() for p in presents):
+    presents = _lights_on_object(srde, mask, solution, starts) if starts else None
+    if presents is None:
         return failed
     note = (f"lights: {why}; single-light planes of "
             f"{len(starts)} light(s) start a joint fit of one lobe per light")
@@ -1237,25 +1266,20 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     rig, lights = srde.rig, srde.lights_m
     everywhere = np.logical_or.reduce(presents).any(axis=1)  # (K,)
 
-    def setup(present: np.ndarray, plane: Plane):
-        main = int(np.argmax(present.sum(axis=1)))
-        modelled = [k for k in np.flatnonzero(everywhere) if k != main]
-        others = [k for k in range(len(lights)) if k != main and k not in modelled]
-        options = dict(lobe=srde.refine_lobe,
-                       other_lights_m=lights[others] if others else None,
-                       modelled_lights_m=lights[modelled] if modelled else None,
-                       light_radius_m=srde.light_radii_m[main])
-        return main, present[main], _centres(rig, plane, lights[main], present[main]), options
-
     corners = _box_corners(mask)
     fits: list = []  # (fit, main, used, options) of distinct planes
+    mains: set[int] = set()
     for start, present in zip(starts, presents, strict=True):
-        main, used, centers, options = setup(present, start)
-        fit = refine_plane(views, rig, lights[main], mask, start, centers_uv=centers, **options)
+        main = int(np.argmax(present.sum(axis=1)))
+        mains.add(main)
+        used = present[main]
+        options = _lobe_options(srde, main, [k for k in np.flatnonzero(everywhere) if k != main])
+        fit = refine_plane(views, rig, lights[main], mask, start,
+                           centers_uv=_centres(rig, start, lights[main], used), **options)
         if fit.ok and all(_plane_gap_px(rig, corners, fit.plane, f.plane) > SAME_PLANE_PX
                           for f, *_ in fits):
             fits.append((fit, main, used, options))
-    mains = sorted({setup(p, s)[0] for s, p in zip(starts, presents, strict=True)})
+    mains = sorted(mains)
     note = f"{note} (lights {np.flatnonzero(everywhere).tolist()}, main {mains})"
     if not fits:
         return dataclasses.replace(failed, notes=(*failed.notes, note + " explained none"))
@@ -1303,8 +1327,7 @@ def _solved_on(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
     the assignment's tolerance); a light none of them explains keeps no centre.
     """
     rig, lights = srde.rig, srde.lights_m
-    context = _Context(rig, lights, mask, solution.candidates_uv, None,
-                       2.0 * srde.max_residual_px, srde.object_depth_m, srde.min_views, 0.0)
+    context = _plain_context(srde, mask, solution)
     score = context.score(plane)
     if score is not None:
         on_plane = context.solution(score, None)
