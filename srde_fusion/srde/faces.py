@@ -48,6 +48,7 @@ from .lights import (
     AssignmentContext,
     PlaneScore,
     gather_candidates,
+    reflection_points,
 )
 from .refine import PlaneRefinement
 from .refine.samples import WINDOW_PER_BLOB_RADIUS
@@ -327,15 +328,6 @@ def split_faces(planes: list[Plane], rig, box: tuple[int, int, int, int], inside
     return np.where(inside & seen, pick + 1, 0).astype(np.uint8)
 
 
-def _mirror_points_ref(rig, plane: Plane, light_m: np.ndarray, views: np.ndarray) -> np.ndarray:
-    """Return the reference pixels ``(M, 2)`` of the points reflecting the light into views."""
-    virtual = plane.mirror(light_m)
-    centers = rig.centers_m[views]
-    toward = virtual - centers
-    t = (plane.offset_m - centers @ plane.n) / (toward @ plane.n)
-    return rig.project(centers + t[:, None] * toward)
-
-
 def _label_at(labels: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
     """Labels ``(M,)`` at reference pixels ``uv`` ``(M, 2)``; 0 outside the box."""
     u0, v0, u1, v1 = box
@@ -376,7 +368,9 @@ def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], lab
         for k in range(score.matched.shape[0]):
             views = np.flatnonzero(score.matched[k] >= 0)
             if views.size:
-                ref_uv = _mirror_points_ref(rig, score.plane, lights_m[k], views)
+                points, _ = reflection_points(score.plane, score.plane.mirror(lights_m[k]),
+                                              rig.centers_m[views])
+                ref_uv = rig.project(points)
                 label = _label_at(labels, box, ref_uv)
                 cut = _label_at(near_other, box, ref_uv) > 0
                 where[k, views] = np.where(cut & (label > 0), CUT_BY_EDGE, label)

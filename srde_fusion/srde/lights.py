@@ -514,6 +514,21 @@ def _no_plane(status: str, reason: str, cands, hypotheses: int = 0) -> LightsSol
     return LightsSolution(status, reason, None, (), math.nan, hypotheses, "", tuple(cands))
 
 
+def reflection_points(plane: Plane, virtual_m: np.ndarray, centers_m: np.ndarray):
+    """Where the plane reflects the light towards each camera, and how far along.
+
+    The point is where the segment from the camera centre ``C`` to the virtual light
+    ``V`` crosses the plane: ``C + t (V - C)``, on the segment for ``0 < t < 1``.
+    ``virtual_m`` and ``centers_m`` (metres, array frame) broadcast against each other
+    (e.g. ``(K, 1, 3)`` lights' virtual lights and ``(N, 3)`` centres); returns the
+    points ``(..., 3)`` and ``t`` ``(...)``.
+    """
+    n = plane.n
+    toward = virtual_m - centers_m
+    t = (plane.offset_m - centers_m @ n) / (toward @ n)
+    return centers_m + t[..., None] * toward, t
+
+
 class _Context:
     """The fixed inputs of one assignment and the geometry every hypothesis shares."""
 
@@ -623,13 +638,7 @@ class _Context:
         n_lights, n_views = len(virtual), len(centers)
         uv = project_points(rig, np.repeat(virtual, n_views, axis=0),
                             np.tile(np.arange(n_views), n_lights)).reshape(n_lights, n_views, 2)
-        # The plane point that reflects the light towards camera j: where the segment
-        # from C_j to V crosses the plane.
-        n, c = plane.n, plane.offset_m
-        direction = virtual[:, None, :] - centers[None, :, :]
-        height = c - centers @ n  # (N,) < 0 for cameras in front
-        t = height[None, :] / (direction @ n)
-        points = centers[None, :, :] + t[..., None] * direction
+        points, t = reflection_points(plane, virtual[:, None, :], centers)
         ref_uv = rig.project(points.reshape(-1, 3)).reshape(uv.shape)
         # (NaN where a light behind a face's plane has no mirror point: off the image.)
         ref_uv = np.where(np.isfinite(ref_uv), ref_uv, -1.0)
