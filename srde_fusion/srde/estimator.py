@@ -386,7 +386,7 @@ class SRDE:
         regions = {}
         if reachable:
             best = self.backend.brightest(views, reachable)
-            regions = {j: self.search.region_box_at(c, b, search, search_bbox)
+            regions = {j: self.search.boxed_region_at(c, b, search, search_bbox)
                        for (j, c), b in zip(reachable, best, strict=True)}
         # One level for all views: an asymmetric lobe's centroid depends on it.
         level = None if np.isnan(ref_det.level) else ref_det.level

@@ -314,12 +314,17 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     tops = np.zeros(n)
     np.maximum.at(tops, labels[peaks], smooth[peaks])
     tops, where = tops[1:], centroids[1:]
-    kept: list[int] = []
-    for i in np.argsort(-tops, kind="stable")[:4 * max_candidates]:
-        if all(_dips_between(smooth, where[i], where[k], tops[i], background) for k in kept):
-            kept.append(int(i))
-        if len(kept) == max_candidates:
+    order = np.argsort(-tops, kind="stable")[:4 * max_candidates]
+    # Whether the luminance dips between each peak and every brighter one, all at once;
+    # the brightest peaks are then kept in order unless one kept before joins them.
+    dips = _dip_matrix(smooth, where[order], tops[order], background)
+    kept_rank: list[int] = []
+    for p in range(len(order)):
+        if all(dips[p, q] for q in kept_rank):
+            kept_rank.append(p)
+        if len(kept_rank) == max_candidates:
             break
+    kept = [int(order[p]) for p in kept_rank]
     # Each pixel above the lowest blob level belongs to its nearest kept peak.
     lowest = background + BLOB_LEVEL * (float(tops[kept].min()) - background)
     candidates = inside & (lum > lowest)
@@ -331,33 +336,76 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     for rank, i in enumerate(kept):
         level = background + BLOB_LEVEL * (tops[i] - background)
         above = candidates & (nearest == rank) & (lum > level)
-        count, parts = cv2.connectedComponents(above.view(np.uint8), connectivity=8)
+        # Components are labelled over the box of the pixels above the level only: the
+        # same components, in the same raster order.
+        ax, ay, aw, ah = cv2.boundingRect(above.view(np.uint8))
         pu, pv = (int(round(c)) for c in where[i])
-        label = parts[pv, pu] if above[pv, pu] else 0
+        if aw == 0:
+            continue
+        above_box = np.ascontiguousarray(above[ay:ay + ah, ax:ax + aw])
+        count, parts = cv2.connectedComponents(above_box.view(np.uint8), connectivity=8)
+        label = parts[pv - ay, pu - ax] if above[pv, pu] else 0
         if label == 0:  # the smoothed peak sits beside its pixels: take the largest part
             if count <= 1:
                 continue
-            label = 1 + int(np.argmax(np.bincount(parts[above], minlength=count)[1:]))
+            label = 1 + int(np.argmax(np.bincount(parts[above_box], minlength=count)[1:]))
         blob = parts == label
-        weights = np.where(blob, lum - level, 0.0)
-        ys, xs = np.nonzero(blob)
+        light = lum[ay:ay + ah, ax:ax + aw][blob] - level
+        # The centroid sums over the whole crop (zero off the blob), as they always were.
+        weights = np.zeros(lum.shape, dtype=light.dtype)
+        weights[ay:ay + ah, ax:ax + aw][blob] = light
         center = weighted_centroid(weights) + np.array([u0, v0], dtype=np.float64)
-        bbox = (int(xs.min()) + u0, int(ys.min()) + v0, int(xs.max()) + 1 + u0,
-                int(ys.max()) + 1 + v0)
-        found.append(HighlightDetection(True, center, int(blob.sum()), bbox,
-                                        float(tops[i] - background), "", float(level)))
+        x, y, bw, bh = cv2.boundingRect(blob.view(np.uint8))
+        bbox = (x + ax + u0, y + ay + v0, x + ax + bw + u0, y + ay + bh + v0)
+        found.append(HighlightDetection(True, center, cv2.countNonZero(blob.view(np.uint8)),
+                                        bbox, float(tops[i] - background), "", float(level)))
     return found
 
 
-def _dips_between(smooth: np.ndarray, a, b, top: float, background: float) -> bool:
-    """Whether the luminance dips between two peaks (so they are two highlights)."""
-    length = float(np.hypot(*(np.asarray(b) - np.asarray(a))))
-    steps = max(2, int(math.ceil(length)) + 1)
-    t = np.linspace(0.0, 1.0, steps)
-    us = np.rint(a[0] + t * (b[0] - a[0])).astype(np.intp)
-    vs = np.rint(a[1] + t * (b[1] - a[1])).astype(np.intp)
-    low = float(smooth[vs, us].min())
-    return low < top - SEPARATING_DIP * (top - background)
+def _dip_matrix(smooth: np.ndarray, where: np.ndarray, tops: np.ndarray, background: float
+                ) -> np.ndarray:
+    """Whether the luminance dips between each peak and every brighter one.
+
+    Two peaks are two highlights if the smoothed luminance sampled along the segment
+    between them (one sample per pixel of its length, rounded to pixels) falls below the
+    dimmer one's top by :data:`SEPARATING_DIP` of its contrast. Every pair is sampled in
+    one set of array operations.
+
+    Parameters
+    ----------
+    smooth : numpy.ndarray, (h, w) float32
+    where : numpy.ndarray, (M, 2) float64
+        Peak positions ``(u, v)``, brightest first.
+    tops : numpy.ndarray, (M,) float64
+        Their smoothed maxima.
+    background : float
+
+    Returns
+    -------
+    numpy.ndarray, (M, M) bool
+        ``[p, q]`` for ``q < p``: whether it dips between peak p and the brighter peak
+        q, sampled from p towards q (False elsewhere).
+    """
+    m = len(where)
+    out = np.zeros((m, m), dtype=bool)
+    p, q = np.tril_indices(m, -1)
+    if p.size == 0:
+        return out
+    a, b = where[p], where[q]                                              # (P, 2)
+    d = b - a
+    steps = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1])).astype(np.intp) + 1, 2)
+    # np.linspace(0, 1, n) is i * (1 / (n - 1)) with the last sample set to 1 exactly.
+    ends = np.cumsum(steps)
+    starts = ends - steps
+    pair = np.repeat(np.arange(p.size), steps)
+    t = (np.arange(int(ends[-1])) - starts[pair]) * (1.0 / (steps - 1))[pair]
+    t[ends - 1] = 1.0
+    us = np.rint(a[pair, 0] + t * d[pair, 0]).astype(np.intp)
+    vs = np.rint(a[pair, 1] + t * d[pair, 1]).astype(np.intp)
+    low = np.minimum.reduceat(smooth[vs, us], starts).astype(np.float64)
+    top = tops[p]
+    out[p, q] = low < top - SEPARATING_DIP * (top - background)
+    return out
 
 
 def candidate_band(rig: CameraRig, view: int, box: tuple[int, int, int, int],

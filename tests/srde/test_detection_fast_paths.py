@@ -5,8 +5,10 @@ against numpy's reshape-mean, the one-partition median against ``np.median``, th
 eroded on its box against the whole mask eroded, regions computed inside the moved search
 box against regions computed over the whole disc, the candidates of all views at once
 against one view at a time, the box-corner grazing test against the per-pixel angles,
-the plane's disparity in one pass against the gather-and-scatter, and a detection that
-reads the brightness search's luminance against one that converts the pixels itself.
+the plane's disparity in one pass against the gather-and-scatter, a detection that
+reads the brightness search's luminance against one that converts the pixels itself, a
+region held over its box against the whole array, and the several-lights dip test of all
+peak pairs at once against one pair at a time.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ from srde_fusion.srde.highlight import (
     search_box,
     weighted_centroid,
 )
-from srde_fusion.srde.search import BaselineSearch
+from srde_fusion.srde.lights import SEPARATING_DIP, _dip_matrix
+from srde_fusion.srde.search import BaselineSearch, BoxedRegion
 from srde_fusion.synthetic import RandomSceneConfig, random_scene, render
 
 
@@ -281,3 +284,48 @@ def test_the_numpy_backend_keeps_the_searchs_luminance_for_the_frame(harsh_scene
     boxed = backend.detect(views, [DetectionRequest(rig.reference, region, None,
                                                     search_box(region, 0))])[0]
     np.testing.assert_array_equal(plain.center_uv, boxed.center_uv)
+
+
+@given(st.integers(0, 2**32 - 1))
+def test_a_boxed_region_reads_as_the_whole_array(seed):
+    rng = np.random.default_rng(seed)
+    shape = (int(rng.integers(1, 30)), int(rng.integers(1, 30)))
+    u0, u1 = sorted(int(x) for x in rng.integers(0, shape[1] + 1, 2))
+    v0, v1 = sorted(int(x) for x in rng.integers(0, shape[0] + 1, 2))
+    window = rng.random((v1 - v0, u1 - u0)) < 0.5
+    boxed = BoxedRegion(shape, (u0, v0, u1, v1), window)
+    whole = np.asarray(boxed)
+    assert whole.shape == shape and whole.dtype == bool
+    assert not whole.any() or (whole[v0:v1, u0:u1].sum() == whole.sum())
+    for _ in range(10):
+        a0, a1 = sorted(int(x) for x in rng.integers(0, shape[1] + 1, 2))
+        b0, b1 = sorted(int(x) for x in rng.integers(0, shape[0] + 1, 2))
+        np.testing.assert_array_equal(boxed[b0:b1, a0:a1], whole[b0:b1, a0:a1])
+
+
+def _dips_one_pair(smooth, a, b, top, background) -> bool:
+    # The dip test as it was written for one pair of peaks.
+    length = float(np.hypot(*(np.asarray(b) - np.asarray(a))))
+    steps = max(2, int(np.ceil(length)) + 1)
+    t = np.linspace(0.0, 1.0, steps)
+    us = np.rint(a[0] + t * (b[0] - a[0])).astype(np.intp)
+    vs = np.rint(a[1] + t * (b[1] - a[1])).astype(np.intp)
+    return float(smooth[vs, us].min()) < top - SEPARATING_DIP * (top - background)
+
+
+@given(st.integers(0, 2**32 - 1))
+def test_the_dip_matrix_is_the_pairwise_dip_test(seed):
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(5, 60)), int(rng.integers(5, 60))
+    smooth = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 2.0)
+    m = int(rng.integers(0, 12))
+    where = np.stack([rng.uniform(0, w - 1, m), rng.uniform(0, h - 1, m)], axis=1)
+    # Some peaks on exact half-pixel positions, where rounding ties are.
+    where[: m // 3] = np.round(where[: m // 3] * 2) / 2
+    tops = np.sort(rng.uniform(0.3, 1.0, m))[::-1]
+    background = float(rng.uniform(0.0, 0.3))
+    got = _dip_matrix(smooth, where, tops, background)
+    for p in range(m):
+        for q in range(m):
+            want = q < p and _dips_one_pair(smooth, where[p], where[q], tops[p], background)
+            assert got[p, q] == want
