@@ -21,6 +21,7 @@ from .estimate import ObjectEstimate
 
 __all__ = [
     "border_band",
+    "spilled_rim",
     "textured_mask",
     "BorderCheck",
     "DEFAULT_BORDER_CHECK",
@@ -352,6 +353,92 @@ def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
     deep = np.unique(labels[mask & ~_inner_ring(mask, check.width_px) & candidates])
     keep = np.intersect1d(touching, deep)
     return np.isin(labels, keep[keep > 0])
+
+
+#: Depths (pixels inwards from the mask's outline) at which :func:`spilled_rim` looks
+#: for the object's own outline inside a mask that spilled over the background.
+RIM_DEPTHS_PX = (2, 4, 8, 16, 32, 64)
+#: The object left inside the rim must keep at least this share of the mask.
+_MIN_INNER_FRACTION = 0.25
+#: Share of the rim's textured pixels the backbone must put behind SRDE's plane.
+_RIM_BEHIND_FRACTION = 0.5
+#: Largest relative difference between a rim pixel's backbone disparity and the one at
+#: the nearest pixel outside the mask for the rim pixel to continue the surroundings.
+_RIM_CONTINUITY = 0.1
+
+
+def _backbone_beyond(mask: np.ndarray, backbone: np.ndarray) -> np.ndarray:
+    """Return the backbone's disparity at the nearest pixel outside the mask, (h, w)."""
+    outside = ~mask
+    if not outside.any():
+        return np.full(mask.shape, np.nan, np.float32)
+    # Each outside pixel is its own label; a mask pixel gets its nearest one's.
+    _, index = cv2.distanceTransformWithLabels(mask.astype(np.uint8), cv2.DIST_L2, 5,
+                                               labelType=cv2.DIST_LABEL_PIXEL)
+    lookup = np.full(int(index.max()) + 1, np.nan, np.float32)
+    lookup[index[outside]] = backbone[outside]
+    return lookup[index]
+
+
+def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
+                backbone: np.ndarray, textured: np.ndarray, grays: list[np.ndarray],
+                rig: CameraRig, check: BorderCheck, origin: tuple[int, int] = (0, 0)
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Find a rim of the mask that is background all around the object.
+
+    Returns ``(rim, background)``, (h, w) bool each: the rim the checks leave out, and
+    its pixels that keep the backbone (those of (a) below, farther than
+    ``check.width_px`` from what is left and from the mask's outline, where a matcher
+    mixes both depths; elsewhere
+    in the rim, where nothing tells the object's edge from the background, SRDE's plane
+    stays). Both empty if no depth qualifies.
+
+    A mask dilated by a careless segmenter holds a ring of the background around the
+    object. That ring is too thin for :func:`spill_trim` (which trims only what reaches
+    deeper than the outline band) and is textured, so SRDE's plane explains the mask's
+    inner ring worse than the backbone and the object looks suspect. The object's own
+    outline lies further in: the shallowest depth of :data:`RIM_DEPTHS_PX` is taken at
+    which (a) most of the rim's textured pixels (:data:`_RIM_BEHIND_FRACTION`) have a
+    backbone disparity behind SRDE's plane by more than ``check.trim_disagreement`` and
+    within :data:`_RIM_CONTINUITY` of the backbone's at the nearest pixel outside the
+    mask (background that continues the surroundings; a mirror-like object's own rim
+    also looks "behind", where the backbone matched a reflection, but at the reflection's
+    depth, not the neighbouring background's), and (b) on the inner ring of what is
+    left SRDE's plane explains the other views at least as well as the backbone (over
+    ``check.min_px`` pixels). A wrong plane meets (b) at no depth, and a textureless
+    object's own rim has no outline texture to meet it with, so both keep the mask. The
+    maps may be a window of the image starting at ``origin``.
+    """
+    none = np.zeros_like(mask)
+    total = int(np.count_nonzero(mask))
+    beyond = _backbone_beyond(mask, backbone)
+    for depth in RIM_DEPTHS_PX:
+        size = 2 * depth + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        inner = cv2.erode(mask.astype(np.uint8), kernel,
+                          borderType=cv2.BORDER_REPLICATE).astype(bool) & ~trimmed
+        if np.count_nonzero(inner) < _MIN_INNER_FRACTION * total:
+            break
+        rim = mask & ~inner & ~trimmed
+        seen = rim & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
+        if np.count_nonzero(seen) < check.min_px:
+            continue
+        with np.errstate(invalid="ignore"):  # NaN outside ``seen``: not behind
+            behind = (seen & (backbone < (1.0 - check.trim_disagreement) * srde_disp)
+                      & (np.abs(backbone - beyond) <= _RIM_CONTINUITY * beyond))
+        if np.count_nonzero(behind) < _RIM_BEHIND_FRACTION * np.count_nonzero(seen):
+            continue
+        photo = photo_stats(inner, none, srde_disp, backbone, textured, grays, rig, check,
+                            origin)
+        if photo.n_px >= check.min_px and photo.cost_srde <= photo.cost_backbone:
+            # Along an outline, the object's or the mask's, a matcher mixes both depths
+            # (a background-fattened edge looks like background): those bands stay.
+            size = 2 * check.width_px + 1
+            band = cv2.dilate(inner.astype(np.uint8), cv2.getStructuringElement(
+                cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
+            band |= _inner_ring(mask, check.width_px)
+            return rim, behind & ~band
+    return none, none
 
 
 @dataclass(frozen=True)

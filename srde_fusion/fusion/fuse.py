@@ -46,6 +46,7 @@ from .checks import (
     gray_levels,
     photo_stats,
     spill_trim,
+    spilled_rim,
     textured_mask,
     weak_evidence,
 )
@@ -251,6 +252,22 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
     if check is not None and check.photo_ring_px > 0:
         photo = photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check,
                             origin)
+        if photo.n_px >= check.min_px and photo.cost_srde > photo.cost_backbone \
+                and check.trim_disagreement > 0:
+            # The mask may hold a ring of background around the object: check the object
+            # inside it instead, and leave the ring to the backbone.
+            rim, background = spilled_rim(mask, trimmed, srde_disp, backbone, textured,
+                                          grays, rig, check, origin)
+            if rim.any():
+                checked_mask = mask & ~trimmed & ~rim
+                trimmed = trimmed | background
+                n_trimmed = int(np.count_nonzero(trimmed))
+                object_mask = mask & ~trimmed
+                stats = border_stats(estimate.plane, rig, backbone, checked_mask, textured,
+                                     check, origin, estimate.face_planes,
+                                     estimate.face_labels(window))
+                photo = photo_stats(checked_mask, np.zeros_like(mask), srde_disp, backbone,
+                                    textured, grays, rig, check, origin)
     common = dict(border_px=stats.n_px, border_ratio_low=stats.ratio_low,
                   border_ratio_high=stats.ratio_high,
                   border_median_diff_px=stats.median_diff_px, trimmed_px=n_trimmed,
