@@ -189,6 +189,7 @@ class _Split:
     rule: str
     labels: np.ndarray
     value: tuple[int, int]  # (own highlights less foreign ones, the planes' net support)
+    explained: int = 0  # own highlights and those the faces' edge cuts, less foreign ones
 
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
@@ -243,7 +244,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
                 if split is not None and split.value > pair.value:
                     splits.append(split)
     # Faces must explain more highlights than the first plane does alone.
-    splits = [s for s in splits if s.value[0] > len(first)]
+    splits = [s for s in splits if s.explained > len(first)]
     if not splits:
         return None, None, why, pool
     splits.sort(key=lambda s: s.value, reverse=True)
@@ -280,13 +281,16 @@ def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_vie
             problems.append(f"{rule}: {problem or small}")
             continue
         own: set[tuple[int, int]] = set()
+        cut: set[tuple[int, int]] = set()
         foreign = 0
         for f, (score, w) in enumerate(zip(faces, where, strict=True)):
             for k, j in zip(*np.nonzero(w == f + 1), strict=True):
                 own.add((int(j), int(score.matched[k, j])))
+            for k, j in zip(*np.nonzero(w == CUT_BY_EDGE), strict=True):
+                cut.add((int(j), int(score.matched[k, j])))
             foreign += int(np.count_nonzero((w >= 0) & (w != f + 1)))
         value = (len(own) - foreign, sum(f.key[0] for f in faces))
-        passing.append(_Split(faces, rule, labels, value))
+        passing.append(_Split(faces, rule, labels, value, len(own | cut) - foreign))
     if len(passing) == 2 and passing[0].value == passing[1].value:
         return None, "both the ridge and the valley rule fit the highlights alike"
     if not passing:
