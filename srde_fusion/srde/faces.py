@@ -201,7 +201,10 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     :data:`MAX_FACE_HYPOTHESES`) are tried in pairs, and the best pair with each further
     plane: a set counts when some rule puts every face's highlights on its own part
     (:func:`_evaluate`). The best set is the one with the most highlights on their own
-    faces (less those elsewhere), then the most net support.
+    faces (less those elsewhere), then the most net support. A set must explain more
+    highlights than the first plane does alone, counting those the faces' edge cuts
+    (:data:`CUT_BY_EDGE`): they do not place the split, but the first plane's count
+    holds every highlight it explains.
 
     Returns
     -------
@@ -243,7 +246,8 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
                 split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside)
                 if split is not None and split.value > pair.value:
                     splits.append(split)
-    # Faces must explain more highlights than the first plane does alone.
+    # Faces must explain more highlights than the first plane does alone (which counts
+    # every highlight it explains, near an edge or not).
     splits = [s for s in splits if s.explained > len(first)]
     if not splits:
         return None, None, why, pool
