@@ -189,6 +189,7 @@ class _Split:
     rule: str
     labels: np.ndarray
     value: tuple[int, int]  # (own highlights less foreign ones, the planes' net support)
+    explained: int = 0  # own highlights and those the faces' edge cuts, less foreign ones
 
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
@@ -200,7 +201,10 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     :data:`MAX_FACE_HYPOTHESES`) are tried in pairs, and the best pair with each further
     plane: a set counts when some rule puts every face's highlights on its own part
     (:func:`_evaluate`). The best set is the one with the most highlights on their own
-    faces (less those elsewhere), then the most net support.
+    faces (less those elsewhere), then the most net support. A set must explain more
+    highlights than the first plane does alone, counting those the faces' edge cuts
+    (:data:`CUT_BY_EDGE`): they do not place the split, but the first plane's count
+    holds every highlight it explains.
 
     Returns
     -------
@@ -242,8 +246,9 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
                 split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside)
                 if split is not None and split.value > pair.value:
                     splits.append(split)
-    # Faces must explain more highlights than the first plane does alone.
-    splits = [s for s in splits if s.value[0] > len(first)]
+    # Faces must explain more highlights than the first plane does alone (which counts
+    # every highlight it explains, near an edge or not).
+    splits = [s for s in splits if s.explained > len(first)]
     if not splits:
         return None, None, why, pool
     splits.sort(key=lambda s: s.value, reverse=True)
@@ -280,13 +285,16 @@ def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_vie
             problems.append(f"{rule}: {problem or small}")
             continue
         own: set[tuple[int, int]] = set()
+        cut: set[tuple[int, int]] = set()
         foreign = 0
         for f, (score, w) in enumerate(zip(faces, where, strict=True)):
             for k, j in zip(*np.nonzero(w == f + 1), strict=True):
                 own.add((int(j), int(score.matched[k, j])))
+            for k, j in zip(*np.nonzero(w == CUT_BY_EDGE), strict=True):
+                cut.add((int(j), int(score.matched[k, j])))
             foreign += int(np.count_nonzero((w >= 0) & (w != f + 1)))
         value = (len(own) - foreign, sum(f.key[0] for f in faces))
-        passing.append(_Split(faces, rule, labels, value))
+        passing.append(_Split(faces, rule, labels, value, len(own | cut) - foreign))
     if len(passing) == 2 and passing[0].value == passing[1].value:
         return None, "both the ridge and the valley rule fit the highlights alike"
     if not passing:
