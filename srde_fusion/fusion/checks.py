@@ -22,6 +22,7 @@ from .estimate import ObjectEstimate
 __all__ = [
     "border_band",
     "spilled_rim",
+    "SpilledRim",
     "textured_mask",
     "BorderCheck",
     "DEFAULT_BORDER_CHECK",
@@ -380,18 +381,33 @@ def _backbone_beyond(mask: np.ndarray, backbone: np.ndarray) -> np.ndarray:
     return lookup[index]
 
 
+@dataclass(frozen=True)
+class SpilledRim:
+    """A rim of a mask found to be background around the object (:func:`spilled_rim`).
+
+    Attributes
+    ----------
+    rim : numpy.ndarray, (h, w) bool
+        The mask's pixels within ``depth_px`` of its outline: the checks leave them out.
+    background : numpy.ndarray, (h, w) bool
+        The rim's pixels that keep the backbone (those of (a) in :func:`spilled_rim`,
+        farther than the outline band from what is left and from the mask's outline,
+        where a matcher mixes both depths; elsewhere in the rim nothing tells the
+        object's edge from the background, and SRDE's plane stays).
+    depth_px : int
+        The rim's depth, pixels; 0 when none was found (both maps empty).
+    """
+
+    rim: np.ndarray
+    background: np.ndarray
+    depth_px: int
+
+
 def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
                 backbone: np.ndarray, textured: np.ndarray, grays: list[np.ndarray],
                 rig: CameraRig, check: BorderCheck, origin: tuple[int, int] = (0, 0)
-                ) -> tuple[np.ndarray, np.ndarray]:
+                ) -> SpilledRim:
     """Find a rim of the mask that is background all around the object.
-
-    Returns ``(rim, background)``, (h, w) bool each: the rim the checks leave out, and
-    its pixels that keep the backbone (those of (a) below, farther than
-    ``check.width_px`` from what is left and from the mask's outline, where a matcher
-    mixes both depths; elsewhere
-    in the rim, where nothing tells the object's edge from the background, SRDE's plane
-    stays). Both empty if no depth qualifies.
 
     A mask dilated by a careless segmenter holds a ring of the background around the
     object. That ring is too thin for :func:`spill_trim` (which trims only what reaches
@@ -437,8 +453,8 @@ def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
             band = cv2.dilate(inner.astype(np.uint8), cv2.getStructuringElement(
                 cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
             band |= _inner_ring(mask, check.width_px)
-            return rim, behind & ~band
-    return none, none
+            return SpilledRim(rim, behind & ~band, depth)
+    return SpilledRim(none, none, 0)
 
 
 @dataclass(frozen=True)

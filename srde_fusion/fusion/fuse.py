@@ -249,6 +249,7 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
         stats = border_stats(estimate.plane, rig, backbone, object_mask, textured, check,
                              origin, estimate.face_planes, estimate.face_labels(window))
     photo = PhotoStats()
+    rim_depth_px = 0
     if check is not None and check.photo_ring_px > 0:
         photo = photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check,
                             origin)
@@ -256,11 +257,12 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
                 and check.trim_disagreement > 0:
             # The mask may hold a ring of background around the object: check the object
             # inside it instead, and leave the ring to the backbone.
-            rim, background = spilled_rim(mask, trimmed, srde_disp, backbone, textured,
-                                          grays, rig, check, origin)
-            if rim.any():
-                checked_mask = mask & ~trimmed & ~rim
-                trimmed = trimmed | background
+            spilled = spilled_rim(mask, trimmed, srde_disp, backbone, textured, grays, rig,
+                                  check, origin)
+            if spilled.depth_px:
+                rim_depth_px = spilled.depth_px
+                checked_mask = mask & ~trimmed & ~spilled.rim
+                trimmed = trimmed | spilled.background
                 n_trimmed = int(np.count_nonzero(trimmed))
                 object_mask = mask & ~trimmed
                 stats = border_stats(estimate.plane, rig, backbone, checked_mask, textured,
@@ -294,6 +296,9 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
                          f"{stats.ratio_high:.2f} < {check.suspect_front_ratio:g}")
     where = (f" (the worst of its {stats.n_faces_checked} faces' stretches)"
              if stats.n_faces_checked > 1 else "")
+    if rim_depth_px:
+        where += (f" (inside the mask's outer {rim_depth_px} px, background around the "
+                  f"object)")
     if contradiction:
         return _Decision(ObjectReport(
             k, "fallback", f"SRDE contradicts the backbone around the object's outline"

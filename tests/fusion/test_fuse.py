@@ -372,6 +372,7 @@ def test_thin_background_ring_in_the_mask_does_not_hide_the_object(rig, monkeypa
     result = fuse(backbone, views, rig, [spilled], FakeSRDE([plane], rig))
     obj = result.objects[0]
     assert obj.status == "srde", obj.reason
+    assert "background around the object" in obj.reason
     truth = plane_disparity(plane, rig).astype(np.float32)
     np.testing.assert_array_equal(result.disparity[mask], truth[mask])
     # Without looking for the object's outline inside the mask, it falls back.
@@ -387,8 +388,10 @@ def test_spilled_rim_is_the_ring_around_the_object(rig, dilation_px):
     spilled = ndimage.binary_dilation(mask, iterations=dilation_px)
     srde = np.where(spilled, plane_disparity(plane, rig), np.nan).astype(np.float32)
     textured = textured_mask(views[0], check.min_gradient)
-    rim, background = spilled_rim(spilled, np.zeros_like(spilled), srde, backbone, textured,
-                                  [gray_levels(v) for v in views], rig, check)
+    found = spilled_rim(spilled, np.zeros_like(spilled), srde, backbone, textured,
+                        [gray_levels(v) for v in views], rig, check)
+    rim, background = found.rim, found.background
+    assert found.depth_px >= dilation_px // 2  # depths come in steps of 2x
     ring = spilled & ~mask
     # (the ring is a dilation by a cross, the rim an erosion by a disc)
     assert np.count_nonzero(rim & ring) > 0.8 * np.count_nonzero(ring)
