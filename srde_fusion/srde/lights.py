@@ -114,6 +114,16 @@ BLEND_RADII = 3.0
 UNEXPLAINED_RATIO = 2.0
 
 
+#: A plane from the joint lobe fit (settled where the blob centres could not settle one)
+#: is refused when the centres' evidence against it outweighs what it explains by this
+#: ratio: merged and outline-cut blobs leave stray pieces the lobes account for, so the
+#: centres' verdict counts less than for a plane from the centres
+#: (:data:`UNEXPLAINED_RATIO`). A correct plane of four lights with one merged blob had 7
+#: strays against 10 explained; a three-face object flattened into one plane 7.9 px off,
+#: 17 against 7.
+LOBE_FIT_UNEXPLAINED_RATIO = 1.0
+
+
 #: The best plane is decided against its strongest rival when its net support (explained
 #: highlights less the evidence against) is larger by at least this much.
 DECISIVE_MARGIN = 2
@@ -1148,7 +1158,11 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
     :func:`~.faces.unexplained_plane`), the object holds a second flat face (or another
     surface) and one plane is the wrong answer: ``inconsistent``, with a note to ask for
     faces. Two faces of a faceted object, each lit, were otherwise solved as one plane
-    0.9 and 7.9 px off on a face.
+    0.9 and 7.9 px off on a face. So is a plane with more evidence against it than it
+    explains (:data:`LOBE_FIT_UNEXPLAINED_RATIO`; a plane from the centres is refused at
+    half, rule 10): a three-face object whose every face had a light of its own was
+    solved as one plane 7.9 px off on a face, with 16 blobs on the object that no light
+    explained.
     """
     if not result.ok:
         return result
@@ -1161,7 +1175,19 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
              if s is not None]
     other = unexplained_plane(context, pool, [result.plane], srde.min_views)
     if other is None:
-        return result
+        own = context.score(result.plane)
+        support = 0 if own is None else own.n_matched + len(own.blends)
+        if own is None or own.n_against * LOBE_FIT_UNEXPLAINED_RATIO <= support:
+            return result
+        # The rule the centres' planes obey (10), with the lobes' benefit of the doubt:
+        # a plane with more evidence against it than it explains is not the answer.
+        reason = (f"lights: the joint lobe fit's plane has more evidence against it "
+                  f"({own.n_missing} highlight(s) predicted on the object and not there, "
+                  f"{own.n_strays} blob(s) on the object no light explains) than the "
+                  f"{support} highlight(s) and merged blobs it explains (another surface or "
+                  f"face: SRDE(max_faces=2..3) splits flat faces); "
+                  + "; ".join(result.notes[-1:]))
+        return dataclasses.replace(failed, status="inconsistent", reason=reason)
     gap_px = _plane_gap_px(rig, _box_corners(mask), other.plane, result.plane)
     reason = (f"lights: the joint lobe fit's plane leaves out highlights that another plane "
               f"({gap_px:.1f} px away) explains ({other.n_matched} highlight(s)): a second face "

@@ -38,6 +38,9 @@ TWO_VIEW_SEED = 33001
 # A valley whose edge cuts one face's highlights in 6 of 9 views (the cut blobs are no
 # face's left out).
 CUT_SEED = 32002
+# A 3-face scene that the one-plane several-light SRDE once answered with one plane 7.9 px
+# off on a face (the joint lobe fit's plane, with 16 blobs on the object unexplained).
+ONE_PLANE_SEED = 33000
 
 
 @pytest.fixture(scope="module")
@@ -134,6 +137,15 @@ def test_a_face_of_three_seen_in_two_views_is_refused(rig):
     result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
     assert result.status == "too_few_views", result.reason
     assert "(needs 3)" in result.reason
+
+
+def test_one_plane_with_most_blobs_unexplained_is_refused(rig):
+    # Without max_faces, no plane explains the blob centres and the lobes of two lights
+    # settle on one plane; the blobs it leaves unexplained outweigh what it explains.
+    _, rendering, lit = _rendered(rig, ONE_PLANE_SEED, 3, True, physics=Physics.faithful())
+    result = SRDE(lit).estimate(rendering.views, rendering.instance_mask > 0)
+    assert result.status == "inconsistent", result.reason
+    assert "more evidence against it" in result.reason and "max_faces" in result.reason
 
 
 def test_two_faces_found_with_max_faces_2_on_a_three_face_object_is_refused(rig):
