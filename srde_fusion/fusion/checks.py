@@ -223,6 +223,20 @@ def border_stats(plane: Plane | None, rig: CameraRig, backbone: np.ndarray, mask
                        checked if faces else 0)
 
 
+def nearest_value(source: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Give every pixel the value of its nearest ``source`` pixel, ``(h, w)``.
+
+    ``source`` ``(h, w)`` bool must hold at least one pixel; ``values`` ``(h, w)`` is
+    read there only. Distances are Euclidean (OpenCV's 5x5 mask).
+    """
+    # Distance to the nearest source pixel, and which one: each is its own label.
+    _, index = cv2.distanceTransformWithLabels((~source).view(np.uint8), cv2.DIST_L2, 5,
+                                               labelType=cv2.DIST_LABEL_PIXEL)
+    lookup = np.zeros(int(index.max()) + 1, dtype=values.dtype)
+    lookup[index[source]] = values[source]
+    return lookup[index]
+
+
 def nearest_face(face_labels: np.ndarray) -> np.ndarray:
     """Label every pixel with the face whose part of the mask is nearest, ``(h, w)`` uint8.
 
@@ -231,12 +245,7 @@ def nearest_face(face_labels: np.ndarray) -> np.ndarray:
     inside = face_labels > 0
     if not inside.any():
         return np.zeros_like(face_labels)
-    # Distance to the nearest mask pixel, and which one: each mask pixel is its own label.
-    _, index = cv2.distanceTransformWithLabels((~inside).view(np.uint8), cv2.DIST_L2, 5,
-                                               labelType=cv2.DIST_LABEL_PIXEL)
-    lookup = np.zeros(int(index.max()) + 1, dtype=np.uint8)
-    lookup[index[inside]] = face_labels[inside]
-    return lookup[index]
+    return nearest_value(inside, face_labels.astype(np.uint8, copy=False))
 
 
 def gray_levels(image: np.ndarray) -> np.ndarray:
@@ -356,107 +365,6 @@ def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
     return np.isin(labels, keep[keep > 0])
 
 
-#: Depths (pixels inwards from the mask's outline) at which :func:`spilled_rim` looks
-#: for the object's own outline inside a mask that spilled over the background.
-RIM_DEPTHS_PX = (2, 4, 8, 16, 32, 64)
-#: The object left inside the rim must keep at least this share of the mask.
-_MIN_INNER_FRACTION = 0.25
-#: Share of the rim's textured pixels the backbone must put behind SRDE's plane.
-_RIM_BEHIND_FRACTION = 0.5
-#: Largest relative difference between a rim pixel's backbone disparity and the one at
-#: the nearest pixel outside the mask for the rim pixel to continue the surroundings.
-_RIM_CONTINUITY = 0.1
-
-
-def _backbone_beyond(mask: np.ndarray, backbone: np.ndarray) -> np.ndarray:
-    """Return the backbone's disparity at the nearest pixel outside the mask, (h, w)."""
-    outside = ~mask
-    if not outside.any():
-        return np.full(mask.shape, np.nan, np.float32)
-    # Each outside pixel is its own label; a mask pixel gets its nearest one's.
-    _, index = cv2.distanceTransformWithLabels(mask.astype(np.uint8), cv2.DIST_L2, 5,
-                                               labelType=cv2.DIST_LABEL_PIXEL)
-    lookup = np.full(int(index.max()) + 1, np.nan, np.float32)
-    lookup[index[outside]] = backbone[outside]
-    return lookup[index]
-
-
-@dataclass(frozen=True)
-class SpilledRim:
-    """A rim of a mask found to be background around the object (:func:`spilled_rim`).
-
-    Attributes
-    ----------
-    rim : numpy.ndarray, (h, w) bool
-        The mask's pixels within ``depth_px`` of its outline: the checks leave them out.
-    background : numpy.ndarray, (h, w) bool
-        The rim's pixels that keep the backbone (those of (a) in :func:`spilled_rim`,
-        farther than the outline band from what is left and from the mask's outline,
-        where a matcher mixes both depths; elsewhere in the rim nothing tells the
-        object's edge from the background, and SRDE's plane stays).
-    depth_px : int
-        The rim's depth, pixels; 0 when none was found (both maps empty).
-    """
-
-    rim: np.ndarray
-    background: np.ndarray
-    depth_px: int
-
-
-def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
-                backbone: np.ndarray, textured: np.ndarray, grays: list[np.ndarray],
-                rig: CameraRig, check: BorderCheck, origin: tuple[int, int] = (0, 0)
-                ) -> SpilledRim:
-    """Find a rim of the mask that is background all around the object.
-
-    A mask dilated by a careless segmenter holds a ring of the background around the
-    object. That ring is too thin for :func:`spill_trim` (which trims only what reaches
-    deeper than the outline band) and is textured, so SRDE's plane explains the mask's
-    inner ring worse than the backbone and the object looks suspect. The object's own
-    outline lies further in: the shallowest depth of :data:`RIM_DEPTHS_PX` is taken at
-    which (a) most of the rim's textured pixels (:data:`_RIM_BEHIND_FRACTION`) have a
-    backbone disparity behind SRDE's plane by more than ``check.trim_disagreement`` and
-    within :data:`_RIM_CONTINUITY` of the backbone's at the nearest pixel outside the
-    mask (background that continues the surroundings; a mirror-like object's own rim
-    also looks "behind", where the backbone matched a reflection, but at the reflection's
-    depth, not the neighbouring background's), and (b) on the inner ring of what is
-    left SRDE's plane explains the other views at least as well as the backbone (over
-    ``check.min_px`` pixels). A wrong plane meets (b) at no depth, and a textureless
-    object's own rim has no outline texture to meet it with, so both keep the mask. The
-    maps may be a window of the image starting at ``origin``.
-    """
-    none = np.zeros_like(mask)
-    total = int(np.count_nonzero(mask))
-    beyond = _backbone_beyond(mask, backbone)
-    for depth in RIM_DEPTHS_PX:
-        size = 2 * depth + 1
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-        inner = cv2.erode(mask.astype(np.uint8), kernel,
-                          borderType=cv2.BORDER_REPLICATE).astype(bool) & ~trimmed
-        if np.count_nonzero(inner) < _MIN_INNER_FRACTION * total:
-            break
-        rim = mask & ~inner & ~trimmed
-        seen = rim & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
-        if np.count_nonzero(seen) < check.min_px:
-            continue
-        with np.errstate(invalid="ignore"):  # NaN outside ``seen``: not behind
-            behind = (seen & (backbone < (1.0 - check.trim_disagreement) * srde_disp)
-                      & (np.abs(backbone - beyond) <= _RIM_CONTINUITY * beyond))
-        if np.count_nonzero(behind) < _RIM_BEHIND_FRACTION * np.count_nonzero(seen):
-            continue
-        photo = photo_stats(inner, none, srde_disp, backbone, textured, grays, rig, check,
-                            origin)
-        if photo.n_px >= check.min_px and photo.cost_srde <= photo.cost_backbone:
-            # Along an outline, the object's or the mask's, a matcher mixes both depths
-            # (a background-fattened edge looks like background): those bands stay.
-            size = 2 * check.width_px + 1
-            band = cv2.dilate(inner.astype(np.uint8), cv2.getStructuringElement(
-                cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
-            band |= _inner_ring(mask, check.width_px)
-            return SpilledRim(rim, behind & ~band, depth)
-    return SpilledRim(none, none, 0)
-
-
 @dataclass(frozen=True)
 class PhotoStats:
     n_px: int = 0
@@ -490,6 +398,100 @@ def photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, ba
         return PhotoStats()
     return PhotoStats(int(both.sum()), float(cost_srde[both].mean()),
                        float(cost_backbone[both].mean()))
+
+
+#: Depths (pixels inwards from the mask's outline) at which :func:`spilled_rim` looks
+#: for the object's own outline inside a mask that spilled over the background.
+RIM_DEPTHS_PX = (2, 4, 8, 16, 32, 64)
+#: The object left inside the rim must keep at least this share of the mask.
+_MIN_INNER_FRACTION = 0.25
+#: Share of the rim's textured pixels the backbone must put behind SRDE's plane.
+_RIM_BEHIND_FRACTION = 0.5
+#: Largest relative difference between a rim pixel's backbone disparity and the one at
+#: the nearest pixel outside the mask for the rim pixel to continue the surroundings.
+_RIM_CONTINUITY = 0.1
+
+
+@dataclass(frozen=True)
+class SpilledRim:
+    """A rim of a mask found to be background around the object (:func:`spilled_rim`).
+
+    Attributes
+    ----------
+    rim : numpy.ndarray, (h, w) bool
+        The mask's pixels within ``depth_px`` of its outline: the checks leave them out.
+    background : numpy.ndarray, (h, w) bool
+        The rim's pixels that keep the backbone (those of (a) in :func:`spilled_rim`,
+        farther than the outline band from what is left and from the mask's outline,
+        where a matcher mixes both depths; elsewhere in the rim nothing tells the
+        object's edge from the background, and SRDE's plane stays).
+    depth_px : int
+        The rim's depth, pixels; 0 when none was found (both maps empty).
+    photo : PhotoStats
+        The photometric costs on the inner ring of what the rim leaves (empty when none
+        was found).
+    """
+
+    rim: np.ndarray
+    background: np.ndarray
+    depth_px: int
+    photo: PhotoStats = PhotoStats()
+
+
+def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
+                backbone: np.ndarray, textured: np.ndarray, grays: list[np.ndarray],
+                rig: CameraRig, check: BorderCheck, origin: tuple[int, int] = (0, 0)
+                ) -> SpilledRim:
+    """Find a rim of the mask that is background all around the object.
+
+    A mask dilated by a careless segmenter holds a ring of the background around the
+    object. That ring is too thin for :func:`spill_trim` (which trims only what reaches
+    deeper than the outline band) and is textured, so SRDE's plane explains the mask's
+    inner ring worse than the backbone and the object looks suspect. The object's own
+    outline lies further in: the shallowest depth of :data:`RIM_DEPTHS_PX` is taken at
+    which (a) most of the rim's textured pixels (:data:`_RIM_BEHIND_FRACTION`) have a
+    backbone disparity behind SRDE's plane by more than ``check.trim_disagreement`` and
+    within :data:`_RIM_CONTINUITY` of the backbone's at the nearest pixel outside the
+    mask (background that continues the surroundings; a mirror-like object's own rim
+    also looks "behind", where the backbone matched a reflection, but at the reflection's
+    depth, not the neighbouring background's), and (b) on the inner ring of what is
+    left SRDE's plane explains the other views at least as well as the backbone (over
+    ``check.min_px`` pixels). A wrong plane meets (b) at no depth, and a textureless
+    object's own rim has no outline texture to meet it with, so both keep the mask. The
+    maps may be a window of the image starting at ``origin``.
+    """
+    none = np.zeros_like(mask)
+    total = int(np.count_nonzero(mask))
+    # The backbone at the nearest pixel outside the mask (the window holds a margin).
+    beyond = (np.full_like(backbone, np.nan) if mask.all()
+              else nearest_value(~mask, backbone))
+    for depth in RIM_DEPTHS_PX:
+        size = 2 * depth + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        inner = cv2.erode(mask.astype(np.uint8), kernel,
+                          borderType=cv2.BORDER_REPLICATE).astype(bool) & ~trimmed
+        if np.count_nonzero(inner) < _MIN_INNER_FRACTION * total:
+            break
+        rim = mask & ~inner & ~trimmed
+        seen = rim & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
+        if np.count_nonzero(seen) < check.min_px:
+            continue
+        with np.errstate(invalid="ignore"):  # NaN outside ``seen``: not behind
+            behind = (seen & (backbone < (1.0 - check.trim_disagreement) * srde_disp)
+                      & (np.abs(backbone - beyond) <= _RIM_CONTINUITY * beyond))
+        if np.count_nonzero(behind) < _RIM_BEHIND_FRACTION * np.count_nonzero(seen):
+            continue
+        photo = photo_stats(inner, none, srde_disp, backbone, textured, grays, rig, check,
+                            origin)
+        if photo.n_px >= check.min_px and photo.cost_srde <= photo.cost_backbone:
+            # Along an outline, the object's or the mask's, a matcher mixes both depths
+            # (a background-fattened edge looks like background): those bands stay.
+            size = 2 * check.width_px + 1
+            band = cv2.dilate(inner.astype(np.uint8), cv2.getStructuringElement(
+                cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
+            band |= _inner_ring(mask, check.width_px)
+            return SpilledRim(rim, behind & ~band, depth, photo)
+    return SpilledRim(none, none, 0)
 
 
 def weak_evidence(estimate: ObjectEstimate, photo: PhotoStats) -> str:

@@ -243,11 +243,7 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
         trimmed = spill_trim(mask, srde_disp, backbone, textured, grays, rig, check, origin)
     n_trimmed = int(np.count_nonzero(trimmed))
     object_mask = mask & ~trimmed
-    stats = BorderStats()
-    if check is not None:
-        # A faceted object's faces are each checked on their own stretch of the outline.
-        stats = border_stats(estimate.plane, rig, backbone, object_mask, textured, check,
-                             origin, estimate.face_planes, estimate.face_labels(window))
+    checked_mask = object_mask  # what the outline checks judge
     photo = PhotoStats()
     rim_depth_px = 0
     if check is not None and check.photo_ring_px > 0:
@@ -260,16 +256,16 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
             spilled = spilled_rim(mask, trimmed, srde_disp, backbone, textured, grays, rig,
                                   check, origin)
             if spilled.depth_px:
-                rim_depth_px = spilled.depth_px
-                checked_mask = mask & ~trimmed & ~spilled.rim
+                rim_depth_px, photo = spilled.depth_px, spilled.photo
+                checked_mask = object_mask & ~spilled.rim
                 trimmed = trimmed | spilled.background
                 n_trimmed = int(np.count_nonzero(trimmed))
                 object_mask = mask & ~trimmed
-                stats = border_stats(estimate.plane, rig, backbone, checked_mask, textured,
-                                     check, origin, estimate.face_planes,
-                                     estimate.face_labels(window))
-                photo = photo_stats(checked_mask, np.zeros_like(mask), srde_disp, backbone,
-                                    textured, grays, rig, check, origin)
+    stats = BorderStats()
+    if check is not None:
+        # A faceted object's faces are each checked on their own stretch of the outline.
+        stats = border_stats(estimate.plane, rig, backbone, checked_mask, textured, check,
+                             origin, estimate.face_planes, estimate.face_labels(window))
     common = dict(border_px=stats.n_px, border_ratio_low=stats.ratio_low,
                   border_ratio_high=stats.ratio_high,
                   border_median_diff_px=stats.median_diff_px, trimmed_px=n_trimmed,

@@ -472,6 +472,15 @@ class _Score:
         return self.n_missing + self.n_strays
 
     @property
+    def support(self) -> int:
+        """What the plane explains: highlights and blobs of merged highlights."""
+        return self.n_matched + len(self.blends)
+
+    def outweighed(self, ratio: float) -> bool:
+        """Whether the evidence against, times ``ratio``, exceeds the support."""
+        return self.n_against * ratio > self.support
+
+    @property
     def key(self) -> tuple[int, int, float]:
         """Larger is better: net support, then explained highlights, then residual.
 
@@ -484,7 +493,7 @@ class _Score:
         """
         d = self.distance_px[self.matched >= 0]
         rms = float(np.sqrt(np.mean(d * d))) if d.size else math.inf
-        return (self.n_matched + len(self.blends) - self.n_against, self.n_matched, -rms)
+        return (self.support - self.n_against, self.n_matched, -rms)
 
 
 def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
@@ -907,11 +916,11 @@ class _Context:
             status = "ambiguous"
             reason = ("lights: two different planes explain the highlights equally well; "
                       + evidence)
-        elif best.n_against * UNEXPLAINED_RATIO > best.n_matched + len(best.blends):
+        elif best.outweighed(UNEXPLAINED_RATIO):
             status = "inconsistent"
             reason = (f"lights: the evidence against the best plane ({best.n_against}) is more "
                       f"than 1/{UNEXPLAINED_RATIO:g} of the "
-                      f"{best.n_matched + len(best.blends)} highlight(s) and merged blobs it "
+                      f"{best.support} highlight(s) and merged blobs it "
                       "explains (blended or hidden highlights, or an unknown light); "
                       + evidence)
         elif len(self.lights) > 1 and not decisive \
@@ -1176,15 +1185,14 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
     other = unexplained_plane(context, pool, [result.plane], srde.min_views)
     if other is None:
         own = context.score(result.plane)
-        support = 0 if own is None else own.n_matched + len(own.blends)
-        if own is None or own.n_against * LOBE_FIT_UNEXPLAINED_RATIO <= support:
+        if own is None or not own.outweighed(LOBE_FIT_UNEXPLAINED_RATIO):
             return result
         # The rule the centres' planes obey (10), with the lobes' benefit of the doubt:
         # a plane with more evidence against it than it explains is not the answer.
         reason = (f"lights: the joint lobe fit's plane has more evidence against it "
                   f"({own.n_missing} highlight(s) predicted on the object and not there, "
                   f"{own.n_strays} blob(s) on the object no light explains) than the "
-                  f"{support} highlight(s) and merged blobs it explains (another surface or "
+                  f"{own.support} highlight(s) and merged blobs it explains (another surface or "
                   f"face: SRDE(max_faces=2..3) splits flat faces); "
                   + "; ".join(result.notes[-1:]))
         return dataclasses.replace(failed, status="inconsistent", reason=reason)
