@@ -9,73 +9,16 @@ cropped to it, and is still the sequence of ``(H, W)`` bool masks a masker retur
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy import ndimage
 
 from .._checks import check_mask
+from ..boxes import BoxMask
 from ..errors import MaskError
 
 __all__ = ["BoxMask", "BoxedMasks"]
-
-
-@dataclass(frozen=True, eq=False)
-class BoxMask:
-    """One object's mask as its bounding box and the mask cropped to it.
-
-    Attributes
-    ----------
-    box : (int, int, int, int)
-        ``(u0, v0, u1, v1)``, inclusive-exclusive, pixels; the smallest box holding the
-        object.
-    crop : numpy.ndarray, (v1 - v0, u1 - u0), bool
-        The mask inside the box (read-only).
-    shape : (int, int)
-        ``(H, W)`` of the full image.
-    """
-
-    box: tuple[int, int, int, int]
-    crop: np.ndarray
-    shape: tuple[int, int]
-
-    @classmethod
-    def from_mask(cls, mask: np.ndarray) -> BoxMask:
-        """Crop a non-empty ``(H, W)`` bool mask to its bounding box (a copy)."""
-        rows = np.flatnonzero(mask.any(axis=1))
-        cols = np.flatnonzero(mask.any(axis=0))
-        if rows.size == 0:
-            raise MaskError("mask: expected at least one pixel inside the mask, got an empty mask")
-        v0, v1, u0, u1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-        return cls.from_crop((u0, v0, u1, v1), mask[v0:v1, u0:u1].copy(), mask.shape)
-
-    @classmethod
-    def from_crop(cls, box, crop: np.ndarray, shape) -> BoxMask:
-        """Wrap a bool ``crop`` lying at ``box = (u0, v0, u1, v1)`` of an ``(H, W)`` image."""
-        if crop.flags.owndata:  # never freeze a caller's array
-            crop.setflags(write=False)
-        return cls(tuple(int(b) for b in box), crop, (int(shape[0]), int(shape[1])))
-
-    @property
-    def pixel_count(self) -> int:
-        """Pixels inside the mask."""
-        return int(np.count_nonzero(self.crop))
-
-    def full(self) -> np.ndarray:
-        """Return the ``(H, W)`` bool mask (a new array)."""
-        u0, v0, u1, v1 = self.box
-        out = np.zeros(self.shape, dtype=bool)
-        out[v0:v1, u0:u1] = self.crop
-        return out
-
-    def window(self, box: tuple[int, int, int, int]) -> np.ndarray:
-        """Return the mask over another box ``(u0, v0, u1, v1)`` holding this one, bool."""
-        u0, v0, u1, v1 = box
-        bu0, bv0, bu1, bv1 = self.box
-        out = np.zeros((v1 - v0, u1 - u0), dtype=bool)
-        out[bv0 - v0:bv1 - v0, bu0 - u0:bu1 - u0] = self.crop
-        return out
 
 
 class BoxedMasks(Sequence):

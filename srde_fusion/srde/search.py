@@ -22,10 +22,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ..boxes import BoxMask
 from ..geometry import CameraRig
 from .highlight import HighlightDetection
 
-__all__ = ["BoxedRegion", "Candidates", "BaselineSearch", "shifted_window"]
+__all__ = ["Candidates", "BaselineSearch", "shifted_window"]
 
 # The reference highlight's search capsule in other views: this many times the reference
 # blob's half-diagonal, plus a margin, around the line where the highlight can appear.
@@ -58,54 +59,6 @@ class Candidates:
     half_diagonal_px: float
     lo: tuple[int, int]
     hi: tuple[int, int]
-
-
-class BoxedRegion:
-    """An image-sized boolean region that is False outside a box, held over the box only.
-
-    Reads like the ``(H, W)`` array it stands for where the detectors read it: slicing
-    ``region[v0:v1, u0:u1]`` gives that window (a view where it lies inside the box),
-    ``shape`` is the image's and ``numpy.asarray(region)`` builds the whole array.
-
-    Parameters
-    ----------
-    shape : (int, int)
-        ``(H, W)`` of the image.
-    box : (int, int, int, int)
-        ``(u0, v0, u1, v1)``, inclusive-exclusive: where the region may be True.
-    window : numpy.ndarray, (v1 - v0, u1 - u0) bool
-        The region over the box.
-    """
-
-    def __init__(self, shape: tuple[int, int], box: tuple[int, int, int, int],
-                 window: np.ndarray) -> None:
-        self.shape = (int(shape[0]), int(shape[1]))
-        self.box = box
-        self.window = window
-        self.dtype = window.dtype
-        self.ndim = 2
-
-    def __getitem__(self, key) -> np.ndarray:
-        rows, cols = key
-        v0, v1, _ = rows.indices(self.shape[0])
-        u0, u1, _ = cols.indices(self.shape[1])
-        if rows.step not in (None, 1) or cols.step not in (None, 1) or v1 < v0 or u1 < u0:
-            return np.asarray(self)[key]
-        bu0, bv0, bu1, bv1 = self.box
-        if bu0 <= u0 and bv0 <= v0 and u1 <= bu1 and v1 <= bv1:
-            return self.window[v0 - bv0:v1 - bv0, u0 - bu0:u1 - bu0]
-        out = np.zeros((v1 - v0, u1 - u0), dtype=bool)
-        ou0, ov0, ou1, ov1 = max(u0, bu0), max(v0, bv0), min(u1, bu1), min(v1, bv1)
-        if ou1 > ou0 and ov1 > ov0:
-            out[ov0 - v0:ov1 - v0, ou0 - u0:ou1 - u0] = \
-                self.window[ov0 - bv0:ov1 - bv0, ou0 - bu0:ou1 - bu0]
-        return out
-
-    def __array__(self, dtype=None, copy=None) -> np.ndarray:
-        out = np.zeros(self.shape, dtype=bool)
-        bu0, bv0, bu1, bv1 = self.box
-        out[bv0:bv1, bu0:bu1] = self.window
-        return out if dtype is None else out.astype(dtype)
 
 
 @dataclass(frozen=True, eq=False)
@@ -248,7 +201,7 @@ class BaselineSearch:
 
     def boxed_region_at(self, cand: Candidates, best: int, search: np.ndarray,
                         search_bbox: tuple[int, int, int, int] | None = None
-                        ) -> tuple[BoxedRegion, tuple[int, int, int, int] | None]:
+                        ) -> tuple[BoxMask, tuple[int, int, int, int] | None]:
         """:meth:`region_box_at`, the region held over the box it can be True in.
 
         The same region, without an image-sized array per view: the detector reads only
@@ -273,7 +226,7 @@ class BaselineSearch:
                 bu0, bv0 = max(bu0, su0 + du), max(bv0, sv0 + dv)
                 bu1, bv1 = min(bu1, su1 + du), min(bv1, sv1 + dv)
         if bu1 <= bu0 or bv1 <= bv0:
-            return BoxedRegion((h, w), (0, 0, 0, 0), np.zeros((0, 0), dtype=bool)), None
+            return BoxMask.empty((h, w)), None
         du2 = (np.arange(bu0, bu1) - cu) ** 2                                 # (w',)
         dv2 = (np.arange(bv0, bv1) - cv) ** 2                                 # (h',)
         # Rounding keeps du2 + dv2 growing with |u - cu| and |v - cv|: if the box's
@@ -287,8 +240,8 @@ class BaselineSearch:
             disc &= shifted_window(search, moved, (bu0, bv0, bu1, bv1))
         x, y, bw, bh = cv2.boundingRect(disc.view(np.uint8))
         if bw == 0:
-            return BoxedRegion((h, w), (0, 0, 0, 0), np.zeros((0, 0), dtype=bool)), None
-        return (BoxedRegion((h, w), (bu0, bv0, bu1, bv1), disc),
+            return BoxMask.empty((h, w)), None
+        return (BoxMask.from_crop((bu0, bv0, bu1, bv1), disc, (h, w)),
                 (bu0 + x, bv0 + y, bu0 + x + bw, bv0 + y + bh))
 
     def inverse_depth_range(self, center_uv: np.ndarray) -> tuple[float, float]:

@@ -34,7 +34,7 @@ from srde_fusion.srde.highlight import (
     weighted_centroid,
 )
 from srde_fusion.srde.lights import SEPARATING_DIP, _dip_matrix
-from srde_fusion.srde.search import BaselineSearch, BoxedRegion
+from srde_fusion.srde.search import BaselineSearch
 from srde_fusion.synthetic import RandomSceneConfig, random_scene, render
 
 
@@ -284,23 +284,6 @@ def test_the_numpy_backend_keeps_the_searchs_luminance_for_the_frame(harsh_scene
     boxed = backend.detect(views, [DetectionRequest(rig.reference, region, None,
                                                     search_box(region, 0))])[0]
     np.testing.assert_array_equal(plain.center_uv, boxed.center_uv)
-
-
-@given(st.integers(0, 2**32 - 1))
-def test_a_boxed_region_reads_as_the_whole_array(seed):
-    rng = np.random.default_rng(seed)
-    shape = (int(rng.integers(1, 30)), int(rng.integers(1, 30)))
-    u0, u1 = sorted(int(x) for x in rng.integers(0, shape[1] + 1, 2))
-    v0, v1 = sorted(int(x) for x in rng.integers(0, shape[0] + 1, 2))
-    window = rng.random((v1 - v0, u1 - u0)) < 0.5
-    boxed = BoxedRegion(shape, (u0, v0, u1, v1), window)
-    whole = np.asarray(boxed)
-    assert whole.shape == shape and whole.dtype == bool
-    assert not whole.any() or (whole[v0:v1, u0:u1].sum() == whole.sum())
-    for _ in range(10):
-        a0, a1 = sorted(int(x) for x in rng.integers(0, shape[1] + 1, 2))
-        b0, b1 = sorted(int(x) for x in rng.integers(0, shape[0] + 1, 2))
-        np.testing.assert_array_equal(boxed[b0:b1, a0:a1], whole[b0:b1, a0:a1])
 
 
 def _dips_one_pair(smooth, a, b, top, background) -> bool:
