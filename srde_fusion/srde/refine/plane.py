@@ -43,6 +43,7 @@ from .model import (
     DEFAULT_F0,
     FORESHORTENING_BOUNDS,
     FRESNEL_TERMS,
+    SUPPORT_POINTS,
     WIDTH_GRID,
     LobeFit,
     LobeModel,
@@ -373,15 +374,17 @@ class _Setup:
     modelled_lights: np.ndarray | None = None
     light_radius_m: float | None = None  # None: a point light
 
-    def model(self, samples: HighlightSamples, plane: Plane) -> LobeModel | JointLobeModel:
+    def model(self, samples: HighlightSamples, plane: Plane, support: int = SUPPORT_POINTS
+              ) -> LobeModel | JointLobeModel:
+        """Return the lobe model on ``samples`` around ``plane`` (``support``: LobeModel's)."""
         main = LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
-                         self.foreshortening, fresnel=self.fresnel,
+                         self.foreshortening, support=support, fresnel=self.fresnel,
                          light_radius_m=self.light_radius_m)
         if self.modelled_lights is None:
             return main
         return JointLobeModel([main] + [
             LobeModel(samples, self.rig, self.box, light, plane, self.lobe, self.f0,
-                      self.foreshortening, fresnel=self.fresnel)
+                      self.foreshortening, support=support, fresnel=self.fresnel)
             for light in self.modelled_lights])
 
 
@@ -421,15 +424,20 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     if not model.valid:
         return ("initial plane: some fitted samples see it from behind or lie where the "
                 "light is behind it")
+    # The grid start and the first stage only have to come near: they run on the model
+    # read at block centres, a quarter of the points; the joint stage ends on the model
+    # averaged over the blocks, so the minimum it finds is that model's.
+    near = setup.model(samples, sample_plane, support=1)
+    near = near if near.valid else model
     if photometry is None:
-        theta0 = model.initial_guess()
+        theta0 = near.initial_guess()
         if theta0 is None:
             return (f"fit: no lobe width in [{WIDTH_GRID[0]:g}, {WIDTH_GRID[-1]:g}] gives a "
                     f"positive specular term over the {samples.n_samples} samples")
     else:
         theta0 = photometry.copy()
         theta0[:N_PLANE] = 0.0
-    fit = _fit(model, theta0, setup.max_iterations)
+    fit = _fit(model, theta0, setup.max_iterations, near)
     # The fair reference: the initial plane with every photometric parameter fitted,
     # starting from the joint solution's, on the same samples.
     reference = model if sample_plane is setup.initial_plane else setup.model(
@@ -457,12 +465,17 @@ def _resampled(setup: _Setup, attempt: _Attempt, *, keep_photometry: bool) -> _A
     return again if isinstance(again, _Attempt) and not again.problem else None
 
 
-def _fit(model: LobeModel, theta0: np.ndarray, max_iterations: int) -> _Fit:
-    """Fit plane and photometry from ``theta0`` (parameters of ``model``)."""
+def _fit(model: LobeModel, theta0: np.ndarray, max_iterations: int, near: LobeModel
+         ) -> _Fit:
+    """Fit plane and photometry from ``theta0``: stage 1 on ``near``, stage 2 on ``model``.
+
+    ``near`` is the same model on the same samples and plane, read at fewer points (or
+    ``model`` itself); their parameters mean the same.
+    """
     # Stage 1: plane and lobe shape with the foreshortening exponent held, since it
     # could otherwise absorb part of the initial plane's error.
-    free_start = model.free_all[model.free_all != I_FORE]
-    theta_start, _, _, _ = levenberg_marquardt(model, theta0, free_start,
+    free_start = near.free_all[near.free_all != I_FORE]
+    theta_start, _, _, _ = levenberg_marquardt(near, theta0, free_start,
                                                 min(max_iterations, _START_ITERATIONS),
                                                 cost_rtol=_PHOTOMETRIC_COST_RTOL)
     # Stage 2: everything.
@@ -532,7 +545,8 @@ def _restart_plane(setup: _Setup, samples: HighlightSamples) -> Plane | None:
         plane = plane_from_lights(light, ref + (virtual - ref) * (inverse_depth / w), ref)
         if _initial_plane_problem(plane, rig, light):
             continue
-        candidate = setup.model(samples, plane)
+        # Starts are ranked, not fitted: the model at block centres serves.
+        candidate = setup.model(samples, plane, support=1)
         if candidate.valid and candidate.initial_guess() is not None \
                 and candidate.initial_cost < best_cost:
             best_cost, best_plane = candidate.initial_cost, (plane if shift else None)
