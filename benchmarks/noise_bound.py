@@ -20,7 +20,10 @@ which makes both bounds a little loose).
 
 Whether the fit reaches the bound is measured directly on the scenes with the largest
 bounds: each is rendered again with other noise draws, and the spread of SRDE's mean
-disparity error over the draws is set beside the bound's sigma.
+disparity error over the draws is set beside the bound's sigma. The same draws check
+SRDE's own standard error of its disparity (``PlaneRefinement.disparity_sigma_px``, from
+the fit's residuals), and every scene compares its errors at the object box's corners
+with it.
 
 Run: ``python benchmarks/noise_bound.py [--draws 8] [--scenes 4]``; writes
 ``benchmarks/results/noise_bound.md`` and ``.json``.
@@ -111,13 +114,29 @@ def disparity_sigma_px(views, rig, mask, truth, samples_per_side: int, well_e: f
     return math.sqrt(float(gradient @ covariance @ gradient)), samples.n_samples, samples.block_px
 
 
-def srde_errors(views, rig, mask, truth_disparity) -> tuple[float, float] | None:
-    """SRDE's masked EPE and signed mean error (px), or None if it fails."""
+def corner_disparity_px(plane, rig, mask) -> np.ndarray:
+    """A plane's stereo disparity at the four corners of the mask's box, ``(4,)`` px."""
+    x, y, w, h = refine_internals.mask_bbox(mask)
+    rays = rig.rays(np.array([[x, y], [x + w - 1, y], [x, y + h - 1], [x + w - 1, y + h - 1]],
+                             dtype=np.float64))
+    n = np.asarray(plane.n)
+    return (rig.intrinsics.fx * rig.baseline_m * (rays @ n)
+            / (plane.offset_m - float(n @ rig.reference_center_m)))
+
+
+def srde_errors(views, rig, mask, truth_disparity, truth) -> dict | None:
+    """SRDE's masked EPE, signed mean error, errors at the box corners and its own
+    standard error there (px); None if it fails."""
     result = SRDE(rig).estimate(views, mask)
     if not result.ok:
         return None
     error = plane_disparity(result.plane, rig)[mask] - truth_disparity[mask]
-    return float(np.mean(np.abs(error))), float(np.mean(error))
+    refinement = result.refinement
+    return {"epe": float(np.mean(np.abs(error))), "signed": float(np.mean(error)),
+            "corner_errors": (corner_disparity_px(result.plane, rig, mask)
+                              - corner_disparity_px(truth, rig, mask)).tolist(),
+            "sigma_reported": (refinement.disparity_sigma_px if refinement is not None
+                               else float("nan"))}
 
 
 def run(args) -> dict:
@@ -138,9 +157,9 @@ def run(args) -> dict:
                 bound = disparity_sigma_px(out.views, lit, mask, truth, side, well, read)
                 if bound is not None:
                     record[f"sigma_{label}"], record[f"n_{label}"], record[f"block_{label}"] = bound
-            found = srde_errors(out.views, lit, mask, out.disparity_px)
+            found = srde_errors(out.views, lit, mask, out.disparity_px, truth)
             if found is not None:
-                record["epe"], record["signed"] = found
+                record.update(found)
             records.append(record)
             print(f"{rig_name} {seed}: " + ", ".join(
                 f"{k} {v:.4f}" for k, v in record.items() if k.startswith(("sigma", "epe"))),
@@ -153,17 +172,25 @@ def run(args) -> dict:
         for record in ranked:
             scene = scene_for(record["seed"], rig, configs[record["seed"]])
             lit = rig.with_light(scene.light.position_m)
-            signed = []
+            signed, corners, reported = [], [], []
             for draw in range(args.draws):
                 out = render(scene, rig, physics=physics, supersample=supersample,
                              noise_seed=1000 + draw)
-                found = srde_errors(out.views, lit, out.object_masks[0], out.disparity_px)
+                found = srde_errors(out.views, lit, out.object_masks[0], out.disparity_px,
+                                    scene.objects[0].plane)
                 if found is not None:
-                    signed.append(found[1])
+                    signed.append(found["signed"])
+                    corners.append(found["corner_errors"])
+                    reported.append(found["sigma_reported"])
+            many = len(signed) > 1
             draws.append({"seed": record["seed"], "sigma_blocks": record["sigma_blocks"],
                           "sigma_pixels": record.get("sigma_pixels", float("nan")),
                           "signed": signed,
-                          "spread": float(np.std(signed, ddof=1)) if len(signed) > 1
+                          "spread": float(np.std(signed, ddof=1)) if many else float("nan"),
+                          # the largest corner's spread, against SRDE's own standard error
+                          "corner_spread": float(np.max(np.std(corners, axis=0, ddof=1)))
+                          if many else float("nan"),
+                          "sigma_reported": float(np.median(reported)) if reported
                           else float("nan")})
             print(f"{rig_name} {record['seed']}: spread over {len(signed)} draws "
                   f"{draws[-1]['spread']:.4f} px, bound sigma {record['sigma_blocks']:.4f}",
@@ -206,15 +233,29 @@ def tables(report: dict) -> list[str]:
                f"{blocks:.4f} px (samples), {pixels:.4f} px (pixels); every pixel instead of "
                f"block means: sigma x {np.median(ratio):.2f} (median; "
                f"{min(ratio):.2f}-{max(ratio):.2f})", ""]
+        reported = [r for r in scored if np.isfinite(r.get("sigma_reported", np.nan))]
+        if reported:
+            ratios = np.concatenate([np.abs(r["corner_errors"]) / r["sigma_reported"]
+                                     for r in reported])
+            md += [f"- SRDE's own standard error (`refinement.disparity_sigma_px`, the largest "
+                   f"of the box corners'): {len(reported)} scenes, median "
+                   f"{np.median([r['sigma_reported'] for r in reported]):.4f} px; of their "
+                   f"{len(ratios)} corner errors {np.mean(ratios <= 1):.0%} within 1 sigma, "
+                   f"{np.mean(ratios <= 2):.0%} within 2, {np.mean(ratios <= 3):.0%} within 3",
+                   ""]
         if part["draws"]:
             md += ["Repeated noise draws on the scenes with the largest bounds (the same "
-                   "render, other sensor noise):", "",
+                   "render, other sensor noise); SRDE's own standard error (median over the "
+                   "draws) against the spread of its error at the box corner that spreads "
+                   "most:", "",
                    "| seed | draws | spread of SRDE's mean error (px) | bound sigma, samples | "
-                   "spread / bound | bound sigma, pixels |", "|---:|---:|---:|---:|---:|---:|"]
+                   "spread / bound | bound sigma, pixels | corner spread | SRDE's sigma |",
+                   "|---:|---:|---:|---:|---:|---:|---:|---:|"]
             for d in part["draws"]:
                 md.append(f"| {d['seed']} | {len(d['signed'])} | {d['spread']:.4f} | "
                           f"{d['sigma_blocks']:.4f} | {d['spread'] / d['sigma_blocks']:.2f} | "
-                          f"{d['sigma_pixels']:.4f} |")
+                          f"{d['sigma_pixels']:.4f} | {d['corner_spread']:.4f} | "
+                          f"{d['sigma_reported']:.4f} |")
             md.append("")
     return md
 

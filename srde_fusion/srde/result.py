@@ -143,6 +143,8 @@ class SRDEResult:
             "highlight_centers_px": np.asarray(self.highlight_centers, dtype=np.float64),
             "used_views": np.asarray(self.used_views, dtype=bool).ravel(),
             "residual_px": self.residual_px,
+            "disparity_sigma_px": (None if self.refinement is None
+                                   else self.refinement.disparity_sigma_px),
             **({} if self.lights is None else {"lights": self.lights.to_dict()}),
             **({} if self.faces is None else {"faces": self.faces.to_dict()}),
         })

@@ -170,6 +170,34 @@ def test_default_window_centres_come_from_the_initial_plane(rough_ggx):
     assert _epe(rough_ggx, result.plane) < ROUGH_REFINED_EPE_PX
 
 
+def test_the_reported_standard_error_matches_the_spread_over_noise_draws(rig):
+    # The same scene under 8 draws of its sensor noise, at two noise levels: the spread
+    # of the refined plane's disparity at the object box's corners against the standard
+    # error each fit reports from its own residuals.
+    base = random_scene(2, rig, lobe="ggx", roughness=0.065, light_radius_m=0.0)
+    lit = rig.with_light(base.light.position_m)
+    spreads, reported = [], []
+    for noise in (0.002, 0.01):
+        scene = dataclasses.replace(base, noise_std=noise)
+        errors, sigmas = [], []
+        for draw in range(8):
+            out = render(scene, rig, noise_seed=draw)
+            mask = out.instance_mask == 1
+            result = SRDE(lit).estimate(out.views, mask)
+            assert result.refinement.ok
+            rows, cols = np.nonzero(mask)
+            v = np.array([rows.min(), rows.min(), rows.max(), rows.max()])
+            u = np.array([cols.min(), cols.max(), cols.min(), cols.max()])
+            errors.append(plane_disparity(result.plane, lit)[v, u]
+                          - plane_disparity(out.planes[0], lit)[v, u])
+            sigmas.append(result.refinement.disparity_sigma_px)
+        spreads.append(float(np.max(np.std(errors, axis=0, ddof=1))))
+        reported.append(float(np.median(sigmas)))
+    for spread, sigma in zip(spreads, reported, strict=True):
+        assert 0.5 < sigma / spread < 2.0, (sigma, spread)
+    assert reported[1] > 2.0 * reported[0]  # five times the noise: several times the error
+
+
 def test_result_is_frozen_and_reports_itself(rough_ggx):
     result = _refine(rough_ggx)
     assert result.n_samples > 100 and result.iterations >= 1 and result.time_s > 0
@@ -267,6 +295,7 @@ def test_keeps_the_plane_when_everything_is_saturated(rough_ggx):
     assert result.plane == rough_ggx["plane"]
     assert result.reason.startswith("samples: no view shows a highlight")
     assert result.params is None and math.isnan(result.cost_final)
+    assert math.isnan(result.disparity_sigma_px)
 
 
 def test_keeps_the_plane_without_unsaturated_flanks(rough_ggx):

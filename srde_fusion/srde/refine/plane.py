@@ -56,10 +56,11 @@ from .samples import (
     sample_windows,
     warp_change_px,
 )
-from .solver import levenberg_marquardt
+from .solver import Minimum, levenberg_marquardt
 
 __all__ = [
     "PlaneRefinement",
+    "disparity_sigma_px",
     "refine_plane",
 ]
 
@@ -120,6 +121,10 @@ class PlaneRefinement:
         Lobe model fitted.
     time_s : float
         Wall time, seconds.
+    disparity_sigma_px : float
+        Standard error of the refined plane's disparity (the rig's stereo disparity, px):
+        the largest over the corners of the object's box, from the fit's own residuals
+        (:func:`disparity_sigma_px`); NaN unless refined.
     """
 
     plane: Plane
@@ -135,6 +140,7 @@ class PlaneRefinement:
     n_samples: int
     lobe: str
     time_s: float
+    disparity_sigma_px: float = math.nan
 
     @property
     def ok(self) -> bool:
@@ -317,9 +323,60 @@ def refine_plane(
     if attempt.problem:
         return kept(attempt.problem, residual=math.sqrt(attempt.cost_initial),
                     params=attempt.params_initial, **common)
+    sigma_px = disparity_sigma_px(model, fit, rig, setup.box)
     return PlaneRefinement(model.plane(fit.theta), initial_plane, "refined", "", lobe=lobe,
                            residual=math.sqrt(fit.cost), params=model.lobe_fit(fit.theta),
-                           time_s=time.perf_counter() - start, **common)
+                           time_s=time.perf_counter() - start, disparity_sigma_px=sigma_px,
+                           **common)
+
+
+def disparity_sigma_px(model: LobeModel | JointLobeModel, fit: Minimum, rig: CameraRig,
+                       box: tuple[int, int, int, int]) -> float:
+    """Return the standard error of a fitted plane's disparity at the box corners, px.
+
+    The covariance of the fitted parameters is the sandwich estimate
+    ``A^-1 (J diag(r^2) J^T) A^-1 P / (P - K)`` with ``A = J J^T``, from the fit's
+    Jacobian ``J`` (``K`` parameters, the intensities profiled out; its last
+    linearisation) and residuals ``r`` at its ``P`` samples: it takes the noise from the
+    residuals, bright samples noisier than dark ones as a sensor's are, and needs no
+    noise model. The plane's part of it, carried to the rig's stereo disparity at the
+    four corners of ``box`` (``(x, y, width, height)``), gives each corner's standard
+    error; the largest is returned. It says how far the images' noise moves the plane,
+    not how far a wrong model does. NaN when the fit has no Jacobian, no more samples
+    than parameters or a singular one.
+    """
+    jac, residual, theta = fit.jacobian, fit.residual, fit.theta
+    if jac is None or jac.shape[0] < N_PLANE or not np.all(np.isfinite(residual)):
+        return math.nan
+    n_params, n_samples = jac.shape
+    if n_samples <= n_params:
+        return math.nan
+    try:
+        bread = np.linalg.inv(jac @ jac.T)
+    except np.linalg.LinAlgError:
+        return math.nan
+    meat = (jac * residual ** 2) @ jac.T
+    covariance = bread @ meat @ bread * (n_samples / (n_samples - n_params))
+    x, y, w, h = box
+    corners = rig.rays(np.array([[x, y], [x + w - 1, y], [x, y + h - 1], [x + w - 1, y + h - 1]],
+                                dtype=np.float64))
+    scale = rig.intrinsics.fx * rig.baseline_m
+
+    def corner_disparity(t: np.ndarray) -> np.ndarray:
+        plane = model.plane(t)
+        n = np.asarray(plane.n)
+        # d = fx B / z, with 1 / z = (n . k) / (c - n . C_ref) along the reference rays k
+        return scale * (corners @ n) / (plane.offset_m - float(n @ rig.reference_center_m))
+
+    step = 1e-6
+    slopes = np.empty((len(corners), N_PLANE))
+    for i in range(N_PLANE):
+        up, down = theta.copy(), theta.copy()
+        up[i] += step
+        down[i] -= step
+        slopes[:, i] = (corner_disparity(up) - corner_disparity(down)) / (2 * step)
+    variance = np.einsum("ci,ij,cj->c", slopes, covariance[:N_PLANE, :N_PLANE], slopes)
+    return float(np.sqrt(np.max(variance)))
 
 
 def compare_planes(views: Sequence[np.ndarray], rig: CameraRig, light_m, mask: np.ndarray,
@@ -389,21 +446,13 @@ class _Setup:
 
 
 @dataclass(frozen=True)
-class _Fit:
-    theta: np.ndarray
-    cost: float
-    iterations: int
-    converged: bool
-
-
-@dataclass(frozen=True)
 class _Attempt:
     """One fit, on samples placed for ``sample_plane``, and its verdict."""
 
     sample_plane: Plane
     samples: HighlightSamples
     model: LobeModel
-    fit: _Fit
+    fit: Minimum
     cost_initial: float  # the initial plane's best cost on the same samples
     params_initial: LobeFit | None
     problem: str  # why the fit's plane must not be used ("" if it may)
@@ -466,7 +515,7 @@ def _resampled(setup: _Setup, attempt: _Attempt, *, keep_photometry: bool) -> _A
 
 
 def _fit(model: LobeModel, theta0: np.ndarray, max_iterations: int, near: LobeModel
-         ) -> _Fit:
+         ) -> Minimum:
     """Fit plane and photometry from ``theta0``: stage 1 on ``near``, stage 2 on ``model``.
 
     ``near`` is the same model on the same samples and plane, read at fewer points (or
@@ -475,25 +524,24 @@ def _fit(model: LobeModel, theta0: np.ndarray, max_iterations: int, near: LobeMo
     # Stage 1: plane and lobe shape with the foreshortening exponent held, since it
     # could otherwise absorb part of the initial plane's error.
     free_start = near.free_all[near.free_all != I_FORE]
-    theta_start, _, _, _ = levenberg_marquardt(near, theta0, free_start,
-                                                min(max_iterations, _START_ITERATIONS),
-                                                cost_rtol=_PHOTOMETRIC_COST_RTOL)
+    theta_start = levenberg_marquardt(near, theta0, free_start,
+                                      min(max_iterations, _START_ITERATIONS),
+                                      cost_rtol=_PHOTOMETRIC_COST_RTOL).theta
     # Stage 2: everything.
-    theta, cost, iterations, converged = levenberg_marquardt(
-        model, theta_start, model.free_all, max_iterations, cost_rtol=_COST_RTOL)
-    return _Fit(theta, cost, iterations, converged)
+    return levenberg_marquardt(model, theta_start, model.free_all, max_iterations,
+                               cost_rtol=_COST_RTOL)
 
 
 def _profile_at_start(model: LobeModel, photometry_from: np.ndarray, max_iterations: int):
     """Best photometric parameters and cost with ``model``'s own starting plane."""
     theta = photometry_from.copy()
     theta[:N_PLANE] = 0.0
-    theta, cost, _, _ = levenberg_marquardt(model, theta, model.free_photometric,
-                                             max_iterations, cost_rtol=_PHOTOMETRIC_COST_RTOL)
-    return theta, cost
+    fit = levenberg_marquardt(model, theta, model.free_photometric, max_iterations,
+                              cost_rtol=_PHOTOMETRIC_COST_RTOL)
+    return fit.theta, fit.cost
 
 
-def _judge(fit: _Fit, cost_initial: float, model: LobeModel, samples: HighlightSamples,
+def _judge(fit: Minimum, cost_initial: float, model: LobeModel, samples: HighlightSamples,
            rig: CameraRig, light: np.ndarray, initial_plane: Plane) -> str:
     """Why a fit's plane must not replace the initial plane ("" if it may)."""
     theta, cost = fit.theta, fit.cost

@@ -10,13 +10,14 @@ intensities use.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from .layout import N_PLANE
 
-__all__ = ["LeastSquaresModel", "levenberg_marquardt", "solve_normal"]
+__all__ = ["LeastSquaresModel", "Minimum", "levenberg_marquardt", "solve_normal"]
 
 # Levenberg-Marquardt: start and largest damping, and the plane's stopping rule: a step
 # that moves the disparity at the object's corners by less than _DISPARITY_STEP_TOL_PX
@@ -83,15 +84,42 @@ class LeastSquaresModel(Protocol):
         """Largest change of the disparity between the planes of two ``theta``, pixels."""
 
 
+@dataclass(frozen=True)
+class Minimum:
+    """Where :func:`levenberg_marquardt` stopped.
+
+    Parameters
+    ----------
+    theta : numpy.ndarray
+        The parameters (dependent ones set).
+    cost : float
+        Mean squared residual at ``theta``.
+    iterations : int
+        Steps tried, accepted or not.
+    converged : bool
+        A stopping rule was met before ``max_iterations``.
+    residual : numpy.ndarray, (P,)
+        The residual at ``theta``.
+    jacobian : numpy.ndarray, (len(free), P) or None
+        The Jacobian of the last linearisation (at ``theta``, or one accepted step before
+        it when the fit stopped on a step too small to go on); None if none was taken.
+    """
+
+    theta: np.ndarray
+    cost: float
+    iterations: int
+    converged: bool
+    residual: np.ndarray
+    jacobian: np.ndarray | None
+
+
 def levenberg_marquardt(model: LeastSquaresModel, theta0: np.ndarray, free: np.ndarray,
-                         max_iterations: int, *, cost_rtol: float):
+                         max_iterations: int, *, cost_rtol: float) -> Minimum:
     """Minimise the mean squared residual over ``theta[free]`` (intensities follow).
 
     Stops when an accepted step lowers the cost by less than ``cost_rtol`` (relative),
     or moves the plane's disparity by less than ``_DISPARITY_STEP_TOL_PX`` while
     lowering the cost by less than ``_PLANE_COST_RTOL``, or when no step lowers it.
-    Returns the parameters, their cost, the number of steps tried (accepted or not) and
-    whether a stopping rule was met.
     """
     residual, theta = model.evaluate(theta0)
     cost = float(np.mean(residual**2))
@@ -99,6 +127,7 @@ def levenberg_marquardt(model: LeastSquaresModel, theta0: np.ndarray, free: np.n
     converged = False
     steps = 0
     moves_plane = bool(np.any(free < N_PLANE))
+    jac = None
     while steps < max_iterations and not converged:
         jac = model.jacobian(theta, free)  # (K, P)
         normal = model.gram(jac)
@@ -132,4 +161,6 @@ def levenberg_marquardt(model: LeastSquaresModel, theta0: np.ndarray, free: np.n
                 break
         if not improved:
             break
-    return theta, cost, steps, converged
+    # (the model's Jacobian is a buffer its next call overwrites)
+    return Minimum(theta, cost, steps, converged, residual,
+                   None if jac is None else np.array(jac))
