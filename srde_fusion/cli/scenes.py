@@ -118,9 +118,13 @@ def _cli_srde(args: argparse.Namespace) -> int:
     for obj in run.fusion.objects:
         srde = obj.srde
         plane = getattr(srde, "plane", None)
+        refinement = getattr(srde, "refinement", None)
+        sigma = getattr(refinement, "disparity_sigma_px", float("nan"))
         detail = srde.reason or (f"plane n = {np.round(plane.n, 4).tolist()}, "
                                  f"c = {plane.offset_m:.4f} m, residual "
-                                 f"{srde.residual_px:.3f} px" if plane is not None else "")
+                                 f"{srde.residual_px:.3f} px"
+                                 + (f", disparity +- {sigma:.4f} px" if np.isfinite(sigma)
+                                    else "") if plane is not None else "")
         print(f"object {obj.index}: {srde.status} ({obj.pixel_count} px) - {detail}")
     if not run.fusion.objects:
         print("no glossy object found")

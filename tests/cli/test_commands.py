@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 
 import numpy as np
@@ -70,6 +71,10 @@ def test_srde_command(dataset, tmp_path, capsys):
     code, out, err = run_cli(capsys, "srde", dataset / "scene_0000", "--out", tmp_path / "s")
     assert code == 0, err
     assert out.startswith("object 1: ok")
+    sigma = float(re.search(r"disparity \+- ([0-9.]+) px", out).group(1))
+    assert 0.0 < sigma < 0.5  # the refined plane's standard error
+    report = json.loads((tmp_path / "s" / "report.json").read_text())
+    assert json.dumps(report).count('"disparity_sigma_px"') >= 1
     srde = read_disparity(tmp_path / "s" / "srde_disparity.pfm")
     scene = read_scene(dataset / "scene_0000")
     mask = scene.mask_labels > 0
@@ -359,6 +364,10 @@ def test_srde_and_fuse_commands_with_max_faces(tmp_path, capsys):
     code, out, err = run_cli(capsys, "srde", scene, "--max-faces", "3", "--out", tmp_path / "s")
     assert code == 0, err
     assert out.startswith("object 1: ok")
+    sigma = float(re.search(r"disparity \+- ([0-9.]+) px", out).group(1))
+    assert 0.0 < sigma < 0.5  # the refined plane's standard error
+    report = json.loads((tmp_path / "s" / "report.json").read_text())
+    assert json.dumps(report).count('"disparity_sigma_px"') >= 1
     srde = read_disparity(tmp_path / "s" / "srde_disparity.pfm")
     for k in (1, 2):
         part = rendering.instance_mask == k
