@@ -138,6 +138,8 @@ class FaceResult:
             "residual_px": self.residual_px,
             "n_px": self.n_px,
             "refined": self.refinement is not None and self.refinement.ok,
+            "disparity_sigma_px": (None if self.refinement is None
+                                   else self.refinement.disparity_sigma_px),
             "notes": list(self.notes),
         })
 

@@ -108,6 +108,14 @@ def test_two_faces_are_solved_within_the_target(rig, seed, convex, rule):
     assert result.plane == largest.plane
     record = result.to_dict()
     assert record["faces"]["rule"] == rule and len(record["faces"]["faces"]) == 2
+    # Each refined face reports its own standard error, well inside the face's target.
+    refined = [(face, entry) for face, entry in zip(result.faces.faces,
+                                                    record["faces"]["faces"], strict=True)
+               if face.refinement is not None and face.refinement.ok]
+    assert refined
+    for face, entry in refined:
+        assert entry["disparity_sigma_px"] == face.refinement.disparity_sigma_px
+        assert 0.0 < entry["disparity_sigma_px"] < FACE_EPE_PX
     assert sum(f.n_px for f in result.faces.faces) == int(mask.sum())
 
 
