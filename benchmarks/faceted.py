@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 from fusion_eval import sgbm  # the fusion benchmark's SGBM (run from this folder)
+from results_files import write_results
 
 from srde_fusion.fusion import fuse
 from srde_fusion.geometry import plane_disparity
@@ -235,11 +236,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}.",
           "", "Per-face EPE and wrong split over the objects solved with faces; the target is "
           f"per-face EPE <= {TARGET_PX} px.", "", *table, "", f"Statuses: {statuses}.", ""]
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{args.name}.md").write_text("\n".join(md))
-    (args.out / f"{args.name}.json").write_text(json.dumps({"numbers": numbers, "records": records},
-                                                      indent=1, default=float))
-    print("\n".join(md))
+    write_results(args.out, args.name, md, {"numbers": numbers, "records": records},
+                  default=float)
     return 0
 
 

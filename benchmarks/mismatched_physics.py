@@ -51,7 +51,6 @@ scenes; nothing scored but the timed planes' status) and writes
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -60,6 +59,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from results_files import write_results
 
 from srde_fusion._checks import check_views
 from srde_fusion.errors import SceneError
@@ -181,6 +181,21 @@ def score(srde: SRDE, out, mask, lit: CameraRig, truth, timed: bool,
     return run
 
 
+def refinement_setup(views, rig: CameraRig, mask, plane, lobe: str = refine_internals.DEFAULT_LOBE,
+                     light_radius_m: float | None = None):
+    """The refinement's inputs with its windows around ``plane``'s virtual light.
+
+    As :func:`~srde_fusion.srde.refine.refine_plane` sets them up for an initial plane,
+    the rig's light, the default ``f0`` and the exact Fresnel term.
+    """
+    virtual = plane.mirror(rig.light)
+    centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
+    return refine_internals._Setup(
+        check_views(views, rig.n_cameras, rig.image_size), rig, mask,
+        refine_internals.mask_bbox(mask), rig.light, plane, centers, lobe,
+        refine_internals.DEFAULT_F0, "exact", None, 40, light_radius_m=light_radius_m or None)
+
+
 def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth,
                          light_radius_m: float | None = None) -> bool:
     """Whether the refined plane explains the images better than the true plane does.
@@ -191,15 +206,9 @@ def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth,
     (noise) or the model, not in the optimiser.
     """
     found = result.refinement.plane
-    light = rig.light
-    virtual = found.mirror(light)
-    centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
-    box = refine_internals.mask_bbox(mask)
-    setup = refine_internals._Setup(
-        check_views(views, rig.n_cameras, rig.image_size), rig, mask, box, light, found,
-        centers, result.refinement.lobe, refine_internals.DEFAULT_F0, "exact", None, 40,
-        light_radius_m=light_radius_m or None)
-    samples = refine_internals.sample_windows(setup.views, rig, mask, found, centers, box=box)
+    setup = refinement_setup(views, rig, mask, found, result.refinement.lobe, light_radius_m)
+    samples = refine_internals.sample_windows(setup.views, rig, mask, found, setup.centers,
+                                              box=setup.box)
     costs = []
     for plane in (found, truth):
         model = setup.model(samples, plane)
@@ -397,10 +406,7 @@ def speed_only(args) -> int:
            "shared): wall times include waiting for a core; the floor, a short call kept "
            "as the best of many, suffers less from it than SRDE.", ""]
     report["load_average"] = {"before": load_before, "after": load_after}
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{SPEED_NAME}.md").write_text("\n".join(md))
-    (args.out / f"{SPEED_NAME}.json").write_text(json.dumps(report, indent=1))
-    print("\n".join(md))
+    write_results(args.out, SPEED_NAME, md, report)
     return 0
 
 
@@ -467,10 +473,7 @@ def main(argv: list[str] | None = None) -> int:
     md += ["Render time per frame (median over both rigs): " + ", ".join(
         f"{p} {s:.2f} s" for p, s in render_s.items()), ""]
     report["render_s"] = render_s
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{NAME}.md").write_text("\n".join(md))
-    (args.out / f"{NAME}.json").write_text(json.dumps(report, indent=1))
-    print("\n".join(md))
+    write_results(args.out, NAME, md, report)
     return 0
 
 

@@ -36,6 +36,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from results_files import write_results
 
 from srde_fusion.geometry import plane_disparity
 from srde_fusion.srde import SRDE
@@ -203,11 +204,8 @@ def main(argv: list[str] | None = None) -> int:
           "the lobes of all lights fitted together): " + ", ".join(
               f"{row['solved_with_merged_blobs']} with {k} lights" for k, row in numbers.items()
               if k != "1") + ".", ""]
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{NAME}.md").write_text("\n".join(md))
-    (args.out / f"{NAME}.json").write_text(json.dumps({"numbers": numbers, "records": records},
-                                                      indent=1, default=float))
-    print("\n".join(md))
+    write_results(args.out, NAME, md, {"numbers": numbers, "records": records},
+                  default=float)
     return 0
 
 

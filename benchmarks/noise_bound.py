@@ -32,7 +32,6 @@ Run: ``python benchmarks/noise_bound.py [--draws 8] [--scenes 4]``; writes
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -40,9 +39,17 @@ import time
 from pathlib import Path
 
 import numpy as np
-from mismatched_physics import LIGHT_RADII_M, PHYSICS, ROUGHNESS_BINS, cell_scenes, rigs, scene_for
+from mismatched_physics import (
+    LIGHT_RADII_M,
+    PHYSICS,
+    ROUGHNESS_BINS,
+    cell_scenes,
+    refinement_setup,
+    rigs,
+    scene_for,
+)
+from results_files import write_results
 
-from srde_fusion._checks import check_views
 from srde_fusion.geometry import plane_disparity
 from srde_fusion.imaging import REC709_LUMA, SRGB_TO_LINEAR_U8, linear_to_srgb
 from srde_fusion.srde import SRDE
@@ -71,18 +78,12 @@ def sample_variance(luminance: np.ndarray, block_px: int, well_e: float, read_e:
 def disparity_sigma_px(views, rig, mask, truth, samples_per_side: int, well_e: float,
                        read_e: float) -> tuple[float, int, int] | None:
     """The bound's sigma of the mean disparity over the mask, the samples and block size."""
-    light = rig.light
-    virtual = truth.mirror(light)
-    centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
-    box = refine_internals.mask_bbox(mask)
-    setup = refine_internals._Setup(
-        check_views(views, rig.n_cameras, rig.image_size), rig, mask, box, light, truth,
-        centers, refine_internals.DEFAULT_LOBE, refine_internals.DEFAULT_F0, "exact", None, 40)
+    setup = refinement_setup(views, rig, mask, truth)
     default_side = sample_internals.SAMPLES_PER_SIDE
     sample_internals.SAMPLES_PER_SIDE = samples_per_side
     try:
-        samples = refine_internals.sample_windows(setup.views, rig, mask, truth, centers,
-                                                  box=box)
+        samples = refine_internals.sample_windows(setup.views, rig, mask, truth, setup.centers,
+                                                  box=setup.box)
     finally:
         sample_internals.SAMPLES_PER_SIDE = default_side
     if isinstance(samples, str):
@@ -277,10 +278,7 @@ def main(argv: list[str] | None = None) -> int:
           f"and light radius), physics `{PHYSICS_NAME}`. Machine: {platform.machine()}, "
           f"{os.cpu_count()} cores, Python {platform.python_version()}; "
           f"{time.perf_counter() - start:.0f} s.", "", *tables(report)]
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / f"{NAME}.md").write_text("\n".join(md))
-    (args.out / f"{NAME}.json").write_text(json.dumps(report, indent=1))
-    print("\n".join(md))
+    write_results(args.out, NAME, md, report)
     return 0
 
 
