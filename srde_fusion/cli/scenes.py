@@ -118,8 +118,7 @@ def _cli_srde(args: argparse.Namespace) -> int:
     for obj in run.fusion.objects:
         srde = obj.srde
         plane = getattr(srde, "plane", None)
-        refinement = getattr(srde, "refinement", None)
-        sigma = getattr(refinement, "disparity_sigma_px", float("nan"))
+        sigma = getattr(srde, "disparity_sigma_px", float("nan"))
         detail = srde.reason or (f"plane n = {np.round(plane.n, 4).tolist()}, "
                                  f"c = {plane.offset_m:.4f} m, residual "
                                  f"{srde.residual_px:.3f} px"

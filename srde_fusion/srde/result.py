@@ -6,6 +6,7 @@ view and the numbers, never an exception (DESIGN §2).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -118,6 +119,19 @@ class SRDEResult:
         return self.status == "ok"
 
     @property
+    def disparity_sigma_px(self) -> float:
+        """Standard error of the disparity from the images' noise, px; NaN if not refined.
+
+        The refined plane's (:attr:`PlaneRefinement.disparity_sigma_px`, the largest over
+        the object box's corners); on a faceted object, the largest of its refined faces'.
+        It does not count a model that does not fit the images.
+        """
+        faces = () if self.faces is None else self.faces.faces
+        refinements = [f.refinement for f in faces] or [self.refinement]
+        sigmas = [r.disparity_sigma_px for r in refinements if r is not None and r.ok]
+        return max(sigmas) if sigmas else math.nan
+
+    @property
     def disparity(self) -> np.ndarray:
         """The disparity as a full map, ``(H, W)`` float32, pixels; NaN outside the mask.
 
@@ -143,8 +157,7 @@ class SRDEResult:
             "highlight_centers_px": np.asarray(self.highlight_centers, dtype=np.float64),
             "used_views": np.asarray(self.used_views, dtype=bool).ravel(),
             "residual_px": self.residual_px,
-            "disparity_sigma_px": (None if self.refinement is None
-                                   else self.refinement.disparity_sigma_px),
+            "disparity_sigma_px": self.disparity_sigma_px,
             **({} if self.lights is None else {"lights": self.lights.to_dict()}),
             **({} if self.faces is None else {"faces": self.faces.to_dict()}),
         })

@@ -113,6 +113,7 @@ def test_two_faces_are_solved_within_the_target(rig, seed, convex, rule):
                                                     record["faces"]["faces"], strict=True)
                if face.refinement is not None and face.refinement.ok]
     assert refined
+    assert result.disparity_sigma_px == max(f.refinement.disparity_sigma_px for f, _ in refined)
     for face, entry in refined:
         assert entry["disparity_sigma_px"] == face.refinement.disparity_sigma_px
         assert 0.0 < entry["disparity_sigma_px"] < FACE_EPE_PX

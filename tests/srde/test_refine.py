@@ -190,7 +190,8 @@ def test_the_reported_standard_error_matches_the_spread_over_noise_draws(rig):
             u = np.array([cols.min(), cols.max(), cols.min(), cols.max()])
             errors.append(plane_disparity(result.plane, lit)[v, u]
                           - plane_disparity(out.planes[0], lit)[v, u])
-            sigmas.append(result.refinement.disparity_sigma_px)
+            assert result.disparity_sigma_px == result.refinement.disparity_sigma_px
+            sigmas.append(result.disparity_sigma_px)
         spreads.append(float(np.max(np.std(errors, axis=0, ddof=1))))
         reported.append(float(np.median(sigmas)))
     for spread, sigma in zip(spreads, reported, strict=True):
