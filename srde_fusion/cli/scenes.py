@@ -118,12 +118,13 @@ def _cli_srde(args: argparse.Namespace) -> int:
     for obj in run.fusion.objects:
         srde = obj.srde
         plane = getattr(srde, "plane", None)
-        sigma = getattr(srde, "disparity_sigma_px", float("nan"))
-        detail = srde.reason or (f"plane n = {np.round(plane.n, 4).tolist()}, "
-                                 f"c = {plane.offset_m:.4f} m, residual "
-                                 f"{srde.residual_px:.3f} px"
-                                 + (f", disparity +- {sigma:.4f} px" if np.isfinite(sigma)
-                                    else "") if plane is not None else "")
+        detail = srde.reason
+        if not detail and plane is not None:
+            detail = (f"plane n = {np.round(plane.n, 4).tolist()}, c = {plane.offset_m:.4f} m, "
+                      f"residual {srde.residual_px:.3f} px")
+            sigma = getattr(srde, "disparity_sigma_px", float("nan"))
+            if np.isfinite(sigma):  # a refined plane's standard error
+                detail += f", disparity +- {sigma:.4f} px"
         print(f"object {obj.index}: {srde.status} ({obj.pixel_count} px) - {detail}")
     if not run.fusion.objects:
         print("no glossy object found")
