@@ -115,15 +115,20 @@ def evaluate(pred: np.ndarray, gt: np.ndarray, region: np.ndarray | None = None)
     gt_sel = gt64[selected]
     pred_sel = pred64[selected]
     has_pred = np.isfinite(pred_sel)
-    # A missing prediction is wrong for every threshold: its error is +inf.
+    # A missing prediction is wrong for every threshold: its error is +inf. So is one
+    # whose difference from the truth lies beyond float64 (values near 1e308).
     error = np.full(valid_px, np.inf)
-    error[has_pred] = np.abs(pred_sel[has_pred] - gt_sel[has_pred])
-    finite_error = error[has_pred]
+    with np.errstate(over="ignore"):
+        error[has_pred] = np.abs(pred_sel[has_pred] - gt_sel[has_pred])
+    finite_error = error[has_pred]  # (the predictions are finite; an error may not be)
 
     out = {}
     if finite_error.size:
-        out["epe"] = float(finite_error.mean())
-        out["rmse"] = float(np.sqrt(np.mean(finite_error**2)))
+        with np.errstate(over="ignore"):
+            out["epe"] = float(finite_error.mean())
+            mean_square = float(np.mean(finite_error**2))
+        out["rmse"] = (math.sqrt(mean_square) if math.isfinite(mean_square)
+                       else _scaled_rms(finite_error))
     else:
         out["epe"] = out["rmse"] = math.nan
     for key, threshold_px in THRESHOLD_KEYS:
@@ -133,6 +138,17 @@ def evaluate(pred: np.ndarray, gt: np.ndarray, region: np.ndarray | None = None)
     out["valid_px"] = valid_px
     out["invalid_pred_px"] = int(np.count_nonzero(~has_pred))
     return out
+
+
+def _scaled_rms(values: np.ndarray) -> float:
+    """Root mean square of non-negative values whose squares overflow float64.
+
+    Divided by the largest first (inf if that is inf), as a norm is computed.
+    """
+    largest = float(values.max())
+    if not math.isfinite(largest):
+        return largest
+    return largest * math.sqrt(float(np.mean((values / largest) ** 2)))
 
 
 def fill_holes_background(disparity_px: np.ndarray) -> np.ndarray:

@@ -328,3 +328,17 @@ def test_fill_holes_background_keeps_valid_pixels_and_stays_in_range(disp):
 def test_fill_holes_background_rejects_bad_input():
     with pytest.raises(DisparityError, match="expected shape"):
         fill_holes_background(np.zeros(4))
+
+
+def test_errors_beyond_float_range_are_scored_not_warned():
+    # Squares of 1e154 px overflow float64 and a difference of 2e308 px does not exist:
+    # the metrics stay exact where they can and infinite where they cannot, with no
+    # floating-point warning (the suite turns warnings into errors).
+    gt = np.array([[1.34e154, 0.0]])
+    pred = np.array([[0.0, 0.0]])
+    metrics = evaluate(pred, gt)
+    assert metrics["rmse"] == pytest.approx(1.34e154 / np.sqrt(2.0))
+    assert metrics["epe"] == pytest.approx(0.67e154)
+    assert metrics["bad1"] == 0.5
+    far = evaluate(np.array([[1.7e308]]), np.array([[-1.7e308]]))
+    assert far["epe"] == far["rmse"] == np.inf and far["bad4"] == 1.0
