@@ -75,8 +75,8 @@ def sample_variance(luminance: np.ndarray, block_px: int, well_e: float, read_e:
     return per_pixel / block_px ** 2
 
 
-def disparity_sigma_px(views, rig, mask, truth, samples_per_side: int, well_e: float,
-                       read_e: float) -> tuple[float, int, int] | None:
+def bound_sigma_px(views, rig, mask, truth, samples_per_side: int, well_e: float,
+                   read_e: float) -> tuple[float, int, int] | None:
     """The bound's sigma of the mean disparity over the mask, the samples and block size."""
     setup = refinement_setup(views, rig, mask, truth)
     default_side = sample_internals.SAMPLES_PER_SIDE
@@ -118,11 +118,9 @@ def disparity_sigma_px(views, rig, mask, truth, samples_per_side: int, well_e: f
 def corner_disparity_px(plane, rig, mask) -> np.ndarray:
     """A plane's stereo disparity at the four corners of the mask's box, ``(4,)`` px."""
     x, y, w, h = refine_internals.mask_bbox(mask)
-    rays = rig.rays(np.array([[x, y], [x + w - 1, y], [x, y + h - 1], [x + w - 1, y + h - 1]],
-                             dtype=np.float64))
-    n = np.asarray(plane.n)
-    return (rig.intrinsics.fx * rig.baseline_m * (rays @ n)
-            / (plane.offset_m - float(n @ rig.reference_center_m)))
+    corners = np.array([[x, y], [x + w - 1, y], [x, y + h - 1], [x + w - 1, y + h - 1]],
+                       dtype=np.float64)
+    return np.asarray(plane_disparity(plane, rig, corners), dtype=np.float64)
 
 
 def srde_errors(views, rig, mask, truth_disparity, truth) -> dict | None:
@@ -132,12 +130,10 @@ def srde_errors(views, rig, mask, truth_disparity, truth) -> dict | None:
     if not result.ok:
         return None
     error = plane_disparity(result.plane, rig)[mask] - truth_disparity[mask]
-    refinement = result.refinement
     return {"epe": float(np.mean(np.abs(error))), "signed": float(np.mean(error)),
             "corner_errors": (corner_disparity_px(result.plane, rig, mask)
                               - corner_disparity_px(truth, rig, mask)).tolist(),
-            "sigma_reported": (refinement.disparity_sigma_px if refinement is not None
-                               else float("nan"))}
+            "sigma_reported": result.disparity_sigma_px}
 
 
 def run(args) -> dict:
@@ -155,7 +151,7 @@ def run(args) -> dict:
                       "light_radius_m": scene.light.radius_m}
             for label, side in (("blocks", sample_internals.SAMPLES_PER_SIDE),
                                 ("pixels", EVERY_PIXEL)):
-                bound = disparity_sigma_px(out.views, lit, mask, truth, side, well, read)
+                bound = bound_sigma_px(out.views, lit, mask, truth, side, well, read)
                 if bound is not None:
                     record[f"sigma_{label}"], record[f"n_{label}"], record[f"block_{label}"] = bound
             found = srde_errors(out.views, lit, mask, out.disparity_px, truth)

@@ -155,10 +155,15 @@ def textured_mask(reference: np.ndarray, min_gradient: float) -> np.ndarray:
     return textured & ~_clipped(reference)
 
 
+def _disc(radius_px: int) -> np.ndarray:
+    """Return the checks' morphology kernel: a disc of ``radius_px``, uint8."""
+    size = 2 * radius_px + 1
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+
+
 def border_band(mask: np.ndarray, width_px: int) -> np.ndarray:
     """Pixels within ``width_px`` of the mask's outline, on either side, (H, W) bool."""
-    size = 2 * width_px + 1
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    kernel = _disc(width_px)
     m = mask.astype(np.uint8)
     inner = cv2.erode(m, kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
     outer = cv2.dilate(m, kernel).astype(bool)
@@ -297,9 +302,7 @@ def _photo_cost(grays: list[np.ndarray], rig: CameraRig, us: np.ndarray, vs: np.
 
 def _inner_ring(mask: np.ndarray, width_px: int) -> np.ndarray:
     """Return the mask pixels within ``width_px`` of its outline, (H, W) bool."""
-    size = 2 * width_px + 1
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-    inner = cv2.erode(mask.astype(np.uint8), kernel, borderType=cv2.BORDER_REPLICATE)
+    inner = cv2.erode(mask.astype(np.uint8), _disc(width_px), borderType=cv2.BORDER_REPLICATE)
     return mask & (inner == 0)
 
 
@@ -466,13 +469,10 @@ def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
     beyond = (np.full_like(backbone, np.nan) if mask.all()
               else nearest_value(~mask, backbone))
     for depth in RIM_DEPTHS_PX:
-        size = 2 * depth + 1
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-        inner = cv2.erode(mask.astype(np.uint8), kernel,
-                          borderType=cv2.BORDER_REPLICATE).astype(bool) & ~trimmed
+        rim = _inner_ring(mask, depth) & ~trimmed
+        inner = mask & ~rim & ~trimmed
         if np.count_nonzero(inner) < _MIN_INNER_FRACTION * total:
             break
-        rim = mask & ~inner & ~trimmed
         seen = rim & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
         if np.count_nonzero(seen) < check.min_px:
             continue
@@ -486,9 +486,7 @@ def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
         if photo.n_px >= check.min_px and photo.cost_srde <= photo.cost_backbone:
             # Along an outline, the object's or the mask's, a matcher mixes both depths
             # (a background-fattened edge looks like background): those bands stay.
-            size = 2 * check.width_px + 1
-            band = cv2.dilate(inner.astype(np.uint8), cv2.getStructuringElement(
-                cv2.MORPH_ELLIPSE, (size, size))).astype(bool)
+            band = cv2.dilate(inner.astype(np.uint8), _disc(check.width_px)).astype(bool)
             band |= _inner_ring(mask, check.width_px)
             return SpilledRim(rim, behind & ~band, depth, photo)
     return SpilledRim(none, none, 0)

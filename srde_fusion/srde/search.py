@@ -167,15 +167,17 @@ class BaselineSearch:
                   search_bbox: tuple[int, int, int, int] | None = None) -> np.ndarray:
         """Return the search region of a view around its candidate ``best``, ``(H, W)`` bool.
 
-        ``search_bbox``, the bounding box ``(u0, v0, u1, v1)`` of ``search`` if known,
-        only saves work (see :meth:`region_box_at`).
+        The image-sized array of :meth:`boxed_region_at`'s region.
         """
-        return self.region_box_at(cand, best, search, search_bbox)[0]
+        return np.asarray(self.boxed_region_at(cand, best, search, search_bbox)[0])
 
-    def region_box_at(self, cand: Candidates, best: int, search: np.ndarray,
-                      search_bbox: tuple[int, int, int, int] | None = None
-                      ) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
+    def boxed_region_at(self, cand: Candidates, best: int, search: np.ndarray,
+                        search_bbox: tuple[int, int, int, int] | None = None
+                        ) -> tuple[BoxMask, tuple[int, int, int, int] | None]:
         """Return the search region around candidate ``best`` and its bounding box.
+
+        The region is held over the box it can be True in, without an image-sized array
+        per view: the detector reads only the region's bounding box and a margin around it.
 
         Parameters
         ----------
@@ -191,21 +193,11 @@ class BaselineSearch:
 
         Returns
         -------
-        region : numpy.ndarray, (H, W) bool
+        region : BoxMask
+            Reads as the ``(H, W)`` bool region.
         bbox : (int, int, int, int) or None
             The region's bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive; None if
             the region is empty.
-        """
-        boxed, bbox = self.boxed_region_at(cand, best, search, search_bbox)
-        return np.asarray(boxed), bbox
-
-    def boxed_region_at(self, cand: Candidates, best: int, search: np.ndarray,
-                        search_bbox: tuple[int, int, int, int] | None = None
-                        ) -> tuple[BoxMask, tuple[int, int, int, int] | None]:
-        """:meth:`region_box_at`, the region held over the box it can be True in.
-
-        The same region, without an image-sized array per view: the detector reads only
-        the region's bounding box and a margin around it.
         """
         h, w = self.rig.height, self.rig.width
         radius = CAPSULE_SCALE * cand.half_diagonal_px + CAPSULE_MARGIN_PX

@@ -69,6 +69,10 @@ class JointLobeModel:
         """Largest change of the stereo disparity at the probe pixels between two thetas."""
         return self.parts[0].disparity_change_px(before, after)
 
+    def probe_disparity_px(self, thetas: np.ndarray) -> np.ndarray:
+        """Return the stereo disparity ``(B, 4)`` of ``thetas``' planes at the box corners."""
+        return self.parts[0].probe_disparity_px(thetas)
+
     def clamp(self, theta: np.ndarray) -> np.ndarray:
         """Move ``theta``'s shape parameters inside their bounds (in place) and return it."""
         self.parts[0].clamp(theta)

@@ -212,6 +212,10 @@ class LobeModel:
         """Largest change of the stereo disparity at the probe pixels between two thetas."""
         return self.reflection.disparity_change_px(before, after)
 
+    def probe_disparity_px(self, thetas: np.ndarray) -> np.ndarray:
+        """Return the stereo disparity ``(B, 4)`` of ``thetas``' planes at the box corners."""
+        return self.reflection.probe_disparity_px(thetas)
+
     def start_theta(self) -> np.ndarray:
         """Parameters at the initial plane with a mid-range lobe, intensities 0."""
         theta = np.zeros(N_PARAMS)

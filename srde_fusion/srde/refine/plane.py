@@ -323,15 +323,14 @@ def refine_plane(
     if attempt.problem:
         return kept(attempt.problem, residual=math.sqrt(attempt.cost_initial),
                     params=attempt.params_initial, **common)
-    sigma_px = disparity_sigma_px(model, fit, rig, setup.box)
+    sigma_px = disparity_sigma_px(model, fit)
     return PlaneRefinement(model.plane(fit.theta), initial_plane, "refined", "", lobe=lobe,
                            residual=math.sqrt(fit.cost), params=model.lobe_fit(fit.theta),
                            time_s=time.perf_counter() - start, disparity_sigma_px=sigma_px,
                            **common)
 
 
-def disparity_sigma_px(model: LobeModel | JointLobeModel, fit: Minimum, rig: CameraRig,
-                       box: tuple[int, int, int, int]) -> float:
+def disparity_sigma_px(model: LobeModel | JointLobeModel, fit: Minimum) -> float:
     """Return the standard error of a fitted plane's disparity at the box corners, px.
 
     The covariance of the fitted parameters is the sandwich estimate
@@ -340,10 +339,10 @@ def disparity_sigma_px(model: LobeModel | JointLobeModel, fit: Minimum, rig: Cam
     linearisation) and residuals ``r`` at its ``P`` samples: it takes the noise from the
     residuals, bright samples noisier than dark ones as a sensor's are, and needs no
     noise model. The plane's part of it, carried to the rig's stereo disparity at the
-    four corners of ``box`` (``(x, y, width, height)``), gives each corner's standard
-    error; the largest is returned. It says how far the images' noise moves the plane,
-    not how far a wrong model does. NaN when the fit has no Jacobian, no more samples
-    than parameters or a singular one.
+    four corners of the object's box (the model's probe pixels), gives each corner's
+    standard error; the largest is returned. It says how far the images' noise moves the
+    plane, not how far a wrong model does. NaN when the fit has no Jacobian, no more
+    samples than parameters or a singular one.
     """
     jac, residual, theta = fit.jacobian, fit.residual, fit.theta
     if jac is None or jac.shape[0] < N_PLANE or not np.all(np.isfinite(residual)):
@@ -357,24 +356,13 @@ def disparity_sigma_px(model: LobeModel | JointLobeModel, fit: Minimum, rig: Cam
         return math.nan
     meat = (jac * residual ** 2) @ jac.T
     covariance = bread @ meat @ bread * (n_samples / (n_samples - n_params))
-    x, y, w, h = box
-    corners = rig.rays(np.array([[x, y], [x + w - 1, y], [x, y + h - 1], [x + w - 1, y + h - 1]],
-                                dtype=np.float64))
-    scale = rig.intrinsics.fx * rig.baseline_m
-
-    def corner_disparity(t: np.ndarray) -> np.ndarray:
-        plane = model.plane(t)
-        n = np.asarray(plane.n)
-        # d = fx B / z, with 1 / z = (n . k) / (c - n . C_ref) along the reference rays k
-        return scale * (corners @ n) / (plane.offset_m - float(n @ rig.reference_center_m))
-
+    # The corners' disparity by each plane parameter, by central differences.
     step = 1e-6
-    slopes = np.empty((len(corners), N_PLANE))
-    for i in range(N_PLANE):
-        up, down = theta.copy(), theta.copy()
-        up[i] += step
-        down[i] -= step
-        slopes[:, i] = (corner_disparity(up) - corner_disparity(down)) / (2 * step)
+    shifted = np.repeat(theta[None, :N_PLANE], 2 * N_PLANE, axis=0)
+    shifted[np.arange(N_PLANE), np.arange(N_PLANE)] += step
+    shifted[N_PLANE + np.arange(N_PLANE), np.arange(N_PLANE)] -= step
+    disparity = model.probe_disparity_px(shifted)                       # (2 N_PLANE, 4)
+    slopes = ((disparity[:N_PLANE] - disparity[N_PLANE:]) / (2 * step)).T   # (4, N_PLANE)
     variance = np.einsum("ci,ij,cj->c", slopes, covariance[:N_PLANE, :N_PLANE], slopes)
     return float(np.sqrt(np.max(variance)))
 

@@ -225,10 +225,17 @@ class PlaneReflection:
         return ((self.e1 - n * float(n @ self.e1)) / norm, 0.0), \
             ((self.e2 - n * float(n @ self.e2)) / norm, 0.0), (np.zeros(3), 1.0)
 
+    def probe_disparity_px(self, thetas: np.ndarray) -> np.ndarray:
+        """Return the stereo disparity ``(B, 4)`` at the probe pixels (the box's corners).
+
+        Of the planes of parameter vectors ``thetas`` ``(B, >= N_PLANE)``.
+        """
+        n, c = self.planes(thetas[:, :N_PLANE])
+        # d = fx B / z with 1 / z = (n . k) / (c - n . C_ref) along reference rays k
+        return self.disparity_scale * (n @ self.probe_rays.T) / (
+            c - n @ self.reference_center_m)[:, None]
+
     def disparity_change_px(self, before: np.ndarray, after: np.ndarray) -> float:
         """Largest change of the stereo disparity at the probe pixels between two planes."""
-        n, c = self.planes(np.stack([before[:N_PLANE], after[:N_PLANE]]))
-        # d = fx B / z with 1 / z = (n . k) / (c - n . C_ref) along reference rays k
-        disparity = self.disparity_scale * (n @ self.probe_rays.T) / (
-            c - n @ self.reference_center_m)[:, None]
+        disparity = self.probe_disparity_px(np.stack([before[:N_PLANE], after[:N_PLANE]]))
         return float(np.max(np.abs(disparity[1] - disparity[0])))
