@@ -9,7 +9,9 @@ lines, a light) are the same, only more than one of them is the answer:
    face is the plane (more than ``SAME_PLANE_PX`` away from those chosen) that explains
    the most highlights the chosen ones do not, at least one light's in ``min_views``
    views. A plane that explains no highlight of its own is not a face. With one plane
-   the object is a single plane and the caller takes its usual path.
+   the object is a single plane and the caller takes its usual path. Sets that the
+   highlights rank alike are told apart by the image (step 3): the first whose faces all
+   pass is taken, two that both pass are ambiguous.
 2. **Split.** Two planes meet in a 3-D line whose image is the faces' edge. Along a
    reference pixel's ray a convex object (a ridge) shows the *farther* of the faces'
    planes (the ray enters the solid last through it), a concave one (a valley) the
@@ -86,6 +88,9 @@ MAX_FACE_HYPOTHESES = 12
 #: Under the kept rule each face's own highlights must outnumber those of it that fall
 #: on another face's part by this factor.
 OWN_HIGHLIGHT_RATIO = 2.0
+
+#: Most sets of face planes checked against the image, best-ranked first.
+MAX_SETS_TRIED = 3
 
 
 @dataclass(frozen=True)
@@ -196,8 +201,8 @@ class _Split:
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
                  min_views: int, box, inside: np.ndarray
-                 ) -> tuple[_Split | None, _Split | None, str, list[PlaneScore]]:
-    """Choose the face planes: the set whose split best agrees with the highlights.
+                 ) -> tuple[list[_Split], str, list[PlaneScore]]:
+    """Rank the sets of face planes by how well their splits agree with the highlights.
 
     The distinct refitted planes explaining the most highlights (at most
     :data:`MAX_FACE_HYPOTHESES`) are tried in pairs, and the best pair with each further
@@ -210,8 +215,9 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
 
     Returns
     -------
-    best, rival : _Split or None
-        The best set, and the best one with a different plane (None if none).
+    ranked : list of _Split
+        The distinct sets (one set reached in two orders counts once), best first; empty
+        when none counts.
     why : str
         Why no set counts, when some plane explains highlights the first one does not
         ("" when none does: the object is one plane).
@@ -227,7 +233,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
         if len(pool) == MAX_FACE_HYPOTHESES:
             break
     if len(pool) < 2:
-        return None, None, "", pool
+        return [], "", pool
     splits: list[_Split] = []
     why = ""
     # Evidence of a second face: a plane explaining, in min_views views, one light's
@@ -251,10 +257,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     # Faces must explain more highlights than the first plane does alone (which counts
     # every highlight it explains, near an edge or not).
     splits = [s for s in splits if s.explained > len(first)]
-    if not splits:
-        return None, None, why, pool
     splits.sort(key=lambda s: s.value, reverse=True)
-    best = splits[0]
 
     def same_planes(a: _Split, b: _Split) -> bool:
         # The same set in another order (a pair and a third, or another pair and a third).
@@ -262,9 +265,11 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
             any(context.plane_gap_px(x.plane, y.plane) <= SAME_PLANE_PX for y in b.scores)
             for x in a.scores)
 
-    rival = next((s for s in splits[1:] if len(s.scores) == len(best.scores)
-                  and not same_planes(s, best)), None)
-    return best, rival, "", pool
+    ranked: list[_Split] = []
+    for split in splits:
+        if not any(same_planes(split, kept) for kept in ranked):
+            ranked.append(split)
+    return ranked, (why if not ranked else ""), pool
 
 
 def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
@@ -290,7 +295,7 @@ def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_vie
         cut: set[tuple[int, int]] = set()
         foreign = 0
         for f, (score, w) in enumerate(zip(faces, where, strict=True)):
-            for k, j in zip(*np.nonzero(w == f + 1), strict=True):
+            for k, j in zip(*np.nonzero(_own(w, f + 1)), strict=True):
                 own.add((int(j), int(score.matched[k, j])))
             for k, j in zip(*np.nonzero(w == CUT_BY_EDGE), strict=True):
                 cut.add((int(j), int(score.matched[k, j])))
@@ -363,9 +368,19 @@ THREE_FACE_VIEWS = 3
 #: the faces' edge cuts its blob, so its centre measures neither face.
 CUT_BY_EDGE = -2
 
+#: Marks a highlight whose mirror point lies on its own face's part but within a blob
+#: radius of another's: the edge may cut its blob (its centre is then pulled off the
+#: light's), yet the side it lies on still tells the rule.
+OWN_NEAR_EDGE = -3
+
+
+def _own(where: np.ndarray, label: int) -> np.ndarray:
+    """Where ``where`` puts a face's highlight on the face's own part, near its edge or not."""
+    return (where == label) | (where == OWN_NEAR_EDGE)
+
 
 def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], labels, box,
-                        edge_px: float) -> list[np.ndarray]:
+                        edge_px: float, face_labels=None) -> list[np.ndarray]:
     """Per face: the label under each explained highlight, ``(K, N)`` int.
 
     -1 where the face's plane explains no highlight, :data:`CUT_BY_EDGE` where the
@@ -373,7 +388,9 @@ def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], lab
     """
     near_other = _near_other_face(labels, edge_px)
     out = []
-    for score in scores:
+    if face_labels is None:
+        face_labels = range(1, len(scores) + 1)
+    for score, own_label in zip(scores, face_labels, strict=True):
         where = np.full(score.matched.shape, -1, dtype=np.intp)
         for k in range(score.matched.shape[0]):
             views = np.flatnonzero(score.matched[k] >= 0)
@@ -383,7 +400,9 @@ def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], lab
                 ref_uv = rig.project(points)
                 label = _label_at(labels, box, ref_uv)
                 cut = _label_at(near_other, box, ref_uv) > 0
-                where[k, views] = np.where(cut & (label > 0), CUT_BY_EDGE, label)
+                where[k, views] = np.where(
+                    cut & (label > 0), np.where(label == own_label, OWN_NEAR_EDGE, CUT_BY_EDGE),
+                    label)
         out.append(where)
     return out
 
@@ -403,7 +422,7 @@ def _rule_fit(where: list[np.ndarray], min_views: int) -> tuple[bool, int, str]:
     """Whether every face's highlights fall on its own part; own count; what failed."""
     total, problems = 0, []
     for f, w in enumerate(where):
-        own_per_light = (w == f + 1).sum(axis=1)
+        own_per_light = _own(w, f + 1).sum(axis=1)
         foreign = int(np.count_nonzero((w >= 0) & (w != f + 1)))
         own = int(own_per_light.sum())
         total += own
@@ -423,8 +442,6 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     with its reason (``"face_split"`` when the planes do not split the mask consistently
     with the highlights; a face's own failure, named, otherwise).
     """
-    rig = srde.rig
-    lights = srde.lights_m
     gathered = gather_candidates(srde, views, search)
     if gathered is None:
         return None
@@ -433,19 +450,56 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     box = search_box(mask, 0)
     u0, v0, u1, v1 = box
     inside = mask[v0:v1, u0:u1]
-    best, rival, why, pool = choose_faces(context, scores, max_faces=srde.max_faces,
-                                          min_views=srde.min_views, box=box, inside=inside)
-    if best is None:
+    ranked, why, pool = choose_faces(context, scores, max_faces=srde.max_faces,
+                                     min_views=srde.min_views, box=box, inside=inside)
+    if not ranked:
         if why:
             # Evidence of a second plane that splits nothing consistently: the one-plane
             # path weighs the unexplained highlights itself (several lights' merged or cut
             # blobs on one plane look like this too).
             _log.debug("faces: no split holds each face's highlights (%s)", why)
         return None
-    if rival is not None and rival.value == best.value:
-        return srde._failed("ambiguous", f"faces: two sets of {len(best.scores)} planes split "
-                            f"the mask with the same support ({best.value[0]} highlights on "
-                            f"their own faces; {best.rule} and {rival.rule})")
+    # The highlight centres rank the sets; where they cannot tell sets apart, the image
+    # decides. The sets tried are those with as many highlights on their own faces as
+    # the best (a wrong light's blobs can tie a wrong set with the right one, or rank
+    # it first on net support alone; its faces' lobe fits then fail). A set is taken
+    # when every face passes its checks and refinement; a set that fails gives way to
+    # the next. Two sets of equal rank that both pass: ambiguous.
+    best = ranked[0]
+    tried = [s for s in ranked if s.value[0] == best.value[0]
+             and len(s.scores) == len(best.scores)][:MAX_SETS_TRIED]
+    failures: list[SRDEResult] = []
+    solved: tuple[_Split, SRDEResult] | None = None
+    for split in tried:
+        if solved is not None and split.value < solved[0].value:
+            break
+        result = _solve_split(srde, views, mask, context, gathered, split, pool, box, inside)
+        if not result.ok:
+            failures.append(result)
+        elif solved is None:
+            solved = (split, result)
+        else:
+            return srde._failed("ambiguous", f"faces: two sets of {len(split.scores)} planes "
+                                f"split the mask with the same support ({split.value[0]} "
+                                f"highlights on their own faces; {solved[0].rule} and "
+                                f"{split.rule}) and the image confirms both")
+    if solved is not None:
+        return solved[1]
+    first = failures[0]
+    if len(failures) == 1:
+        return first
+    return replace(first, reason=f"{first.reason} (and {len(failures) - 1} other set(s) of "
+                   f"face planes failed: " + "; ".join(f.reason for f in failures[1:]) + ")")
+
+
+def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext, gathered,
+                 best: _Split, pool: list[PlaneScore], box, inside: np.ndarray) -> SRDEResult:
+    """Solve each face of one set of face planes and piece the faces together.
+
+    An ``ok`` result whose ``faces`` holds every face, or the first check that failed.
+    """
+    rig, lights = srde.rig, srde.lights_m
+    u0, v0, u1, v1 = box
     rule, edge_px = best.rule, gathered.blob_radius_px
     tolerance_px = 2.0 * srde.max_residual_px
     # Each face's plane refitted to its own highlights alone (not those the faces' edge
@@ -453,7 +507,10 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     chosen = []
     where = _highlights_by_face(rig, lights, list(best.scores), best.labels, box, edge_px)
     for f, (score, w) in enumerate(zip(best.scores, where, strict=True)):
-        own = replace(score, matched=np.where(w == f + 1, score.matched, -1))
+        # (Centres away from the edge when two or more, else those near it too.)
+        strict = np.where(w == f + 1, score.matched, -1)
+        own = replace(score, matched=strict if np.count_nonzero(strict >= 0) >= 2
+                      else np.where(_own(w, f + 1), score.matched, -1))
         plane = context.fit(own) if own.n_matched >= 2 else None
         chosen.append(own if plane is None else replace(own, plane=plane))
     labels = split_faces([s.plane for s in chosen], rig, box, inside, rule)
@@ -625,8 +682,8 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     """
     rig, lights = srde.rig, srde.lights_m
     where = _highlights_by_face(rig, lights, [score], labels, box,
-                                gathered.blob_radius_px)[0]
-    own = (where == label) & (score.matched >= 0)
+                                gathered.blob_radius_px, [label])[0]
+    own = _own(where, label) & (score.matched >= 0)
     # The light seen on this face in most views (then the closest fit) fixes its plane.
     counts = own.sum(axis=1)
     distance = np.where(own, score.distance_px, np.inf)
@@ -634,7 +691,7 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
                    key=lambda k: (counts[k], -float(np.min(distance[k])))))
     if counts[main] < min_views:
         return srde._failed("too_few_views", f"faces: face {label} keeps its own highlights "
-                            f"in {int(counts[main])} view(s) away from the faces' edge (needs "
+                            f"on its own part in {int(counts[main])} view(s) (needs "
                             f"{min_views})", plane=score.plane), None
     centers = np.full((rig.n_cameras, 2), np.nan)
     for j in np.flatnonzero(own[main]):
@@ -651,7 +708,7 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     modelled = [lights[k] for k in range(len(lights)) if k != main
                 and np.any(score.on_object[k] & score.on_object[main] & (np.linalg.norm(
                     score.predicted_uv[k] - score.predicted_uv[main], axis=1) < reach_px))
-                and np.any(where[k] == label)]
+                and np.any(_own(where[k], label))]
     result = srde._finish(face_mask, point, w, used, centers, detections, (), views=views,
                           light=lights[main], modelled_lights=modelled)
     face = None
