@@ -92,6 +92,13 @@ OWN_HIGHLIGHT_RATIO = 2.0
 #: Most sets of face planes checked against the image, best-ranked first.
 MAX_SETS_TRIED = 3
 
+#: The refinement leaves out a face's pixels this close to another face's part, px.
+FACE_EDGE_MARGIN_PX = 4.0
+
+#: Largest standard error of a refined face's disparity over the object, px: twice it
+#: stays within SAME_PLANE_PX, so another plane is told apart.
+MAX_FACE_SIGMA_PX = SAME_PLANE_PX / 2
+
 
 @dataclass(frozen=True)
 class FaceResult:
@@ -514,11 +521,14 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
         plane = context.fit(own) if own.n_matched >= 2 else None
         chosen.append(own if plane is None else replace(own, plane=plane))
     labels = split_faces([s.plane for s in chosen], rig, box, inside, rule)
+    # The refinement reads each face away from its neighbours: the edge is where the
+    # planes put it, and blocks near it may hold the neighbour's shading.
+    near_edge = _near_other_face(labels, FACE_EDGE_MARGIN_PX).view(bool)
     faces: list[FaceResult] = []
     results = []
     for f, score in enumerate(chosen):
         face_mask = np.zeros(mask.shape, dtype=bool)
-        face_mask[v0:v1, u0:u1] = labels == f + 1
+        face_mask[v0:v1, u0:u1] = (labels == f + 1) & ~near_edge
         # Three faces are triples of hypotheses: more ways to piece a wrong set together
         # from blobs that pair up by chance, so each face needs a view more of its own.
         need = srde.min_views if len(chosen) < 3 else max(srde.min_views, THREE_FACE_VIEWS)
@@ -533,6 +543,15 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
             return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
                                 f"photometric refinement did not confirm its plane "
                                 f"({face.refinement.reason})", plane=face.plane)
+        sigma_px = face.refinement.disparity_sigma_px if face.refinement is not None \
+            else 0.0
+        if sigma_px > MAX_FACE_SIGMA_PX:
+            # The lobe fit does not pin the face down: another plane SAME_PLANE_PX away
+            # would fit within two standard errors.
+            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
+                                f"photometric refinement leaves its plane uncertain by "
+                                f"{sigma_px:.2f} px (standard error over the object; limit "
+                                f"{MAX_FACE_SIGMA_PX:g} px)", plane=face.plane)
         moved_px = context.plane_gap_px(face.refinement.initial_plane, face.plane) \
             if face.refinement is not None else 0.0
         if moved_px > SAME_PLANE_PX:
