@@ -368,9 +368,6 @@ GLOW_AREA_RATIO = 10.0
 #: diffuse glow, not a highlight (the reference check of a split does not count it).
 GLOW_SCORE_RATIO = 0.25
 
-#: With three faces each face's own highlights must be seen in this many views (at least).
-THREE_FACE_VIEWS = 3
-
 #: Marks a highlight whose mirror point lies within a blob radius of another face's part:
 #: the faces' edge cuts its blob, so its centre measures neither face.
 CUT_BY_EDGE = -2
@@ -529,11 +526,8 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     for f, score in enumerate(chosen):
         face_mask = np.zeros(mask.shape, dtype=bool)
         face_mask[v0:v1, u0:u1] = (labels == f + 1) & ~near_edge
-        # Three faces are triples of hypotheses: more ways to piece a wrong set together
-        # from blobs that pair up by chance, so each face needs a view more of its own.
-        need = srde.min_views if len(chosen) < 3 else max(srde.min_views, THREE_FACE_VIEWS)
         result, face = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
-                                   gathered, need)
+                                   gathered, srde.min_views)
         if not result.ok:
             return srde._failed(result.status, f"face {f + 1} of {len(chosen)}: {result.reason}",
                                 plane=result.plane)
