@@ -387,8 +387,10 @@ def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], lab
                         edge_px: float, face_labels=None) -> list[np.ndarray]:
     """Per face: the label under each explained highlight, ``(K, N)`` int.
 
-    -1 where the face's plane explains no highlight, :data:`CUT_BY_EDGE` where the
-    highlight's mirror point lies within ``edge_px`` of another face's part.
+    -1 where the face's plane explains no highlight; where the highlight's mirror point
+    lies within ``edge_px`` of another face's part, :data:`OWN_NEAR_EDGE` if it lies on
+    the face's own part and :data:`CUT_BY_EDGE` otherwise. ``face_labels``: each
+    score's own label in ``labels`` (by default 1, 2, ... in order).
     """
     near_other = _near_other_face(labels, edge_px)
     out = []
@@ -497,21 +499,21 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
 
 
 def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext, gathered,
-                 best: _Split, pool: list[PlaneScore], box, inside: np.ndarray) -> SRDEResult:
+                 split: _Split, pool: list[PlaneScore], box, inside: np.ndarray) -> SRDEResult:
     """Solve each face of one set of face planes and piece the faces together.
 
     An ``ok`` result whose ``faces`` holds every face, or the first check that failed.
     """
     rig, lights = srde.rig, srde.lights_m
     u0, v0, u1, v1 = box
-    rule, edge_px = best.rule, gathered.blob_radius_px
+    rule, edge_px = split.rule, gathered.blob_radius_px
     tolerance_px = 2.0 * srde.max_residual_px
-    # Each face's plane refitted to its own highlights alone (not those the faces' edge
-    # cuts, nor those on another face), and the mask split again by the refitted planes.
+    # Each face's plane refitted to its own highlights alone (those away from the edge
+    # when there are two or more: the edge may pull a cut blob's centre; never those on
+    # another face), and the mask split again by the refitted planes.
     chosen = []
-    where = _highlights_by_face(rig, lights, list(best.scores), best.labels, box, edge_px)
-    for f, (score, w) in enumerate(zip(best.scores, where, strict=True)):
-        # (Centres away from the edge when two or more, else those near it too.)
+    where = _highlights_by_face(rig, lights, list(split.scores), split.labels, box, edge_px)
+    for f, (score, w) in enumerate(zip(split.scores, where, strict=True)):
         strict = np.where(w == f + 1, score.matched, -1)
         own = replace(score, matched=strict if np.count_nonzero(strict >= 0) >= 2
                       else np.where(_own(w, f + 1), score.matched, -1))
