@@ -321,19 +321,12 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
                                                                    connectivity=8)
     if n <= 1:
         return []
-    tops = np.zeros(n)
-    np.maximum.at(tops, labels[peaks], smooth[peaks])
+    tops = _label_maxima(labels[peaks], smooth[peaks], n)
     tops, where = tops[1:], centroids[1:]
     order = np.argsort(-tops, kind="stable")[:4 * max_candidates]
-    # Whether the luminance dips between each peak and every brighter one, all at once;
-    # the brightest peaks are then kept in order unless one kept before joins them.
-    dips = _dip_matrix(smooth, where[order], tops[order], background)
-    kept_rank: list[int] = []
-    for p in range(len(order)):
-        if all(dips[p, q] for q in kept_rank):
-            kept_rank.append(p)
-        if len(kept_rank) == max_candidates:
-            break
+    # The brightest peaks are kept in order unless the luminance fails to dip between
+    # them and one kept before (the flat top of one clipped blob).
+    kept_rank = _separated_peaks(smooth, where[order], tops[order], background, max_candidates)
     kept = [int(order[p]) for p in kept_rank]
     # Each pixel above the lowest blob level belongs to its nearest kept peak.
     lowest = background + BLOB_LEVEL * (float(tops[kept].min()) - background)
@@ -372,14 +365,28 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     return found
 
 
-def _dip_matrix(smooth: np.ndarray, where: np.ndarray, tops: np.ndarray, background: float
-                ) -> np.ndarray:
-    """Whether the luminance dips between each peak and every brighter one.
+def _label_maxima(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Largest of ``values`` per label in ``[0, n)``, ``(n,)`` float64 (0 where none).
 
-    Two peaks are two highlights if the smoothed luminance sampled along the segment
-    between them (one sample per pixel of its length, rounded to pixels) falls below the
-    dimmer one's top by :data:`SEPARATING_DIP` of its contrast. Every pair is sampled in
-    one set of array operations.
+    (One sort and a segmented maximum: ``np.maximum.at`` is an unbuffered loop.)
+    """
+    order = np.argsort(labels, kind="stable")
+    labels, values = labels[order], values[order]
+    out = np.zeros(n)
+    if labels.size:
+        starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
+        out[labels[starts]] = np.maximum(np.maximum.reduceat(values, starts), 0.0)
+    return out
+
+
+def _separated_peaks(smooth: np.ndarray, where: np.ndarray, tops: np.ndarray,
+                     background: float, max_peaks: int) -> list[int]:
+    """Ranks of the peaks kept: brightest first, each dipping from every one kept before.
+
+    Peak p is kept when the luminance dips (:func:`_dips`) between it and every brighter
+    peak kept before it, until ``max_peaks`` are kept. Each kept peak is tested against
+    the peaks still in the running in one array pass, so the passes number the peaks
+    kept, not the pairs.
 
     Parameters
     ----------
@@ -389,18 +396,34 @@ def _dip_matrix(smooth: np.ndarray, where: np.ndarray, tops: np.ndarray, backgro
     tops : numpy.ndarray, (M,) float64
         Their smoothed maxima.
     background : float
+    max_peaks : int
 
     Returns
     -------
-    numpy.ndarray, (M, M) bool
-        ``[p, q]`` for ``q < p``: whether it dips between peak p and the brighter peak
-        q, sampled from p towards q (False elsewhere).
+    list of int
+        Ranks into ``where``, ascending.
     """
-    m = len(where)
-    out = np.zeros((m, m), dtype=bool)
-    p, q = np.tril_indices(m, -1)
-    if p.size == 0:
-        return out
+    kept: list[int] = []
+    running = np.arange(len(where))
+    while running.size and len(kept) < max_peaks:
+        q = int(running[0])
+        kept.append(q)
+        running = running[1:]
+        if running.size:
+            running = running[_dips(smooth, where, tops, background, running,
+                                    np.full(running.size, q))]
+    return kept
+
+
+def _dips(smooth: np.ndarray, where: np.ndarray, tops: np.ndarray, background: float,
+          p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Whether the luminance dips between peaks ``p`` and brighter peaks ``q``, ``(P,)`` bool.
+
+    Two peaks are two highlights if the smoothed luminance sampled along the segment
+    between them (one sample per pixel of its length, rounded to pixels, from p towards
+    q) falls below p's top by :data:`SEPARATING_DIP` of its contrast. Every pair is
+    sampled in one set of array operations.
+    """
     a, b = where[p], where[q]                                              # (P, 2)
     d = b - a
     steps = np.maximum(np.ceil(np.hypot(d[:, 0], d[:, 1])).astype(np.intp) + 1, 2)
@@ -414,8 +437,7 @@ def _dip_matrix(smooth: np.ndarray, where: np.ndarray, tops: np.ndarray, backgro
     vs = np.rint(a[pair, 1] + t * d[pair, 1]).astype(np.intp)
     low = np.minimum.reduceat(smooth[vs, us], starts).astype(np.float64)
     top = tops[p]
-    out[p, q] = low < top - SEPARATING_DIP * (top - background)
-    return out
+    return low < top - SEPARATING_DIP * (top - background)
 
 
 def candidate_band(rig: CameraRig, view: int, box: tuple[int, int, int, int],

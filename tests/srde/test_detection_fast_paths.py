@@ -33,7 +33,7 @@ from srde_fusion.srde.highlight import (
     search_box,
     weighted_centroid,
 )
-from srde_fusion.srde.lights import SEPARATING_DIP, _dip_matrix
+from srde_fusion.srde.lights import SEPARATING_DIP, _dips, _label_maxima, _separated_peaks
 from srde_fusion.srde.search import BaselineSearch
 from srde_fusion.synthetic import RandomSceneConfig, random_scene, render
 
@@ -296,8 +296,7 @@ def _dips_one_pair(smooth, a, b, top, background) -> bool:
     return float(smooth[vs, us].min()) < top - SEPARATING_DIP * (top - background)
 
 
-@given(st.integers(0, 2**32 - 1))
-def test_the_dip_matrix_is_the_pairwise_dip_test(seed):
+def _random_peaks(seed):
     rng = np.random.default_rng(seed)
     h, w = int(rng.integers(5, 60)), int(rng.integers(5, 60))
     smooth = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 2.0)
@@ -307,8 +306,41 @@ def test_the_dip_matrix_is_the_pairwise_dip_test(seed):
     where[: m // 3] = np.round(where[: m // 3] * 2) / 2
     tops = np.sort(rng.uniform(0.3, 1.0, m))[::-1]
     background = float(rng.uniform(0.0, 0.3))
-    got = _dip_matrix(smooth, where, tops, background)
-    for p in range(m):
-        for q in range(m):
-            want = q < p and _dips_one_pair(smooth, where[p], where[q], tops[p], background)
-            assert got[p, q] == want
+    return smooth, where, tops, background, rng
+
+
+@given(st.integers(0, 2**32 - 1))
+def test_the_dip_pairs_are_the_pairwise_dip_test(seed):
+    smooth, where, tops, background, _ = _random_peaks(seed)
+    p, q = np.tril_indices(len(where), -1)
+    if p.size == 0:
+        return
+    got = _dips(smooth, where, tops, background, p, q)
+    for k in range(p.size):
+        assert got[k] == _dips_one_pair(smooth, where[p[k]], where[q[k]], tops[p[k]],
+                                        background)
+
+
+@given(st.integers(0, 2**32 - 1))
+def test_separated_peaks_are_the_greedy_choice_over_every_pair(seed):
+    # Brightest first, a peak is kept when it dips from every peak kept before it.
+    smooth, where, tops, background, rng = _random_peaks(seed)
+    max_peaks = int(rng.integers(1, 6))
+    want: list[int] = []
+    for p in range(len(where)):
+        if all(_dips_one_pair(smooth, where[p], where[q], tops[p], background) for q in want):
+            want.append(p)
+        if len(want) == max_peaks:
+            break
+    assert _separated_peaks(smooth, where, tops, background, max_peaks) == want
+
+
+@given(st.integers(0, 2**32 - 1))
+def test_label_maxima_are_the_unbuffered_maxima(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 20))
+    labels = rng.integers(0, n, int(rng.integers(0, 200)))
+    values = rng.uniform(0.0, 1.0, labels.size).astype(np.float32)
+    want = np.zeros(n)
+    np.maximum.at(want, labels, values)
+    np.testing.assert_array_equal(_label_maxima(labels, values, n), want)
