@@ -529,7 +529,7 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
         face_mask = np.zeros(mask.shape, dtype=bool)
         face_mask[v0:v1, u0:u1] = (labels == f + 1) & ~near_edge
         result, face = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
-                                   gathered, srde.min_views)
+                                   gathered)
         if not result.ok:
             return srde._failed(result.status, f"face {f + 1} of {len(chosen)}: {result.reason}",
                                 plane=result.plane)
@@ -690,10 +690,10 @@ def _too_small(labels: np.ndarray, inside: np.ndarray) -> str:
 
 
 def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, label: int,
-                labels: np.ndarray, box, gathered, min_views: int):
+                labels: np.ndarray, box, gathered):
     """Check and refine one face on its part of the mask; ``(SRDEResult, FaceResult)``.
 
-    The face's light must be seen on its own part in ``min_views`` views.
+    The face's light must be seen on its own part in ``srde.min_views`` views.
     """
     rig, lights = srde.rig, srde.lights_m
     where = _highlights_by_face(rig, lights, [score], labels, box,
@@ -704,10 +704,10 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     distance = np.where(own, score.distance_px, np.inf)
     main = int(max(range(len(lights)),
                    key=lambda k: (counts[k], -float(np.min(distance[k])))))
-    if counts[main] < min_views:
+    if counts[main] < srde.min_views:
         return srde._failed("too_few_views", f"faces: face {label} keeps its own highlights "
                             f"on its own part in {int(counts[main])} view(s) (needs "
-                            f"{min_views})", plane=score.plane), None
+                            f"{srde.min_views})", plane=score.plane), None
     centers = np.full((rig.n_cameras, 2), np.nan)
     for j in np.flatnonzero(own[main]):
         centers[j] = gathered.centers_uv[j][score.matched[main, j]]
