@@ -35,7 +35,6 @@ from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from .._checks import check_point3
 from ..errors import LightError
@@ -141,6 +140,12 @@ DECISIVE_COST_RATIO = 2.0
 
 #: Rounds of "refit the plane to what it explains, then match again".
 _REFIT_ROUNDS = 3
+
+#: The mirror-plane fit stops when a step lowers the squared residuals by less than this
+#: fraction, or moves no centre by more than this many pixels (in the linearised model).
+_FIT_COST_TOLERANCE = 1e-12
+_FIT_STEP_TOLERANCE_PX = 1e-9
+_FIT_MAX_ITERATIONS = 50
 
 
 @dataclass(frozen=True)
@@ -331,14 +336,17 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     # Each pixel above the lowest blob level belongs to its nearest kept peak.
     lowest = background + BLOB_LEVEL * (float(tops[kept].min()) - background)
     candidates = inside & (lum > lowest)
-    vv, uu = np.nonzero(candidates)
-    nearest = np.full(lum.shape, -1, dtype=np.intp)
-    nearest[vv, uu] = np.argmin(np.stack([(uu - where[i][0]) ** 2 + (vv - where[i][1]) ** 2
-                                          for i in kept]), axis=0)
+    if len(kept) > 1:
+        vv, uu = np.nonzero(candidates)
+        nearest = np.full(lum.shape, -1, dtype=np.intp)
+        nearest[vv, uu] = np.argmin(np.stack([(uu - where[i][0]) ** 2 + (vv - where[i][1]) ** 2
+                                              for i in kept]), axis=0)
     found = []
     for rank, i in enumerate(kept):
         level = background + BLOB_LEVEL * (tops[i] - background)
-        above = candidates & (nearest == rank) & (lum > level)
+        above = candidates & (lum > level)
+        if len(kept) > 1:
+            above &= nearest == rank
         # Components are labelled over the box of the pixels above the level only: the
         # same components, in the same raster order.
         ax, ay, aw, ah = cv2.boundingRect(above.view(np.uint8))
@@ -353,11 +361,9 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
                 continue
             label = 1 + int(np.argmax(np.bincount(parts[above_box], minlength=count)[1:]))
         blob = parts == label
-        light = lum[ay:ay + ah, ax:ax + aw][blob] - level
-        # The centroid sums over the whole crop (zero off the blob), as they always were.
-        weights = np.zeros(lum.shape, dtype=light.dtype)
-        weights[ay:ay + ah, ax:ax + aw][blob] = light
-        center = weighted_centroid(weights) + np.array([u0, v0], dtype=np.float64)
+        # The light-weighted centroid over the blob's box (zero off the blob).
+        weights = np.where(blob, lum[ay:ay + ah, ax:ax + aw] - level, 0.0)
+        center = weighted_centroid(weights) + np.array([ax + u0, ay + v0], dtype=np.float64)
         x, y, bw, bh = cv2.boundingRect(blob.view(np.uint8))
         bbox = (x + ax + u0, y + ay + v0, x + ax + bw + u0, y + ay + bh + v0)
         found.append(HighlightDetection(True, center, cv2.countNonZero(blob.view(np.uint8)),
@@ -545,8 +551,9 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         Plausible depth range of the object (reference camera z): planes outside it at
         the reference highlight are not proposed.
     lit : callable, optional
-        ``lit(j, uv)`` -> ``(M,)`` bool: whether view j is bright (a highlight, possibly
-        not its centre) at pixels ``uv`` ``(M, 2)``. A highlight predicted on the object
+        ``lit(j, uv)`` -> ``(M,)`` bool: whether views ``j`` ``(M,)`` int are bright (a
+        highlight, possibly not its centre) at pixels ``uv`` ``(M, 2)``, each point in its
+        own view. A highlight predicted on the object
         where no candidate explains it counts against a plane only where the view is
         dark there: two lights' highlights blended into one blob, or a highlight cut by
         the outline, have a centre that explains neither, yet they are there. Without it
@@ -790,10 +797,9 @@ class _Context:
         if self.lit is None:
             return None
         bright = np.zeros(ask.shape, dtype=bool)
-        for j in range(ask.shape[1]):
-            lights = np.flatnonzero(ask[:, j])
-            if lights.size:
-                bright[lights, j] = self.lit(j, uv[lights, j])
+        lights, views = np.nonzero(ask)
+        if lights.size:
+            bright[lights, views] = self.lit(views, uv[lights, views])
         return bright
 
     def _blends(self, uv: np.ndarray, matched: np.ndarray, distance: np.ndarray,
@@ -845,9 +851,10 @@ class _Context:
         h, w = self.mask.shape
         count = 0
         for j, cand in enumerate(self.cands):
-            free = np.setdiff1d(np.arange(len(cand)),
-                                np.r_[matched[:, j], [q for view, q in blobs if view == j]])
-            if free.size == 0:
+            free = np.ones(len(cand), dtype=bool)
+            free[matched[:, j][matched[:, j] >= 0]] = False
+            free[[q for view, q in blobs if view == j]] = False
+            if not free.any():
                 continue
             ref_uv = cand[free] @ maps[j, :, :2].T + maps[j, :, 2]
             u = np.rint(ref_uv[:, 0]).astype(np.intp)
@@ -876,33 +883,13 @@ class _Context:
 
     def _fit(self, score: _Score) -> Plane | None:
         """Least-squares plane: predicted minus assigned centres over every assignment."""
-        rig = self.rig
         light_idx, view_idx = np.nonzero(score.matched >= 0)
         if len(light_idx) < 2:
             return None
         observed = np.stack([self.cands[j][score.matched[k, j]]
                              for k, j in zip(light_idx, view_idx, strict=True)])
-        n0, c0 = score.plane.n, score.plane.offset_m
-        helper = np.eye(3)[int(np.argmin(np.abs(n0)))]
-        e1 = np.cross(n0, helper)
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(n0, e1)
-        lights = self.lights[light_idx]
-
-        def plane_of(p):
-            m = n0 + p[0] * e1 + p[1] * e2
-            return m / np.linalg.norm(m), c0 + p[2]
-
-        def residuals(p):
-            n, c = plane_of(p)
-            virtual = lights - 2.0 * ((lights @ n) - c)[:, None] * n
-            return (project_points(rig, virtual, view_idx) - observed).ravel()
-
-        fit = least_squares(residuals, np.zeros(3), method="trf", x_scale="jac")
-        if not fit.success or not np.all(np.isfinite(fit.x)):
-            return None
-        n, c = plane_of(fit.x)
-        return Plane(tuple(float(v) for v in n), float(c))
+        return fit_mirror_plane(self.rig, score.plane, self.lights[light_idx], view_idx,
+                                observed)
 
     def plane_gap_px(self, a: Plane, b: Plane) -> float:
         """Largest disparity difference of two planes at the object's box corners, px."""
@@ -972,6 +959,109 @@ AssignmentContext = _Context
 PlaneScore = _Score
 
 
+def fit_mirror_plane(rig: CameraRig, start: Plane, lights_m: np.ndarray,
+                     views: np.ndarray, observed_uv: np.ndarray) -> Plane | None:
+    """Plane whose mirror images of the lights project closest to the observed centres.
+
+    Gauss-Newton with Levenberg damping on the plane's two tilts (about ``start``'s
+    normal) and its offset, with the analytic Jacobian of the projection: the problem
+    has three unknowns and a handful of observations, for which a general solver's
+    setup costs many times the arithmetic.
+
+    Parameters
+    ----------
+    rig : CameraRig
+    start : Plane
+        The first guess (its tilts and offset are the zero of the parameters).
+    lights_m : numpy.ndarray, (M, 3), metres
+        The light of each observation, array frame.
+    views : numpy.ndarray, (M,) int
+        The view of each observation.
+    observed_uv : numpy.ndarray, (M, 2), pixels
+        The highlight centre each observation assigns.
+
+    Returns
+    -------
+    Plane or None
+        The least-squares plane; None if the fit leaves finite numbers.
+    """
+    n0, c0 = np.asarray(start.n, dtype=np.float64), float(start.offset_m)
+    helper = np.eye(3)[int(np.argmin(np.abs(n0)))]
+    e1 = np.cross(n0, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n0, e1)
+    tilts = np.stack([e1, e2])  # (2, 3)
+    centers = rig.centers_m[views]
+    k = rig.intrinsics
+    focal = np.array([k.fx, k.fy])
+    principal = np.array([k.cx, k.cy])
+
+    def evaluate(p):
+        m = n0 + p[:2] @ tilts
+        norm = float(np.linalg.norm(m))
+        n = m / norm
+        c = c0 + p[2]
+        s = lights_m @ n - c  # (M,) signed distances of the lights
+        virtual = lights_m - 2.0 * s[:, None] * n
+        rel = virtual - centers
+        uv = focal * rel[:, :2] / rel[:, 2:3] + principal
+        return (n, norm, s, rel), c, (uv - observed_uv).ravel()
+
+    def jacobian(n, norm, s, rel):
+        # n = m / |m| with m = n0 + p0 e1 + p1 e2: d n / d p_i = (I - n n^T) e_i / |m|.
+        dn = (tilts - (tilts @ n)[:, None] * n) / norm  # (2, 3)
+        dvirtual = np.empty((len(s), 3, 3))  # (M, parameter, xyz)
+        for i in range(2):
+            dvirtual[:, i] = -2.0 * (lights_m @ dn[i])[:, None] * n - 2.0 * s[:, None] * dn[i]
+        dvirtual[:, 2] = 2.0 * n
+        z = rel[:, 2]
+        du = focal[0] * (dvirtual[:, :, 0] - rel[:, 0:1] / z[:, None] * dvirtual[:, :, 2]) \
+            / z[:, None]
+        dv = focal[1] * (dvirtual[:, :, 1] - rel[:, 1:2] / z[:, None] * dvirtual[:, :, 2]) \
+            / z[:, None]
+        return np.stack([du, dv], axis=1).reshape(-1, 3)  # rows as the residuals ravel
+
+    p = np.zeros(3)
+    state, c, r = evaluate(p)
+    cost = float(r @ r)
+    damping = 1e-3
+    for _ in range(_FIT_MAX_ITERATIONS):
+        jac = jacobian(*state)
+        # Columns scaled to unit norm, as the tilts (radians) and the offset (metres) move
+        # the centres by very different amounts.
+        scale = np.linalg.norm(jac, axis=0)
+        scale[scale == 0.0] = 1.0
+        js = jac / scale
+        normal = js.T @ js
+        gradient = js.T @ r
+        while True:
+            try:
+                step = -np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12),
+                                        gradient) / scale
+            except np.linalg.LinAlgError:
+                return None
+            trial = p + step
+            state_t, c_t, r_t = evaluate(trial)
+            cost_t = float(r_t @ r_t)
+            if np.isfinite(cost_t) and cost_t <= cost:
+                break
+            damping *= 10.0
+            if damping > 1e8:
+                break
+        if not (np.isfinite(cost_t) and cost_t <= cost):
+            break
+        shrink = cost - cost_t
+        p, state, c, r, cost = trial, state_t, c_t, r_t, cost_t
+        damping = max(damping / 10.0, 1e-9)
+        if shrink <= _FIT_COST_TOLERANCE * max(cost, 1e-300) \
+                or float(np.max(np.abs(step * scale))) <= _FIT_STEP_TOLERANCE_PX:
+            break
+    n = state[0]
+    if not (np.all(np.isfinite(n)) and math.isfinite(c)):
+        return None
+    return Plane(tuple(float(v) for v in n), float(c))
+
+
 # ---------------------------------------------------------------------- in SRDE
 def check_lights(lights: Any) -> np.ndarray:
     """Validate one light ``(3,)`` or several ``(K, 3)`` (metres); return ``(K, 3)`` float64."""
@@ -1002,7 +1092,8 @@ class ViewCandidates:
         Their centres, pixels.
     lit : callable
         ``lit(j, uv)`` -> ``(M,)`` bool: view j is bright at pixels ``uv`` ``(M, 2)`` (above
-        the half-maximum level of its dimmest candidate).
+        the half-maximum level of its dimmest candidate); ``j`` is one view or ``(M,)``,
+        each point's own.
     blob_radius_px : float
         Median half-maximum radius of the candidates, pixels.
     """
@@ -1056,17 +1147,24 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
     cands = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
     levels = [min((d.level for d in dets), default=math.inf) for dets in found]
 
-    def lit(j: int, uv: np.ndarray) -> np.ndarray:
+    level_of_view = np.asarray(levels)
+    du, dv = (a.ravel() for a in np.meshgrid([-1, 0, 1], [-1, 0, 1]))
+
+    def lit(j, uv: np.ndarray) -> np.ndarray:
         # Mean linear luminance over the 3 x 3 pixels around each point, against the
-        # half-maximum level of the view's dimmest highlight.
+        # half-maximum level of the view's dimmest highlight. (One luminance call for
+        # every point of every view asked: the conversion's fixed cost dominates.)
+        j = np.broadcast_to(np.asarray(j, dtype=np.intp), (len(uv),))
         u = np.clip(np.rint(uv[:, 0]).astype(np.intp), 1, rig.width - 2)
         v = np.clip(np.rint(uv[:, 1]).astype(np.intp), 1, rig.height - 2)
-        du, dv = np.meshgrid([-1, 0, 1], [-1, 0, 1])
-        pixels = views[j][v[:, None] + dv.ravel(), u[:, None] + du.ravel()]
+        pixels = np.empty((len(uv), du.size) + views[ref].shape[2:], dtype=views[ref].dtype)
+        for view in np.unique(j):
+            at = j == view
+            pixels[at] = views[view][v[at, None] + dv, u[at, None] + du]
         lum = luminance(pixels, config.encoding).mean(axis=1)
         inside = (uv[:, 0] >= 0) & (uv[:, 0] <= rig.width - 1) & (uv[:, 1] >= 0) \
             & (uv[:, 1] <= rig.height - 1)
-        return inside & (lum > levels[j])
+        return inside & (lum > level_of_view[j])
 
     blob_radius_px = float(np.median([math.sqrt(d.area_px / math.pi) for dets in found
                                       for d in dets]))
