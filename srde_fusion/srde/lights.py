@@ -302,40 +302,48 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     inside = region[v0:v1, u0:u1]
     background = (region_background(lum[inside], float(lum[inside].max()), config.min_contrast)
                   if object_region else median(lum[inside]))
-    # Everything below works on the part of the crop where something is bright: no peak
-    # (smoothed luminance above background + min_contrast) lies farther than the blur's
-    # reach from a pixel above that level, and no blob pixel (above half its peak's
-    # contrast) lies outside the pixels above half that level. Twice the blur's reach
-    # plus the peak radius around them gives the same filter values there as the whole crop.
-    bright = inside & (lum > background + BLOB_LEVEL * config.min_contrast)
+    # Peaks are looked for where something is bright: no peak (smoothed luminance above
+    # background + min_contrast) lies farther than the blur's reach from a pixel above
+    # that level, so twice the reach plus the peak radius around those pixels gives the
+    # same filter values there as the whole crop.
+    bright = inside & (lum > background + config.min_contrast)
     x, y, bw, bh = cv2.boundingRect(bright.view(np.uint8))
     if bw == 0:
         return []
     a0, b0, a1, b1 = grown_box((x, y, x + bw, y + bh), 2 * _BLUR_REACH_PX + PEAK_RADIUS_PX,
                                lum.shape)
-    lum, inside = lum[b0:b1, a0:a1], inside[b0:b1, a0:a1]
-    u0, v0 = u0 + a0, v0 + b0
-    smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX,
+    smooth = cv2.GaussianBlur(lum[b0:b1, a0:a1], (0, 0), PEAK_SMOOTHING_SIGMA_PX,
                               borderType=cv2.BORDER_REFLECT)
     side = 2 * PEAK_RADIUS_PX + 1
     local_max = cv2.dilate(smooth, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side)))
     # (A clipped blob's flat top is one plateau of near-equal maxima: the slack joins it.)
     slack = PLATEAU_SLACK * max(float(local_max.max()) - background, 0.0)
-    peaks = inside & (smooth >= local_max - slack) & (smooth > background + config.min_contrast)
-    n, labels, stats, centroids = cv2.connectedComponentsWithStats(peaks.view(np.uint8),
-                                                                   connectivity=8)
+    peaks = inside[b0:b1, a0:a1] & (smooth >= local_max - slack) \
+        & (smooth > background + config.min_contrast)
+    n, labels = cv2.connectedComponents(peaks.view(np.uint8), connectivity=8)
     if n <= 1:
         return []
-    tops = _label_maxima(labels[peaks], smooth[peaks], n)
-    tops, where = tops[1:], centroids[1:]
+    # Each plateau's top and centroid from its pixels (OpenCV's statistics pass costs
+    # several times the labelling).
+    vv, uu = np.nonzero(peaks)
+    label = labels[vv, uu]
+    size = np.bincount(label, minlength=n)[1:]
+    where = np.stack([np.bincount(label, uu, n)[1:], np.bincount(label, vv, n)[1:]],
+                     axis=1) / size[:, None]
+    tops = _label_maxima(label, smooth[vv, uu], n)[1:]
     order = np.argsort(-tops, kind="stable")[:4 * max_candidates]
     # The brightest peaks are kept in order unless the luminance fails to dip between
     # them and one kept before (the flat top of one clipped blob).
     kept_rank = _separated_peaks(smooth, where[order], tops[order], background, max_candidates)
     kept = [int(order[p]) for p in kept_rank]
-    # Each pixel above the lowest blob level belongs to its nearest kept peak.
+    # Each pixel above the lowest blob level belongs to its nearest kept peak. Blobs are
+    # looked for in the box of those pixels (their components are the same there).
     lowest = background + BLOB_LEVEL * (float(tops[kept].min()) - background)
     candidates = inside & (lum > lowest)
+    x, y, bw, bh = cv2.boundingRect(candidates.view(np.uint8))
+    lum, candidates = lum[y:y + bh, x:x + bw], candidates[y:y + bh, x:x + bw]
+    where = where + np.array([a0 - x, b0 - y])
+    u0, v0 = u0 + x, v0 + y
     if len(kept) > 1:
         vv, uu = np.nonzero(candidates)
         nearest = np.full(lum.shape, -1, dtype=np.intp)
@@ -355,7 +363,8 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
             continue
         above_box = np.ascontiguousarray(above[ay:ay + ah, ax:ax + aw])
         count, parts = cv2.connectedComponents(above_box.view(np.uint8), connectivity=8)
-        label = parts[pv - ay, pu - ax] if above[pv, pu] else 0
+        on_blob = 0 <= pv < above.shape[0] and 0 <= pu < above.shape[1] and above[pv, pu]
+        label = parts[pv - ay, pu - ax] if on_blob else 0
         if label == 0:  # the smoothed peak sits beside its pixels: take the largest part
             if count <= 1:
                 continue
@@ -647,6 +656,12 @@ class _Context:
         self.lights = lights
         self.mask = mask
         self.cands = cands
+        # Every view's candidates in one array: the view of each and where each view starts.
+        counts = np.array([len(c) for c in cands], dtype=np.intp)
+        self.cand_view = np.repeat(np.arange(len(cands)), counts)
+        self.cand_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
+        self.all_cands = np.concatenate([np.reshape(c, (-1, 2)) for c in cands]) \
+            if len(cands) else np.zeros((0, 2))
         self.tolerance_px = float(tolerance_px)
         self.object_depth_m = object_depth_m
         self.n_proposed = 0
@@ -846,22 +861,20 @@ class _Context:
         With every light known, each highlight on the object belongs to one of them.
         Near the outline a blob may be the flank of a highlight just off the object.
         """
-        rig = self.rig
-        maps = references_from_views(rig, plane)
+        maps = references_from_views(self.rig, plane)[self.cand_view]  # (M, 2, 3)
+        free = np.ones(len(self.cand_view), dtype=bool)
+        light_idx, view_idx = np.nonzero(matched >= 0)
+        free[self.cand_start[view_idx] + matched[light_idx, view_idx]] = False
+        free[[self.cand_start[view] + q for view, q in blobs]] = False
+        if not free.any():
+            return 0
+        maps, uv = maps[free], self.all_cands[free]
+        ref_uv = np.einsum("mij,mj->mi", maps[:, :, :2], uv) + maps[:, :, 2]
+        u = np.rint(ref_uv[:, 0]).astype(np.intp)
+        v = np.rint(ref_uv[:, 1]).astype(np.intp)
         h, w = self.mask.shape
-        count = 0
-        for j, cand in enumerate(self.cands):
-            free = np.ones(len(cand), dtype=bool)
-            free[matched[:, j][matched[:, j] >= 0]] = False
-            free[[q for view, q in blobs if view == j]] = False
-            if not free.any():
-                continue
-            ref_uv = cand[free] @ maps[j, :, :2].T + maps[j, :, 2]
-            u = np.rint(ref_uv[:, 0]).astype(np.intp)
-            v = np.rint(ref_uv[:, 1]).astype(np.intp)
-            ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-            count += int(np.count_nonzero(self.inner[v[ok], u[ok]]))
-        return count
+        ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        return int(np.count_nonzero(self.inner[v[ok], u[ok]]))
 
     # -------------------------------------------------------------- the joint plane
     def refit(self, score: _Score) -> _Score:
@@ -1135,8 +1148,8 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
     w_range = [BaselineSearch(rig, light, srde.object_depth_m).inverse_depth_range(d.center_uv)
                for light in srde.lights_m for d in ref_found]
     w_lo, w_hi = min(w[0] for w in w_range), max(w[1] for w in w_range)
-    ys, xs = np.nonzero(search)
-    box = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(search).view(np.uint8))
+    box = (x, y, x + bw, y + bh)
     found: list[list[HighlightDetection]] = []
     for j in range(rig.n_cameras):
         if j == ref:
@@ -1569,8 +1582,9 @@ def _centres(rig: CameraRig, plane: Plane, light: np.ndarray, used: np.ndarray) 
 
 def _box_corners(mask: np.ndarray) -> np.ndarray:
     """Corner pixels ``(4, 2)`` of the mask's bounding box."""
-    ys, xs = np.nonzero(mask)
-    u0, v0, u1, v1 = int(xs.min()), int(ys.min()), int(xs.max()), int(ys.max())
+    # (OpenCV's box of the non-zero pixels: a full-frame nonzero costs milliseconds.)
+    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
+    u0, v0, u1, v1 = x, y, x + bw - 1, y + bh - 1
     return np.array([[u0, v0], [u1, v0], [u0, v1], [u1, v1]], dtype=np.float64)
 
 
