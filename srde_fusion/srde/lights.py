@@ -662,6 +662,9 @@ class _Context:
         self.cand_start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.intp)
         self.all_cands = np.concatenate([np.reshape(c, (-1, 2)) for c in cands]) \
             if len(cands) else np.zeros((0, 2))
+        self.all_boxes = None if boxes is None else (
+            np.concatenate([np.reshape(b, (-1, 4)) for b in boxes]) if len(boxes)
+            else np.zeros((0, 4)))
         self.tolerance_px = float(tolerance_px)
         self.object_depth_m = object_depth_m
         self.n_proposed = 0
@@ -772,23 +775,23 @@ class _Context:
         n_lights, n_views = on_object.shape
         matched = np.full((n_lights, n_views), -1)
         distance = np.full((n_lights, n_views), np.nan)
-        for j in range(n_views):
-            cand = self.cands[j]
-            if len(cand) == 0:
+        # Every light against every candidate of its view at once; then nearest first,
+        # a candidate explains one light at most (views never compete, so one order over
+        # all views matches each view's own). A blob cut by the outline has its centre
+        # off the light's: predictions near the outline take no candidate.
+        view = self.cand_view
+        gaps = np.linalg.norm(uv[:, view, :] - self.all_cands[None], axis=2)  # (K, M)
+        usable = (gaps <= self.tolerance_px) & (on_object & ~near_edge)[:, view]
+        lights, flat = np.nonzero(usable)
+        taken = np.zeros(len(view), dtype=bool)
+        for at in np.argsort(gaps[lights, flat], kind="stable"):
+            light, c = int(lights[at]), int(flat[at])
+            j = int(view[c])
+            if matched[light, j] >= 0 or taken[c]:
                 continue
-            gaps = np.linalg.norm(uv[:, j, None, :] - cand[None, :, :], axis=2)  # (K, m)
-            # Nearest first; a candidate explains one light at most.
-            taken: set[int] = set()
-            for flat in np.argsort(gaps, axis=None):
-                light, q = divmod(int(flat), len(cand))
-                if gaps[light, q] > self.tolerance_px:
-                    break
-                if (matched[light, j] >= 0 or q in taken or near_edge[light, j]
-                        or not on_object[light, j]):
-                    continue  # (a blob cut by the outline has its centre off the light's)
-                matched[light, j] = q
-                distance[light, j] = gaps[light, q]
-                taken.add(q)
+            matched[light, j] = c - self.cand_start[j]
+            distance[light, j] = gaps[light, c]
+            taken[c] = True
         bright = self._bright(uv, on_object & (matched < 0))
         blobs, covered = self._blends(uv, matched, distance, bright)
         missing = on_object & (matched < 0) & ~covered
@@ -835,24 +838,25 @@ class _Context:
         blobs: list[tuple[int, int]] = []
         if self.boxes is None or bright is None:
             return blobs, covered
-        for j in range(matched.shape[1]):
-            free = np.flatnonzero(bright[:, j])  # on the object, unmatched, bright there
-            if free.size == 0:
-                continue
-            p = uv[free, j]
-            for q, (u0, v0, u1, v1) in enumerate(self.boxes[j]):
-                inside = free[(p[:, 0] >= u0) & (p[:, 0] < u1) & (p[:, 1] >= v0)
-                              & (p[:, 1] < v1)]
-                if inside.size == 0:
-                    continue
-                covered[inside, j] = True
-                owner = np.flatnonzero(matched[:, j] == q)
-                if owner.size:
-                    matched[owner, j] = -1
-                    distance[owner, j] = np.nan
-                    covered[owner, j] = True
-                if owner.size or inside.size >= 2:
-                    blobs.append((j, q))
+        lights, views = np.nonzero(bright)  # on the object, unmatched, bright there
+        if lights.size == 0:
+            return blobs, covered
+        p = uv[lights, views]  # (P, 2)
+        u0, v0, u1, v1 = self.all_boxes.T
+        # Which candidate's box holds each such prediction of its own view, (P, M).
+        holds = (self.cand_view[None, :] == views[:, None]) \
+            & (p[:, :1] >= u0) & (p[:, :1] < u1) & (p[:, 1:] >= v0) & (p[:, 1:] < v1)
+        covered[lights[holds.any(axis=1)], views[holds.any(axis=1)]] = True
+        for c in np.flatnonzero(holds.any(axis=0)):  # view by view, candidates in order
+            j = int(self.cand_view[c])
+            q = c - int(self.cand_start[j])
+            owner = np.flatnonzero(matched[:, j] == q)
+            if owner.size:
+                matched[owner, j] = -1
+                distance[owner, j] = np.nan
+                covered[owner, j] = True
+            if owner.size or np.count_nonzero(holds[:, c]) >= 2:
+                blobs.append((j, q))
         return blobs, covered
 
     def _strays(self, plane: Plane, matched: np.ndarray, blobs) -> int:
