@@ -261,8 +261,9 @@ class LightsSolution:
 
 # ---------------------------------------------------------------------- candidates
 def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
-                    max_candidates: int = MAX_CANDIDATES,
-                    object_region: bool = False) -> list[HighlightDetection]:
+                    max_candidates: int = MAX_CANDIDATES, object_region: bool = False,
+                    region_box: tuple[int, int, int, int] | None = None
+                    ) -> list[HighlightDetection]:
     """Every highlight in a view's search region, brightest first.
 
     Two highlights of different lights can lie close enough to merge above one
@@ -288,13 +289,19 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
         The region is the object's own search region (the reference view): a region
         mostly filled by one clipped blob then has its background read at a low quantile
         (:func:`~.highlight.region_background`); elsewhere the median stays.
+    region_box : (int, int, int, int), optional
+        The region's bounding box ``(u0, v0, u1, v1)``, when the caller knows it (saves a
+        pass over the whole frame).
 
     Returns
     -------
     list of HighlightDetection
         Found detections only (possibly none), ``score`` = peak contrast.
     """
-    box = search_box(region, config.margin_px + PEAK_RADIUS_PX)
+    margin = config.margin_px + PEAK_RADIUS_PX
+    box = search_box(region, margin) if region_box is None else (
+        grown_box(region_box, margin, region.shape) if region_box[2] > region_box[0]
+        and region_box[3] > region_box[1] else None)
     if box is None:
         return []
     u0, v0, u1, v1 = box
@@ -456,12 +463,13 @@ def _dips(smooth: np.ndarray, where: np.ndarray, tops: np.ndarray, background: f
 
 
 def candidate_band(rig: CameraRig, view: int, box: tuple[int, int, int, int],
-                   inverse_depth_m: tuple[float, float]) -> np.ndarray:
+                   inverse_depth_m: tuple[float, float], *, with_box: bool = False):
     """Where a highlight of the reference box can appear in another view, ``(H, W)`` bool.
 
     A virtual light seen inside the reference box ``(u0, v0, u1, v1)`` at inverse depth
     ``w`` appears in view j moved by ``-w (fx dX_j, fy dY_j)``; over ``w`` in
-    ``inverse_depth_m`` the box sweeps a band along the baseline.
+    ``inverse_depth_m`` the box sweeps a band along the baseline. ``with_box``: also
+    return the band's bounding box ``(u0, v0, u1, v1)`` (empty, ``u1 <= u0``, if none).
     """
     k = rig.intrinsics
     offset = rig.centers_m[view, :2] - rig.reference_center_m[:2]
@@ -471,6 +479,7 @@ def candidate_band(rig: CameraRig, view: int, box: tuple[int, int, int, int],
     band = np.zeros((rig.height, rig.width), dtype=bool)
     span_px = float(np.hypot(*step)) * (w_hi - w_lo)
     n = max(2, int(math.ceil(span_px / max(1.0, 0.5 * min(u1 - u0, v1 - v0)))) + 1)
+    outer = [rig.width, rig.height, 0, 0]  # the band's bounding box
     for w in np.linspace(w_lo, w_hi, n):
         du, dv = step * w
         a0, b0 = int(math.floor(u0 + du)), int(math.floor(v0 + dv))
@@ -478,6 +487,9 @@ def candidate_band(rig: CameraRig, view: int, box: tuple[int, int, int, int],
         a0, b0, a1, b1 = max(a0, 0), max(b0, 0), min(a1, rig.width), min(b1, rig.height)
         if a1 > a0 and b1 > b0:
             band[b0:b1, a0:a1] = True
+            outer = [min(outer[0], a0), min(outer[1], b0), max(outer[2], a1), max(outer[3], b1)]
+    if with_box:
+        return band, tuple(outer)
     return band
 
 
@@ -1159,8 +1171,9 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
         if j == ref:
             found.append(ref_found)
         else:
-            band = candidate_band(rig, j, box, (w_lo, w_hi))
-            found.append(find_candidates(views[j], band, config) if band.any() else [])
+            band, band_box = candidate_band(rig, j, box, (w_lo, w_hi), with_box=True)
+            found.append(find_candidates(views[j], band, config, region_box=band_box)
+                         if band_box[2] > band_box[0] else [])
     cands = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
     levels = [min((d.level for d in dets), default=math.inf) for dets in found]
 
