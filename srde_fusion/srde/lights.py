@@ -333,11 +333,11 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     # Each plateau's top and centroid from its pixels (OpenCV's statistics pass costs
     # several times the labelling).
     vv, uu = np.nonzero(peaks)
-    label = labels[vv, uu]
-    size = np.bincount(label, minlength=n)[1:]
-    where = np.stack([np.bincount(label, uu, n)[1:], np.bincount(label, vv, n)[1:]],
+    plateau = labels[vv, uu]
+    size = np.bincount(plateau, minlength=n)[1:]
+    where = np.stack([np.bincount(plateau, uu, n)[1:], np.bincount(plateau, vv, n)[1:]],
                      axis=1) / size[:, None]
-    tops = _label_maxima(label, smooth[vv, uu], n)[1:]
+    tops = _label_maxima(plateau, smooth[vv, uu], n)[1:]
     order = np.argsort(-tops, kind="stable")[:4 * max_candidates]
     # The brightest peaks are kept in order unless the luminance fails to dip between
     # them and one kept before (the flat top of one clipped blob).

@@ -9,7 +9,13 @@ from srde_fusion.errors import LightError, SRDEError
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity
 from srde_fusion.srde import SRDE, SRDE_STATUSES
 from srde_fusion.srde.config import DetectorConfig
-from srde_fusion.srde.lights import assign_lights, check_lights, find_candidates
+from srde_fusion.srde.lights import (
+    assign_lights,
+    candidate_band,
+    check_lights,
+    find_candidates,
+    fit_mirror_plane,
+)
 from srde_fusion.synthetic import RandomSceneConfig, default_rig, random_scene, render
 from srde_fusion.synthetic.scene import rig_lights
 
@@ -174,6 +180,57 @@ def test_candidates_separate_nearby_highlights_and_keep_a_clipped_one_whole():
     for truth in ([50.3, 60.2], [72.6, 58.9]):
         assert np.min(np.linalg.norm(centers - truth, axis=1)) < 0.5
     assert find_candidates(np.full((120, 160), 0.05, np.float32), region, config) == []
+
+
+def test_candidates_in_a_band_are_the_same_with_its_box_given(grid):
+    """The band's own bounding box spares the search a pass over the frame, nothing else."""
+    config = DetectorConfig(method="blob", encoding="linear")
+    band, box = candidate_band(grid, 3, (200, 120, 260, 180), (0.5, 2.0), with_box=True)
+    image = np.zeros((H, W), np.float32)  # the blobs at the band's top left corner
+    image[box[1]:box[1] + 120, box[0]:box[0] + 160] = blobs_image(
+        [(50.3, 60.2), (72.6, 58.9), (120.0, 40.0)], 3.0, [0.8, 0.5, 3.0])
+    ys, xs = np.nonzero(band)
+    assert box == (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
+    plain = find_candidates(image, band, config)
+    boxed = find_candidates(image, band, config, region_box=box)
+    assert len(plain) == len(boxed) >= 2
+    for a, b in zip(plain, boxed, strict=True):
+        np.testing.assert_array_equal(a.center_uv, b.center_uv)
+        assert a.bbox == b.bbox and a.area_px == b.area_px
+    assert find_candidates(image, band, config, region_box=(5, 5, 5, 9)) == []
+
+
+def test_mirror_plane_fit_is_the_least_squares_plane(grid):
+    """The joint plane's Gauss-Newton fit: exact on exact centres, scipy's minimum on noisy."""
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(3)
+    light_idx = np.repeat(np.arange(len(LIGHTS)), grid.n_cameras)
+    views = np.tile(np.arange(grid.n_cameras), len(LIGHTS))
+    virtual = PLANE.mirror(LIGHTS)[light_idx]
+    exact = np.stack([grid.project(v, int(j)) for v, j in zip(virtual, views, strict=True)])
+    tilted = Plane.from_point_normal([0.02, 0.01, 0.93], [0.18, -0.17, -1.0],
+                                     towards_m=(0.0, 0.0, 0.0))
+    fitted = fit_mirror_plane(grid, tilted, LIGHTS[light_idx], views, exact)
+    np.testing.assert_allclose(fitted.n, PLANE.n, atol=1e-9)
+    assert abs(fitted.offset_m - PLANE.offset_m) < 1e-9
+
+    noisy = exact + rng.normal(0.0, 0.5, exact.shape)
+    fitted = fit_mirror_plane(grid, tilted, LIGHTS[light_idx], views, noisy)
+
+    def residuals(p):  # the same problem written with scipy: normal and offset free
+        n = p[:3] / np.linalg.norm(p[:3])
+        mirrored = LIGHTS[light_idx] - 2.0 * (LIGHTS[light_idx] @ n - p[3])[:, None] * n
+        return np.concatenate([grid.project(m, int(j)) for m, j in
+                               zip(mirrored, views, strict=True)]) - noisy.ravel()
+
+    reference = least_squares(residuals, np.r_[tilted.n, tilted.offset_m], xtol=1e-14,
+                              ftol=1e-14, gtol=1e-14)
+    n_ref = reference.x[:3] / np.linalg.norm(reference.x[:3])
+    np.testing.assert_allclose(fitted.n, n_ref, atol=1e-7)
+    assert abs(fitted.offset_m - reference.x[3]) < 1e-7
+    assert np.sum(residuals(np.r_[fitted.n, fitted.offset_m]) ** 2) \
+        <= np.sum(reference.fun ** 2) * (1 + 1e-9)
 
 
 def test_check_lights_messages():
