@@ -142,9 +142,9 @@ DECISIVE_COST_RATIO = 2.0
 _REFIT_ROUNDS = 3
 
 #: The mirror-plane fit stops when a step lowers the squared residuals by less than this
-#: fraction, or moves no centre by more than this many pixels (in the linearised model).
+#: fraction, or would move no centre by more than this many pixels (linearised).
 _FIT_COST_TOLERANCE = 1e-12
-_FIT_STEP_TOLERANCE_PX = 1e-9
+_FIT_STEP_TOLERANCE_PX = 1e-7
 _FIT_MAX_ITERATIONS = 50
 
 
@@ -1063,27 +1063,30 @@ def fit_mirror_plane(rig: CameraRig, start: Plane, lights_m: np.ndarray,
         js = jac / scale
         normal = js.T @ js
         gradient = js.T @ r
-        while True:
+        accepted = False
+        while damping <= 1e8:
             try:
                 step = -np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-12),
                                         gradient) / scale
             except np.linalg.LinAlgError:
                 return None
+            # Converged: the step would move no centre by more than the tolerance (at the
+            # minimum, rounding alone decides whether the cost still drops).
+            if float(np.max(np.abs(jac @ step))) <= _FIT_STEP_TOLERANCE_PX:
+                break
             trial = p + step
             state_t, c_t, r_t = evaluate(trial)
             cost_t = float(r_t @ r_t)
             if np.isfinite(cost_t) and cost_t <= cost:
+                accepted = True
                 break
             damping *= 10.0
-            if damping > 1e8:
-                break
-        if not (np.isfinite(cost_t) and cost_t <= cost):
+        if not accepted:
             break
         shrink = cost - cost_t
         p, state, c, r, cost = trial, state_t, c_t, r_t, cost_t
         damping = max(damping / 10.0, 1e-9)
-        if shrink <= _FIT_COST_TOLERANCE * max(cost, 1e-300) \
-                or float(np.max(np.abs(step * scale))) <= _FIT_STEP_TOLERANCE_PX:
+        if shrink <= _FIT_COST_TOLERANCE * max(cost, 1e-300):
             break
     n = state[0]
     if not (np.all(np.isfinite(n)) and math.isfinite(c)):
