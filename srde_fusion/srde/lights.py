@@ -610,10 +610,20 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         scores = [s for s in (context.score(p) for p in context.proposals(loose=True))
                   if s is not None]
     if not scores:
-        return _no_plane("too_few_views", "no reference candidate has a partner on its "
-                         "baseline line in another view at a plausible depth for any light "
-                         f"({sum(len(c) for c in cands)} candidates in {len(cands)} views)",
-                         cands, hypotheses=context.n_proposed)
+        counted = f"{sum(len(c) for c in cands)} candidates in {len(cands)} views"
+        if not context.refused:
+            return _no_plane("too_few_views", "no reference candidate has a partner on its "
+                             "baseline line in another view at a plausible depth for any "
+                             f"light ({counted})", cands, hypotheses=context.n_proposed)
+        # Partners were found: say what refused every plane they gave.
+        hint = ("; a face turned from the other faces' lights, as on an object of several "
+                "flat faces, gives planes with a light behind them" if
+                "put a light behind the plane" in context.refused and len(lights) > 1 else "")
+        return _no_plane("too_few_views", "no plane explains the highlights: of the "
+                         f"{context.n_proposed} planes proposed (each from a reference "
+                         "candidate, a depth its partners in other views give, and a light), "
+                         f"{context.refusals()} ({counted}){hint}", cands,
+                         hypotheses=context.n_proposed)
     scores.sort(key=lambda s: s.key, reverse=True)
     best = context.refit(scores[0])
     # The strongest rival: the best hypothesis whose plane is a different answer.
@@ -680,6 +690,7 @@ class _Context:
         self.tolerance_px = float(tolerance_px)
         self.object_depth_m = object_depth_m
         self.n_proposed = 0
+        self.refused: dict[str, int] = {}  # why proposed planes were refused: how many
         k = rig.intrinsics
         offsets = rig.centers_m - rig.reference_center_m
         self.steps = np.stack([-k.fx * offsets[:, 0], -k.fy * offsets[:, 1]], axis=1)  # (N, 2)
@@ -735,25 +746,40 @@ class _Context:
         """Return the bisector plane of a light and a virtual light, if a plausible one."""
         rig = self.rig
         if np.linalg.norm(virtual - light) < 1e-9:
+            why = "put the virtual light on the light"
+            self.refused[why] = self.refused.get(why, 0) + 1
             return None
         plane = plane_from_lights(light, virtual, rig.reference_center_m)
-        if not self._plausible(plane):
-            return None
-        # The reflection point of the reference candidate must be at a plausible depth.
-        n = plane.n
-        t = (plane.offset_m - float(n @ rig.reference_center_m)) / float(n @ ray)
-        if not (self.object_depth_m[0] <= t <= self.object_depth_m[1]):
-            return None
-        return plane
+        why = self._implausible(plane)
+        if not why:
+            # The reflection point of the reference candidate must be at a plausible depth.
+            n = plane.n
+            t = (plane.offset_m - float(n @ rig.reference_center_m)) / float(n @ ray)
+            if self.object_depth_m[0] <= t <= self.object_depth_m[1]:
+                return plane
+            why = (f"put the object outside its depth range {self.object_depth_m[0]:g}-"
+                   f"{self.object_depth_m[1]:g} m")
+        self.refused[why] = self.refused.get(why, 0) + 1
+        return None
 
     def _plausible(self, plane: Plane) -> bool:
+        return not self._implausible(plane)
+
+    def _implausible(self, plane: Plane) -> str:
+        """Why no object can lie on ``plane`` here ("" if one can)."""
         n = plane.n
         if not (np.all(np.isfinite(n)) and n[2] < 0.0):
-            return False
+            return "turn the plane away from the cameras"
         if np.any(plane.signed_distance(self.rig.centers_m) <= 0.0):
-            return False
+            return "put a camera behind the plane"
         in_front = plane.signed_distance(self.lights) > 0.0
-        return bool(np.all(in_front) if self.all_lights_in_front else np.any(in_front))
+        if not (np.all(in_front) if self.all_lights_in_front else np.any(in_front)):
+            return "put a light behind the plane"
+        return ""
+
+    def refusals(self) -> str:
+        """Why the planes proposed so far were refused, in words ("" if none was)."""
+        return ", ".join(f"{count} {why}" for why, count in self.refused.items())
 
     # -------------------------------------------------------------- scoring
     def predict(self, plane: Plane):
@@ -815,6 +841,8 @@ class _Context:
             excusable = np.any(gaps < self.blend_px, axis=1) | near_edge
             missing &= ~(excusable & bright)
         if np.count_nonzero(matched >= 0) + len(blobs) < 2:
+            why = "explain fewer than 2 highlights"
+            self.refused[why] = self.refused.get(why, 0) + 1
             return None
         return _Score(plane, matched, distance, uv, on_object, missing,
                       self._strays(plane, matched, blobs), tuple(blobs))

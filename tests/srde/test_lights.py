@@ -168,6 +168,23 @@ def blobs_image(centers, sigma_px, peak, size=(120, 160)):
     return np.clip(lum, 0.0, 1.0).astype(np.float32)
 
 
+def test_planes_refused_say_why(grid):
+    """Partners on the baseline lines but no plausible plane: the reason names what refused them."""
+    cands = projected(grid, PLANE, LIGHTS, noise_px=0.05)
+    behind = np.array([[0.0, 0.0, 2.0]])  # beyond the object's plane, seen from the cameras
+    assert PLANE.signed_distance(behind)[0] < 0.0
+    solution = assign_lights(grid, np.vstack([LIGHTS, behind]), np.ones((H, W), bool), cands)
+    assert solution.status == "too_few_views" and solution.plane is None
+    assert "put a light behind the plane" in solution.reason
+    assert "no reference candidate has a partner" not in solution.reason
+    assert "face turned from the other faces' lights" in solution.reason
+    # No partner at all keeps its own reason.
+    lonely = [c if j == grid.reference else c[:0] for j, c in enumerate(cands)]
+    solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), lonely)
+    assert solution.status == "too_few_views"
+    assert "no reference candidate has a partner" in solution.reason
+
+
 def test_candidates_separate_nearby_highlights_and_keep_a_clipped_one_whole():
     config = DetectorConfig(method="blob", encoding="linear")
     region = np.ones((120, 160), bool)
