@@ -1040,7 +1040,8 @@ def fit_mirror_plane(rig: CameraRig, start: Plane, lights_m: np.ndarray,
     Returns
     -------
     Plane or None
-        The least-squares plane; None if the fit leaves finite numbers.
+        The least-squares plane; None if the normal equations are singular or the fit
+        leaves the finite numbers.
     """
     n0, c0 = np.asarray(start.n, dtype=np.float64), float(start.offset_m)
     helper = np.eye(3)[int(np.argmin(np.abs(n0)))]
