@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from .._checks import check_point3
+from ..boxes import BoxMask
 from ..errors import LightError
 from ..geometry import (
     MAX_LIGHTS,
@@ -262,7 +263,7 @@ class LightsSolution:
 # ---------------------------------------------------------------------- candidates
 def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
                     max_candidates: int = MAX_CANDIDATES, object_region: bool = False,
-                    region_box: tuple[int, int, int, int] | None = None
+                    region_bbox: tuple[int, int, int, int] | None = None
                     ) -> list[HighlightDetection]:
     """Every highlight in a view's search region, brightest first.
 
@@ -280,7 +281,7 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     ----------
     image : numpy.ndarray, (H, W) or (H, W, 3)
         A validated view.
-    region : numpy.ndarray, (H, W) bool
+    region : numpy.ndarray or BoxMask, (H, W) bool
         Where to look.
     config : DetectorConfig
         The blob detector's options (encoding, minimum contrast).
@@ -289,9 +290,9 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
         The region is the object's own search region (the reference view): a region
         mostly filled by one clipped blob then has its background read at a low quantile
         (:func:`~.highlight.region_background`); elsewhere the median stays.
-    region_box : (int, int, int, int), optional
-        The region's bounding box ``(u0, v0, u1, v1)``, when the caller knows it (saves a
-        pass over the whole frame).
+    region_bbox : (int, int, int, int), optional
+        ``region``'s bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive, if known;
+        found from ``region`` otherwise (as :func:`~.highlight.detect_in_view`).
 
     Returns
     -------
@@ -299,9 +300,12 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
         Found detections only (possibly none), ``score`` = peak contrast.
     """
     margin = config.margin_px + PEAK_RADIUS_PX
-    box = search_box(region, margin) if region_box is None else (
-        grown_box(region_box, margin, region.shape) if region_box[2] > region_box[0]
-        and region_box[3] > region_box[1] else None)
+    if region_bbox is None:
+        box = search_box(region, margin)
+    elif region_bbox[2] > region_bbox[0] and region_bbox[3] > region_bbox[1]:
+        box = grown_box(region_bbox, margin, region.shape)
+    else:
+        box = None  # an empty region
     if box is None:
         return []
     u0, v0, u1, v1 = box
@@ -463,34 +467,46 @@ def _dips(smooth: np.ndarray, where: np.ndarray, tops: np.ndarray, background: f
 
 
 def candidate_band(rig: CameraRig, view: int, box: tuple[int, int, int, int],
-                   inverse_depth_m: tuple[float, float], *, with_box: bool = False):
-    """Where a highlight of the reference box can appear in another view, ``(H, W)`` bool.
+                   inverse_depth_m: tuple[float, float]
+                   ) -> tuple[BoxMask, tuple[int, int, int, int] | None]:
+    """Where a highlight of the reference box can appear in another view, and its box.
 
     A virtual light seen inside the reference box ``(u0, v0, u1, v1)`` at inverse depth
     ``w`` appears in view j moved by ``-w (fx dX_j, fy dY_j)``; over ``w`` in
-    ``inverse_depth_m`` the box sweeps a band along the baseline. ``with_box``: also
-    return the band's bounding box ``(u0, v0, u1, v1)`` (empty, ``u1 <= u0``, if none).
+    ``inverse_depth_m`` the box sweeps a band along the baseline.
+
+    Returns
+    -------
+    band : BoxMask
+        Reads as the ``(H, W)`` bool band (held over its bounding box).
+    bbox : (int, int, int, int) or None
+        The band's bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive; None if the
+        band leaves the image.
     """
     k = rig.intrinsics
     offset = rig.centers_m[view, :2] - rig.reference_center_m[:2]
     step = np.array([-k.fx * offset[0], -k.fy * offset[1]])
     w_lo, w_hi = inverse_depth_m
     u0, v0, u1, v1 = box
-    band = np.zeros((rig.height, rig.width), dtype=bool)
     span_px = float(np.hypot(*step)) * (w_hi - w_lo)
     n = max(2, int(math.ceil(span_px / max(1.0, 0.5 * min(u1 - u0, v1 - v0)))) + 1)
-    outer = [rig.width, rig.height, 0, 0]  # the band's bounding box
+    boxes = []  # the box moved to each inverse depth, clipped to the image
     for w in np.linspace(w_lo, w_hi, n):
         du, dv = step * w
         a0, b0 = int(math.floor(u0 + du)), int(math.floor(v0 + dv))
         a1, b1 = int(math.ceil(u1 + du)), int(math.ceil(v1 + dv))
         a0, b0, a1, b1 = max(a0, 0), max(b0, 0), min(a1, rig.width), min(b1, rig.height)
         if a1 > a0 and b1 > b0:
-            band[b0:b1, a0:a1] = True
-            outer = [min(outer[0], a0), min(outer[1], b0), max(outer[2], a1), max(outer[3], b1)]
-    if with_box:
-        return band, tuple(outer)
-    return band
+            boxes.append((a0, b0, a1, b1))
+    shape = (rig.height, rig.width)
+    if not boxes:
+        return BoxMask.empty(shape), None
+    bbox = (min(b[0] for b in boxes), min(b[1] for b in boxes),
+            max(b[2] for b in boxes), max(b[3] for b in boxes))
+    crop = np.zeros((bbox[3] - bbox[1], bbox[2] - bbox[0]), dtype=bool)
+    for a0, b0, a1, b1 in boxes:
+        crop[b0 - bbox[1]:b1 - bbox[1], a0 - bbox[0]:a1 - bbox[0]] = True
+    return BoxMask.from_crop(bbox, crop, shape), bbox
 
 
 # ---------------------------------------------------------------------- assignment
@@ -746,9 +762,7 @@ class _Context:
         """Return the bisector plane of a light and a virtual light, if a plausible one."""
         rig = self.rig
         if np.linalg.norm(virtual - light) < 1e-9:
-            why = "put the virtual light on the light"
-            self.refused[why] = self.refused.get(why, 0) + 1
-            return None
+            return self._refuse("put the virtual light on the light")
         plane = plane_from_lights(light, virtual, rig.reference_center_m)
         why = self._implausible(plane)
         if not why:
@@ -759,8 +773,7 @@ class _Context:
                 return plane
             why = (f"put the object outside its depth range {self.object_depth_m[0]:g}-"
                    f"{self.object_depth_m[1]:g} m")
-        self.refused[why] = self.refused.get(why, 0) + 1
-        return None
+        return self._refuse(why)
 
     def _plausible(self, plane: Plane) -> bool:
         return not self._implausible(plane)
@@ -776,6 +789,10 @@ class _Context:
         if not (np.all(in_front) if self.all_lights_in_front else np.any(in_front)):
             return "put a light behind the plane"
         return ""
+
+    def _refuse(self, why: str) -> None:
+        """Count a proposed plane refused for ``why``; return None (no plane, no score)."""
+        self.refused[why] = self.refused.get(why, 0) + 1
 
     def refusals(self) -> str:
         """Why the planes proposed so far were refused, in words ("" if none was)."""
@@ -841,9 +858,7 @@ class _Context:
             excusable = np.any(gaps < self.blend_px, axis=1) | near_edge
             missing &= ~(excusable & bright)
         if np.count_nonzero(matched >= 0) + len(blobs) < 2:
-            why = "explain fewer than 2 highlights"
-            self.refused[why] = self.refused.get(why, 0) + 1
-            return None
+            return self._refuse("explain fewer than 2 highlights")
         return _Score(plane, matched, distance, uv, on_object, missing,
                       self._strays(plane, matched, blobs), tuple(blobs))
 
@@ -1196,16 +1211,15 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
     w_range = [BaselineSearch(rig, light, srde.object_depth_m).inverse_depth_range(d.center_uv)
                for light in srde.lights_m for d in ref_found]
     w_lo, w_hi = min(w[0] for w in w_range), max(w[1] for w in w_range)
-    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(search).view(np.uint8))
-    box = (x, y, x + bw, y + bh)
+    box = search_box(search, 0)
     found: list[list[HighlightDetection]] = []
     for j in range(rig.n_cameras):
         if j == ref:
             found.append(ref_found)
         else:
-            band, band_box = candidate_band(rig, j, box, (w_lo, w_hi), with_box=True)
-            found.append(find_candidates(views[j], band, config, region_box=band_box)
-                         if band_box[2] > band_box[0] else [])
+            band, band_bbox = candidate_band(rig, j, box, (w_lo, w_hi))
+            found.append([] if band_bbox is None else
+                         find_candidates(views[j], band, config, region_bbox=band_bbox))
     cands = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
     levels = [min((d.level for d in dets), default=math.inf) for dets in found]
 
@@ -1631,9 +1645,8 @@ def _centres(rig: CameraRig, plane: Plane, light: np.ndarray, used: np.ndarray) 
 
 def _box_corners(mask: np.ndarray) -> np.ndarray:
     """Corner pixels ``(4, 2)`` of the mask's bounding box."""
-    # (OpenCV's box of the non-zero pixels: a full-frame nonzero costs milliseconds.)
-    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
-    u0, v0, u1, v1 = x, y, x + bw - 1, y + bh - 1
+    u0, v0, u1, v1 = search_box(mask, 0)
+    u1, v1 = u1 - 1, v1 - 1
     return np.array([[u0, v0], [u1, v0], [u0, v1], [u1, v1]], dtype=np.float64)
 
 

@@ -202,19 +202,19 @@ def test_candidates_separate_nearby_highlights_and_keep_a_clipped_one_whole():
 def test_candidates_in_a_band_are_the_same_with_its_box_given(grid):
     """The band's own bounding box spares the search a pass over the frame, nothing else."""
     config = DetectorConfig(method="blob", encoding="linear")
-    band, box = candidate_band(grid, 3, (200, 120, 260, 180), (0.5, 2.0), with_box=True)
+    band, box = candidate_band(grid, 3, (200, 120, 260, 180), (0.5, 2.0))
     image = np.zeros((H, W), np.float32)  # the blobs at the band's top left corner
     image[box[1]:box[1] + 120, box[0]:box[0] + 160] = blobs_image(
         [(50.3, 60.2), (72.6, 58.9), (120.0, 40.0)], 3.0, [0.8, 0.5, 3.0])
-    ys, xs = np.nonzero(band)
+    ys, xs = np.nonzero(np.asarray(band))
     assert box == (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
     plain = find_candidates(image, band, config)
-    boxed = find_candidates(image, band, config, region_box=box)
+    boxed = find_candidates(image, band, config, region_bbox=box)
     assert len(plain) == len(boxed) >= 2
     for a, b in zip(plain, boxed, strict=True):
         np.testing.assert_array_equal(a.center_uv, b.center_uv)
         assert a.bbox == b.bbox and a.area_px == b.area_px
-    assert find_candidates(image, band, config, region_box=(5, 5, 5, 9)) == []
+    assert find_candidates(image, band, config, region_bbox=(5, 5, 5, 9)) == []
 
 
 def test_mirror_plane_fit_is_the_least_squares_plane(grid):
