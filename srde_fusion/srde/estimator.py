@@ -52,7 +52,7 @@ from ..geometry import (
 from .backends import DetectionRequest, HighlightBackend, NumpyBackend
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
 from .faces import MAX_FACES, estimate_faces
-from .highlight import HighlightDetection, search_box
+from .highlight import HighlightDetection, eroded, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
 from .result import SRDEResult
@@ -361,17 +361,7 @@ class SRDE:
         r = self.mask_erosion_px
         if r == 0:
             return mask
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        # Only the mask's box grown by r can change (erosion keeps the image border's
-        # outside as inside, on the crop as on the whole image): the same result.
-        box = search_box(mask, r)
-        out = np.zeros(mask.shape, dtype=bool)
-        if box is None:
-            return out
-        u0, v0, u1, v1 = box
-        crop = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
-        out[v0:v1, u0:u1] = cv2.erode(crop, kernel).view(bool)
-        return out
+        return eroded(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
 
     def _detect_others(self, views, ref_det: HighlightDetection, search: np.ndarray,
                        search_bbox: tuple[int, int, int, int]) -> list[HighlightDetection]:

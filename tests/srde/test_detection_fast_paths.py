@@ -29,11 +29,18 @@ from srde_fusion.srde.highlight import (
     HighlightDetection,
     crop_luminance,
     detect_in_view,
+    eroded,
     median,
     search_box,
     weighted_centroid,
 )
-from srde_fusion.srde.lights import SEPARATING_DIP, _dips, _label_maxima, _separated_peaks
+from srde_fusion.srde.lights import (
+    SEPARATING_DIP,
+    _dips,
+    _label_maxima,
+    _nonzero,
+    _separated_peaks,
+)
 from srde_fusion.srde.search import BaselineSearch
 from srde_fusion.synthetic import RandomSceneConfig, random_scene, render
 
@@ -341,6 +348,29 @@ def test_label_maxima_are_the_unbuffered_maxima(seed):
     n = int(rng.integers(1, 20))
     labels = rng.integers(0, n, int(rng.integers(0, 200)))
     values = rng.uniform(0.0, 1.0, labels.size).astype(np.float32)
-    want = np.zeros(n)
-    np.maximum.at(want, labels, values)
+    want = np.array([max([0.0] + [float(v) for v in values[labels == k]]) for k in range(n)])
     np.testing.assert_array_equal(_label_maxima(labels, values, n), want)
+
+
+@given(st.integers(0, 2**32 - 1))
+def test_nonzero_is_numpys_nonzero_in_raster_order(seed):
+    rng = np.random.default_rng(seed)
+    h, w = int(rng.integers(0, 40)), int(rng.integers(1, 40))
+    mask = rng.random((h, w)) < rng.choice([0.0, 0.05, 0.5, 1.0])
+    # Also a strided crop, as the candidates' box is.
+    for m in (mask, mask[1:, 2:]):
+        got, want = _nonzero(m), np.nonzero(m)
+        for a, b in zip(got, want, strict=True):
+            np.testing.assert_array_equal(a, b)
+            assert a.dtype == np.intp
+
+
+@given(st.integers(0, 2**31), st.integers(1, 6), st.booleans())
+def test_eroded_on_the_masks_box_is_the_whole_frame_eroded(seed, radius, square):
+    rng = np.random.default_rng(seed)
+    mask = _blobs(rng, (48, 64), int(rng.integers(0, 4)))
+    side = 2 * radius + 1
+    kernel = (np.ones((side, side), np.uint8) if square
+              else cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side)))
+    want = cv2.erode(mask.view(np.uint8), kernel).view(bool)
+    np.testing.assert_array_equal(eroded(mask, kernel), want)

@@ -488,3 +488,38 @@ def test_a_lobe_fit_plane_that_leaves_out_another_faces_highlights_is_refused():
     result = SRDE(lit).estimate(out.views, mask)
     assert result.status == "inconsistent"
     assert "leaves out highlights" in result.reason and "max_faces" in result.reason
+
+
+def test_lit_answers_do_not_depend_on_what_was_asked_before():
+    # The brightness test keeps each 3 x 3 patch it read; its answers must be those of
+    # reading every patch afresh, in any order and with repeated points.
+    from srde_fusion.imaging import luminance
+    from srde_fusion.srde.lights import gather_candidates
+
+    rig, _, out, lit_rig, mask = lit_scene(7003, 3)
+    srde = SRDE(lit_rig, refine=False)
+    views = srde.backend.prepare(out.views)
+    gathered = gather_candidates(srde, views, srde._erode(mask))
+    levels = [min((d.level for d in dets), default=np.inf) for dets in gathered.found]
+
+    def fresh(j, uv):
+        u = np.clip(np.rint(uv[:, 0]), 1, W - 2).astype(int)
+        v = np.clip(np.rint(uv[:, 1]), 1, H - 2).astype(int)
+        means = [luminance(views[a][c - 1:c + 2, b - 1:b + 2]).mean()
+                 for a, b, c in zip(j, u, v, strict=True)]
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+        return inside & (np.array(means) > np.array(levels)[j])
+
+    rng = np.random.default_rng(3)
+    j = rng.integers(0, rig.n_cameras, 300)
+    uv = np.stack([rng.uniform(-3, W + 2, 300), rng.uniform(-3, H + 2, 300)], axis=1)
+    # Points on the candidates too, where the answer is mostly "bright".
+    cj = np.concatenate([np.full(len(c), k) for k, c in enumerate(gathered.centers_uv)])
+    j, uv = np.concatenate([j, cj]), np.concatenate([uv, *gathered.centers_uv])
+    want = fresh(j, uv)
+    assert want.any() and not want.all()
+    for order in (np.arange(len(uv)), rng.permutation(len(uv)), np.arange(len(uv))[::-1]):
+        for part in np.array_split(order, 7):
+            np.testing.assert_array_equal(gathered.lit(j[part], uv[part]), want[part])
+    # One view for every point, as a scalar.
+    np.testing.assert_array_equal(gathered.lit(2, uv[:40]), fresh(np.full(40, 2), uv[:40]))
