@@ -810,11 +810,13 @@ class _Context:
         rig = self.rig
         virtual = plane.mirror(self.lights)  # (K, 3)
         centers = rig.centers_m  # (N, 3)
-        n_lights, n_views = len(virtual), len(centers)
-        uv = project_points(rig, np.repeat(virtual, n_views, axis=0),
-                            np.tile(np.arange(n_views), n_lights)).reshape(n_lights, n_views, 2)
+        k = rig.intrinsics
+        # project_points' arithmetic, broadcast over lights and views (no repeated copies).
+        rel = virtual[:, None, :] - centers  # (K, N, 3)
+        uv = np.stack([k.fx * rel[..., 0] / rel[..., 2] + k.cx,
+                       k.fy * rel[..., 1] / rel[..., 2] + k.cy], axis=-1)
         points, t = reflection_points(plane, virtual[:, None, :], centers)
-        ref_uv = rig.project(points.reshape(-1, 3)).reshape(uv.shape)
+        ref_uv = rig.project(points)
         # (NaN where a light behind a face's plane has no mirror point: off the image.)
         ref_uv = np.where(np.isfinite(ref_uv), ref_uv, -1.0)
         ru = np.rint(ref_uv[..., 0]).astype(np.int64)
