@@ -12,11 +12,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from .errors import MaskError
 
-__all__ = ["BoxMask"]
+__all__ = ["BoxMask", "eroded", "eroded_crop"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,3 +125,48 @@ class BoxMask:
                     return self.crop[v0 - bv0:v1 - bv0, u0 - bu0:u1 - bu0]
                 return self.window((u0, v0, u1, v1))
         return self.full()[key]
+
+
+def eroded_crop(mask: np.ndarray, kernel: np.ndarray, bbox: tuple[int, int, int, int]
+                ) -> tuple[np.ndarray, tuple[int, int]]:
+    """``cv2.erode`` of a bool mask, computed over the box of its pixels only.
+
+    Only the box can hold eroded pixels, and erosion takes the outside of the image as
+    set, on a crop as on the whole image: the box grown by the kernel's half-size (and
+    clipped to the image) gives the same pixels as eroding the whole frame.
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, (H, W) bool
+    kernel : numpy.ndarray, (kh, kw) uint8
+        Structuring element, centred.
+    bbox : (int, int, int, int)
+        ``(u0, v0, u1, v1)``, inclusive-exclusive: a box holding every True pixel.
+
+    Returns
+    -------
+    crop : numpy.ndarray, bool
+        The eroded mask over the grown box.
+    origin : (int, int)
+        ``(u, v)`` of ``crop[0, 0]`` in the image.
+    """
+    reach = max(kernel.shape) // 2
+    h, w = mask.shape
+    u0, v0, u1, v1 = bbox
+    u0, v0, u1, v1 = max(u0 - reach, 0), max(v0 - reach, 0), min(u1 + reach, w), min(v1 + reach, h)
+    pixels = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
+    return cv2.erode(pixels, kernel).view(bool), (u0, v0)
+
+
+def eroded(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``cv2.erode`` of a bool mask as an ``(H, W)`` array, computed over the mask's box.
+
+    See :func:`eroded_crop`; an empty mask stays empty.
+    """
+    out = np.zeros(mask.shape, dtype=bool)
+    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
+    if bw == 0:
+        return out
+    crop, (u0, v0) = eroded_crop(mask, kernel, (x, y, x + bw, y + bh))
+    out[v0:v0 + crop.shape[0], u0:u0 + crop.shape[1]] = crop
+    return out

@@ -838,9 +838,14 @@ def _make_intrinsics(fx, fy, cx, cy, image_size, focal_length_mm, pixel_size_um)
 
 
 def project_points(rig: CameraRig, points_m: np.ndarray, cameras: Any) -> np.ndarray:
-    """Project array-frame points ``(P, 3)``, each into its own camera ``(P,)``, pixels."""
+    """Project array-frame points ``(..., 3)``, each into its own camera, pixels ``(..., 2)``.
+
+    ``cameras`` (int indices) broadcasts against the points' leading axes: ``(P, 3)``
+    points with ``(P,)`` cameras, or ``(K, 1, 3)`` points with ``(N,)`` cameras for every
+    point in every camera.
+    """
     rel = points_m - rig.centers_m[cameras]
     k = rig.intrinsics
     return np.stack(
-        [k.fx * rel[:, 0] / rel[:, 2] + k.cx, k.fy * rel[:, 1] / rel[:, 2] + k.cy], axis=1
-    )
+        [k.fx * rel[..., 0] / rel[..., 2] + k.cx, k.fy * rel[..., 1] / rel[..., 2] + k.cy],
+        axis=-1)

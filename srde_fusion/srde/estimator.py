@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from .._checks import Views, check_mask, check_views
+from ..boxes import eroded
 from ..errors import LightError, RigError, SRDEError
 from ..geometry import (
     CameraRig,
@@ -52,7 +53,7 @@ from ..geometry import (
 from .backends import DetectionRequest, HighlightBackend, NumpyBackend
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
 from .faces import MAX_FACES, estimate_faces
-from .highlight import HighlightDetection, eroded, search_box
+from .highlight import HighlightDetection, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
 from .result import SRDEResult

@@ -291,33 +291,6 @@ def grown_box(bbox: tuple[int, int, int, int], margin_px: int, shape: tuple[int,
             min(v1 + margin_px, h))
 
 
-def eroded(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """``cv2.erode`` of a bool mask with ``kernel``, computed over the mask's box only.
-
-    Only the mask's bounding box can hold eroded pixels, and erosion takes the outside of
-    the image as set, on a crop as on the whole image: the crop grown by the kernel's
-    half-size gives the same result as the whole frame, at the cost of the object's box.
-
-    Parameters
-    ----------
-    mask : numpy.ndarray, (H, W) bool
-    kernel : numpy.ndarray, (kh, kw) uint8
-        Structuring element, centred.
-
-    Returns
-    -------
-    numpy.ndarray, (H, W) bool
-    """
-    out = np.zeros(mask.shape, dtype=bool)
-    box = search_box(mask, max(kernel.shape) // 2)
-    if box is None:
-        return out
-    u0, v0, u1, v1 = box
-    crop = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
-    out[v0:v1, u0:u1] = cv2.erode(crop, kernel).view(bool)
-    return out
-
-
 def detect_in_view(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
                    level: float | None = None, white_reference: np.ndarray | None = None,
                    region_bbox: tuple[int, int, int, int] | None = None,

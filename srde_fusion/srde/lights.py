@@ -37,7 +37,7 @@ import cv2
 import numpy as np
 
 from .._checks import check_point3
-from ..boxes import BoxMask
+from ..boxes import BoxMask, eroded
 from ..errors import LightError
 from ..geometry import (
     MAX_LIGHTS,
@@ -52,7 +52,6 @@ from .config import BLOB_LEVEL, PEAK_SMOOTHING_SIGMA_PX, DetectorConfig
 from .highlight import (
     HighlightDetection,
     detect_in_view,
-    eroded,
     grown_box,
     median,
     region_background,
@@ -810,11 +809,7 @@ class _Context:
         rig = self.rig
         virtual = plane.mirror(self.lights)  # (K, 3)
         centers = rig.centers_m  # (N, 3)
-        k = rig.intrinsics
-        # project_points' arithmetic, broadcast over lights and views (no repeated copies).
-        rel = virtual[:, None, :] - centers  # (K, N, 3)
-        uv = np.stack([k.fx * rel[..., 0] / rel[..., 2] + k.cx,
-                       k.fy * rel[..., 1] / rel[..., 2] + k.cy], axis=-1)
+        uv = project_points(rig, virtual[:, None, :], np.arange(len(centers)))  # (K, N, 2)
         points, t = reflection_points(plane, virtual[:, None, :], centers)
         ref_uv = rig.project(points)
         # (NaN where a light behind a face's plane has no mirror point: off the image.)
@@ -1229,9 +1224,8 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
             found.append([] if band_bbox is None else
                          find_candidates(views[j], band, config, region_bbox=band_bbox))
     cands = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
-    levels = [min((d.level for d in dets), default=math.inf) for dets in found]
-
-    level_of_view = np.asarray(levels)
+    # The half-maximum level of each view's dimmest candidate.
+    level_of_view = np.array([min((d.level for d in dets), default=math.inf) for dets in found])
     patch_means: dict[tuple[int, int, int], float] = {}  # (view, u, v) -> mean luminance
 
     def lit(j, uv: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from srde_fusion.boxes import eroded
 from srde_fusion.geometry import CameraRig, Plane, incidence_angle_deg, plane_disparity
 from srde_fusion.imaging import luminance
 from srde_fusion.srde import SRDE
@@ -29,7 +30,6 @@ from srde_fusion.srde.highlight import (
     HighlightDetection,
     crop_luminance,
     detect_in_view,
-    eroded,
     median,
     search_box,
     weighted_centroid,

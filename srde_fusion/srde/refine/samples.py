@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from ...boxes import eroded_crop
 from ...geometry import CameraRig, Plane, project_points
 from ...imaging import REC709_LUMA, luminance, saturation_mask, to_linear
 
@@ -240,19 +241,13 @@ def mask_bbox(mask: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def _erode(mask: np.ndarray, radius_px: int, box) -> _Eroded:
-    """Shrink the mask by ``radius_px`` in the chessboard metric.
+    """Shrink the mask by ``radius_px`` in the chessboard metric, over its box ``box`` only.
 
-    Only the object's bounding box ``box`` (see :func:`mask_bbox`), padded by the radius, is
-    eroded: nothing outside it survives, and the padding keeps the box's edge eroded as
-    in the full image.
+    ``box`` is the mask's bounding box ``(x, y, width, height)`` (see :func:`mask_bbox`).
     """
     x, y, w, h = box
-    height, width = mask.shape
-    x0, y0 = max(x - radius_px, 0), max(y - radius_px, 0)
-    x1, y1 = min(x + w + radius_px, width), min(y + h + radius_px, height)
     side = 2 * radius_px + 1
-    pixels = np.ascontiguousarray(mask[y0:y1, x0:x1]).view(np.uint8)
-    return _Eroded(cv2.erode(pixels, np.ones((side, side), np.uint8)).view(bool), (x0, y0))
+    return _Eroded(*eroded_crop(mask, np.ones((side, side), np.uint8), (x, y, x + w, y + h)))
 
 
 def views_from_reference(rig: CameraRig, plane: Plane) -> np.ndarray:
