@@ -1336,9 +1336,9 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
             doubt = dataclasses.replace(solution, status="inconsistent", reason=reason)
             return _solve_merged(srde, views, mask, doubt, dataclasses.replace(
                 srde._failed("inconsistent", reason), lights=doubt))
-        if worst_px > limit_px and _lobes_prefer(srde, views, mask, main.light, modelled,
-                                                 main.on_object, refinement.plane,
-                                                 solution.plane):
+        if worst_px > limit_px and lobes_prefer(srde, views, mask, main.light, modelled,
+                                                main.on_object, refinement.plane,
+                                                solution.plane):
             # Centres cut by the outline or pulled by a neighbour's flank can tilt the joint
             # plane while the lobes, which model both, settle it: the refined plane stands
             # when it explains the images decisively better on both planes' samples.
@@ -1419,8 +1419,8 @@ def _lobe_options(srde: SRDE, main: int, modelled: list[int]) -> dict:
                 light_radius_m=srde.light_radii_m[main])
 
 
-def _lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled: list[int],
-                  used: np.ndarray, refined: Plane, joint: Plane) -> bool:
+def lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled: list[int],
+                 used: np.ndarray, refined: Plane, joint: Plane) -> bool:
     """Whether the refined plane explains the images decisively better than the joint one.
 
     Both planes' photometric costs on the samples placed for each in turn
