@@ -677,22 +677,28 @@ def unexplained_plane(context: AssignmentContext, pool: list[PlaneScore],
 
     With every light known, a highlight on the object is some light's on some face. A
     face accounts for a blob its plane explains, and for one whose box holds its
-    plane's on-object prediction of some light or whose centre lies within
+    plane's prediction of some light on the object (or within a blob radius of its
+    outline: the blob's near side is on the object) or whose centre lies within
     :data:`~.lights.BLEND_RADII` blob radii of one (a blob merged with another, or cut
-    by the faces' edge with the predicted centre on the hidden side, has its centre
-    moved by up to a few radii). A plane (from
+    by the faces' edge or the outline with the predicted centre on the hidden side, has
+    its centre moved by up to a few radii). A plane (from
     the hypotheses the faces were chosen from) that explains one light's highlights in
     ``min_views`` views none of the faces accounts for is a face left out: its
     highlights lie on the parts given to its neighbours (the middle face of three left
     out), so the pieced disparity would be wrong there. None when there is none.
     """
     reach_px = BLEND_RADII * context.blob_radius_px
+    # A highlight whose mirror point lies just off the outline still shows its blob's
+    # near half on the object: predictions within a blob radius of the mask count.
+    side = 2 * int(math.ceil(context.blob_radius_px)) + 1
+    near_mask = cv2.dilate(context.mask.view(np.uint8), cv2.getStructuringElement(
+        cv2.MORPH_ELLIPSE, (side, side))).view(bool)
     covered: set[tuple[int, int]] = set()
     for plane in planes:
         score = context.score(plane)
         if score is not None:
             covered |= _explained(score)
-        uv, on_object, _ = context.predict(plane)
+        uv, on_object, _ = context.predict(plane, region=near_mask)
         for j, boxes in enumerate(context.boxes):
             p = uv[on_object[:, j], j]  # (M, 2)
             near = np.linalg.norm(context.cands[j][:, None] - p[None], axis=2) <= reach_px

@@ -804,8 +804,12 @@ class _Context:
         return ", ".join(f"{count} {why}" for why, count in self.refused.items())
 
     # -------------------------------------------------------------- scoring
-    def predict(self, plane: Plane):
-        """Predicted highlight ``(K, N, 2)`` and whether it is on the object ``(K, N)``."""
+    def predict(self, plane: Plane, *, region: np.ndarray | None = None):
+        """Predicted highlight ``(K, N, 2)`` and whether it is on the object ``(K, N)``.
+
+        Also whether it lies within a blob radius of the outline ``(K, N)``. ``region``
+        ``(H, W)`` bool: a reference-view region to test instead of the mask.
+        """
         rig = self.rig
         virtual = plane.mirror(self.lights)  # (K, 3)
         centers = rig.centers_m  # (N, 3)
@@ -821,7 +825,7 @@ class _Context:
         if not self.all_lights_in_front:
             inside &= (plane.signed_distance(self.lights) > 0.0)[:, None]
         on_object = np.zeros(inside.shape, dtype=bool)
-        on_object[inside] = self.mask[rv[inside], ru[inside]]
+        on_object[inside] = (self.mask if region is None else region)[rv[inside], ru[inside]]
         near_edge = on_object.copy()
         near_edge[inside] &= ~self.inner[rv[inside], ru[inside]]
         return uv, on_object, near_edge

@@ -59,6 +59,9 @@ MOVED_FACE_SEED = 33002
 # converge; without the band where the two planes are within 1 px it moves the face's
 # plane by 1.1 px onto the face.
 RETRY_SEED = 32012
+# A valley (held-out seed) whose first face's highlight lies on the outline in three
+# views: its mirror point just off the mask, its blob's near half on the object.
+OUTLINE_HIGHLIGHT_SEED = 52007
 # A 3-face scene whose middle face's lobe fit settles 0.33 px off with a standard error of
 # 0.19 px (within SAME_PLANE_PX / 2, not within a third of it).
 UNCERTAIN_FACE_SEED = 33007
@@ -223,6 +226,17 @@ def test_the_refinement_reads_each_face_away_from_its_neighbours(rig, monkeypatc
         assert np.all(distance[read] > 1.0)
         assert np.count_nonzero(part & ~read) > 0
     assert np.all(np.isfinite(result.disparity[v0:v1, u0:u1][labels > 0]))
+
+
+def test_a_highlight_cut_by_the_outline_is_its_face_s_not_a_face_left_out(rig):
+    # Another plane explains those three cut blobs with the other light; they are the
+    # face's own light's, predicted within a blob radius of the outline.
+    _, rendering, lit = _rendered(rig, OUTLINE_HIGHLIGHT_SEED, 2, False,
+                                  physics=Physics.faithful())
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
+    assert result.ok, result.reason
+    assert len(result.faces.faces) == 2
+    assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
 
 
 def test_a_face_left_out_is_refused(rig):
