@@ -805,10 +805,12 @@ class _Context:
 
     # -------------------------------------------------------------- scoring
     def predict(self, plane: Plane, *, region: np.ndarray | None = None):
-        """Predicted highlight ``(K, N, 2)`` and whether it is on the object ``(K, N)``.
+        """Predicted highlights, whether on the object, whether near its outline.
 
-        Also whether it lies within a blob radius of the outline ``(K, N)``. ``region``
-        ``(H, W)`` bool: a reference-view region to test instead of the mask.
+        Returns ``uv`` ``(K, N, 2)``, ``on_object`` ``(K, N)`` and ``near_edge`` ``(K, N)``
+        (on the object within a blob radius of the outline). ``region`` ``(H, W)`` bool:
+        the reference-view region that counts as the object for ``on_object`` (the mask
+        by default).
         """
         rig = self.rig
         virtual = plane.mirror(self.lights)  # (K, 3)
