@@ -841,8 +841,8 @@ def project_points(rig: CameraRig, points_m: np.ndarray, cameras: Any) -> np.nda
     """Project array-frame points ``(..., 3)``, each into its own camera, pixels ``(..., 2)``.
 
     ``cameras`` (int indices) broadcasts against the points' leading axes: ``(P, 3)``
-    points with ``(P,)`` cameras, or ``(K, 1, 3)`` points with ``(N,)`` cameras for every
-    point in every camera.
+    points with ``(P,)`` cameras, one ``(3,)`` point with ``(N,)`` cameras, or
+    ``(K, 1, 3)`` points with ``(N,)`` cameras for every point in every camera.
     """
     rel = points_m - rig.centers_m[cameras]
     k = rig.intrinsics

@@ -1650,8 +1650,7 @@ def _solved_on(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
 def _centres(rig: CameraRig, plane: Plane, light: np.ndarray, used: np.ndarray) -> np.ndarray:
     """Return the light's highlight centre in every used view, ``(N, 2)``; NaN elsewhere."""
     virtual = plane.mirror(light)
-    centers = project_points(rig, np.repeat(virtual[None], rig.n_cameras, axis=0),
-                             np.arange(rig.n_cameras))
+    centers = project_points(rig, virtual, np.arange(rig.n_cameras))
     return np.where(used[:, None], centers, np.nan)
 
 
@@ -1676,8 +1675,7 @@ def _worst_reprojection_px(rig: CameraRig, lights: np.ndarray, solution: LightsS
     for a in solution.assignments:
         views = np.flatnonzero(np.isfinite(a.centers_uv[:, 0]))
         if views.size:
-            predicted = project_points(rig, np.repeat(virtual[a.light:a.light + 1], views.size,
-                                                      axis=0), views)
+            predicted = project_points(rig, virtual[a.light], views)
             worst = max(worst, float(np.max(np.linalg.norm(predicted - a.centers_uv[views],
                                                            axis=1))))
     return worst
