@@ -463,7 +463,7 @@ class SRDE:
                           self.method, result.notes, detections)
 
     def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None,
-                light=None, refine=None, modelled_lights=()) -> SRDEResult:
+                light=None, refine=None, modelled_lights=(), modelled_centers=None) -> SRDEResult:
         """Check the virtual light and the plane, refine it (given views); disparity.
 
         ``light``: the light ``point`` is the virtual light of (one of several); the
@@ -514,7 +514,8 @@ class SRDE:
                                       other_lights_m=np.array(others) if others else None,
                                       modelled_lights_m=(np.array(modelled_lights)
                                                          if len(modelled_lights) else None),
-                                      light_radius_m=radius_m)
+                                      light_radius_m=radius_m,
+                                      modelled_centers_uv=modelled_centers)
             if refinement.ok:
                 plane = refinement.plane
                 point = plane.mirror(light)

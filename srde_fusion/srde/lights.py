@@ -58,7 +58,7 @@ from .highlight import (
     search_box,
     weighted_centroid,
 )
-from .refine.samples import WINDOW_PER_BLOB_RADIUS, references_from_views
+from .refine.samples import references_from_views
 from .search import BaselineSearch
 
 if TYPE_CHECKING:
@@ -1316,19 +1316,26 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         next((d for d in found[j] if np.allclose(d.center_uv, main.centers_uv[j])),
              HighlightDetection.missing(f"no highlight of light {main.light}"))
         for j in range(rig.n_cameras))
-    # Lights whose highlights come near the main one's are rendered with it (their lobes
-    # reach into its windows); the others are left out of the windows.
-    reach_px = (WINDOW_PER_BLOB_RADIUS + BLEND_RADII) * blob_radius_px
-    modelled = [a.light for a in solution.assignments if a.light != main.light
-                and np.any(a.on_object & main.on_object & (np.linalg.norm(
-                    a.predicted_uv - main.predicted_uv, axis=1) < reach_px))]
+    # Every light on the object is rendered with the main one (their lobes may reach into
+    # its windows), and the fit also looks around each of their assigned highlights: each
+    # is another measurement of the same plane, and a model error of one light's lobe
+    # (a highlight cut by the outline, a flank of another light) no longer decides the
+    # plane alone. The other lights are left out of the windows.
+    modelled = [a.light for a in solution.assignments
+                if a.light != main.light and a.on_object.any()]
+    assigned = [solution.assignments[k] for k in modelled]
+    modelled_centers = np.stack([
+        np.where(np.isfinite(a.centers_uv[:, :1]), a.predicted_uv, np.nan) for a in assigned]
+    ) if assigned else None
     result = srde._finish(mask, point, w, used, main.centers_uv, detections, notes,
                           views=views, light=srde.lights_m[main.light],
-                          modelled_lights=[srde.lights_m[k] for k in modelled])
+                          modelled_lights=[srde.lights_m[k] for k in modelled],
+                          modelled_centers=modelled_centers)
     refinement = result.refinement
     if result.ok and refinement is not None and refinement.ok:
-        # The refinement sees one light; every light's assigned highlights must still
-        # agree with its plane, else the joint geometric plane stands.
+        # The refinement sees the lights' highlights near their centres; every light's
+        # assigned centres must still agree with its plane, else the joint geometric
+        # plane stands.
         worst_px = _worst_reprojection_px(rig, srde.lights_m, solution, result.plane)
         limit_px = REFINED_AGREEMENT * tolerance_px
         if worst_px > limit_px and solution.merged_blobs:

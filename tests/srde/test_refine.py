@@ -387,6 +387,14 @@ def test_positional_input_errors(rough_ggx, index, value, error, match):
     (dict(modelled_lights_m=[[0.1, np.nan, 0.2]]), SRDEError,
      r"modelled_lights_m: expected \(M, 3\) finite metres"),
     (dict(other_lights_m="lamp"), SRDEError, r"other_lights_m: expected \(M, 3\) finite"),
+    (dict(modelled_centers_uv=np.zeros((1, 9, 2))), SRDEError,
+     "modelled_centers_uv: expected None without modelled_lights_m"),
+    (dict(modelled_lights_m=[[0.1, -0.3, 0.2]], modelled_centers_uv=np.zeros((2, 9, 2))),
+     ImageError, r"modelled_centers_uv: expected shape \(1, 9, 2\)"),
+    (dict(modelled_lights_m=[[0.1, -0.3, 0.2]], modelled_centers_uv=np.full((1, 9, 2), np.inf)),
+     ImageError, "modelled_centers_uv: expected finite"),
+    (dict(modelled_lights_m=[[0.1, -0.3, 0.2]], modelled_centers_uv="lamp"), ImageError,
+     "modelled_centers_uv: expected an array"),
 ])
 def test_keyword_input_errors(rough_ggx, kwargs, error, match):
     with pytest.raises(error, match=match):

@@ -167,6 +167,7 @@ def refine_plane(
     other_lights_m=None,
     modelled_lights_m=None,
     light_radius_m: float | None = None,
+    modelled_centers_uv=None,
 ) -> PlaneRefinement:
     """Refine a plane so that a specular lobe model explains the highlight in every view.
 
@@ -209,6 +210,11 @@ def refine_plane(
         (:class:`~.joint.JointLobeModel`: one lobe per light on the same plane and
         surface, each light with its own intensity), for highlights merged into one
         blob. They should not also be in ``other_lights_m``. They are points.
+    modelled_centers_uv : array_like, (M, N, 2), pixels, optional
+        The modelled lights' highlight centres per view (a NaN row: none there). The
+        fitting windows then also go around them, in the views where ``light_m``'s
+        highlight has a window: every light's highlight measures the same plane. Without
+        them the windows follow ``light_m``'s highlight only.
     light_radius_m : float, optional
         Radius of the (spherical) light, metres, if known: the lobe model then sees the
         light's disc (a flat-topped highlight over the light's mirror image, see
@@ -298,8 +304,10 @@ def refine_plane(
         centers = np.stack([rig.project(virtual, i) for i in range(rig.n_cameras)])
     others = _check_lights(other_lights_m, "other_lights_m")
     modelled = _check_lights(modelled_lights_m, "modelled_lights_m")
+    modelled_centers = _check_modelled_centers(modelled_centers_uv, modelled, rig.n_cameras)
     setup = _Setup(views, rig, mask, mask_bbox(mask), light, initial_plane, centers, lobe, f0,
-                   fresnel, foreshortening, max_iterations, others, modelled, radius_m)
+                   fresnel, foreshortening, max_iterations, others, modelled, radius_m,
+                   modelled_centers)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
         return kept(attempt)
@@ -418,6 +426,7 @@ class _Setup:
     other_lights: np.ndarray | None = None
     modelled_lights: np.ndarray | None = None
     light_radius_m: float | None = None  # None: a point light
+    modelled_centers: np.ndarray | None = None  # (M, N, 2) the modelled lights' highlights
 
     def model(self, samples: HighlightSamples, plane: Plane, support: int = SUPPORT_POINTS
               ) -> LobeModel | JointLobeModel:
@@ -454,7 +463,8 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     ``photometry``: parameters whose lobe shape to start from instead of a grid search.
     """
     samples = sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers,
-                              box=setup.box, other_lights_m=setup.other_lights)
+                              box=setup.box, other_lights_m=setup.other_lights,
+                              further_centers=setup.modelled_centers)
     if isinstance(samples, str):
         return samples
     model = setup.model(samples, sample_plane)
@@ -618,6 +628,29 @@ def _check_centers(centers_uv, n_views: int) -> np.ndarray | None:
         raise ImageError(f"centers_uv: expected shape ({n_views}, 2), got {centers.shape}")
     if np.any(np.isinf(centers)):
         raise ImageError("centers_uv: expected finite pixels (a NaN row skips a view), got inf")
+    return centers
+
+
+def _check_modelled_centers(centers_uv, modelled: np.ndarray | None,
+                            n_views: int) -> np.ndarray | None:
+    if centers_uv is None:
+        return None
+    if modelled is None:
+        raise SRDEError("modelled_centers_uv: expected None without modelled_lights_m (they "
+                        "are those lights' highlights), got centres")
+    expected = (len(modelled), n_views, 2)
+    try:
+        centers = np.asarray(centers_uv, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ImageError(f"modelled_centers_uv: expected an array {expected} of pixels (a "
+                         f"row per modelled light and view), got {type(centers_uv).__name__}"
+                         ) from None
+    if centers.shape != expected:
+        raise ImageError(f"modelled_centers_uv: expected shape {expected} (a row per modelled "
+                         f"light and view), got {centers.shape}")
+    if np.any(np.isinf(centers)):
+        raise ImageError("modelled_centers_uv: expected finite pixels (a NaN row skips a "
+                         "view), got inf")
     return centers
 
 

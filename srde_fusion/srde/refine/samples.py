@@ -90,12 +90,16 @@ class HighlightSamples:
 
 
 def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray,
-                    *, box=None, other_lights_m=None) -> HighlightSamples | str:
+                    *, box=None, other_lights_m=None, further_centers=None
+                    ) -> HighlightSamples | str:
     """Block samples around each view's highlight on the object, or why there are none.
 
     ``box``: the mask's bounding box, if known. ``other_lights_m`` ``(M, 3)``: further
     lights whose highlights (where ``plane`` puts them) are left out of the windows, over
-    the radius the window spans around its own highlight.
+    the radius the window spans around its own highlight. ``further_centers``
+    ``(L, N, 2)``, pixels: highlights of further modelled lights (NaN where a view has
+    none); windows of the same size go around them too, in the views whose own highlight
+    has a window, less the blocks an earlier window of the view already holds.
     """
     box = mask_bbox(mask) if box is None else box
     eroded = _erode(mask, MASK_MARGIN_PX, box)
@@ -149,6 +153,10 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
         if window is None or not window[3].any():
             continue
         uv, y, clipped, inside = window
+        if further_centers is not None:
+            uv, y, clipped, inside = _with_further_windows(
+                views[i], rig, block_mask, to_ref[i], centers[i], further_centers[:, i], half,
+                block, (uv, y, clipped, inside))
         if others is not None:
             # Other lights' highlights are not the fitted light's lobe.
             seen = project_points(rig, others, np.full(len(others), i))
@@ -346,3 +354,31 @@ def _block_window(view: np.ndarray, rig: CameraRig, block_mask: np.ndarray, to_r
     inside = _object_lookup(block_mask, to_ref, uu, vv)
     return (np.stack([uu, vv], axis=1), lum.ravel().astype(np.float64), clipped.ravel(),
             inside)
+
+
+def _with_further_windows(view: np.ndarray, rig: CameraRig, block_mask: np.ndarray, to_ref,
+                          center_uv: np.ndarray, further_uv: np.ndarray, half: int, block: int,
+                          window):
+    """Join the windows around further highlights ``(L, 2)`` to a view's window.
+
+    Blocks whose centre lies in an earlier window's square (grown by half a block, so
+    no pixel is sampled twice) are left out; a highlight without a finite centre or
+    whose window misses the image adds nothing. Returns the joined ``window`` tuple.
+    """
+    taken = [np.asarray(center_uv, dtype=np.float64)]
+    parts = [window]
+    reach = half + 0.5 * block
+    for uv in further_uv:
+        if not np.all(np.isfinite(uv)):
+            continue
+        extra = _block_window(view, rig, block_mask, to_ref, uv, half, block)
+        if extra is not None:
+            inside = extra[3].copy()
+            for centre in taken:
+                inside &= np.max(np.abs(extra[0] - centre), axis=1) > reach
+            if inside.any():
+                parts.append((*extra[:3], inside))
+        taken.append(np.asarray(uv, dtype=np.float64))
+    if len(parts) == 1:
+        return window
+    return tuple(np.concatenate(a) for a in zip(*parts, strict=True))
