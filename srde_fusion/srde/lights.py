@@ -58,7 +58,7 @@ from .highlight import (
     search_box,
     weighted_centroid,
 )
-from .refine.samples import references_from_views
+from .refine.samples import WINDOW_PER_BLOB_RADIUS, references_from_views
 from .search import BaselineSearch
 
 if TYPE_CHECKING:
@@ -1316,17 +1316,22 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
         next((d for d in found[j] if np.allclose(d.center_uv, main.centers_uv[j])),
              HighlightDetection.missing(f"no highlight of light {main.light}"))
         for j in range(rig.n_cameras))
-    # Every light on the object is rendered with the main one (their lobes may reach into
-    # its windows), and the fit also looks around each of their assigned highlights: each
-    # is another measurement of the same plane, and a model error of one light's lobe
-    # (a highlight cut by the outline, a flank of another light) no longer decides the
-    # plane alone. The other lights are left out of the windows.
-    modelled = [a.light for a in solution.assignments
-                if a.light != main.light and a.on_object.any()]
-    assigned = [solution.assignments[k] for k in modelled]
+    # Lights whose highlights come near the main one's are rendered with it (their lobes
+    # reach into its windows), and so is every light with assigned highlights, whose
+    # windows the fit also reads: each is another measurement of the same plane, and a
+    # model error of one light's lobe (a highlight cut by the outline, a flank of another
+    # light) no longer decides the plane alone. The other lights are left out of the
+    # windows.
+    reach_px = (WINDOW_PER_BLOB_RADIUS + BLEND_RADII) * blob_radius_px
+    near = [a.light for a in solution.assignments if a.light != main.light
+            and np.any(a.on_object & main.on_object & (np.linalg.norm(
+                a.predicted_uv - main.predicted_uv, axis=1) < reach_px))]
+    measured = [a for a in solution.assignments if a.light != main.light and a.n_views]
+    modelled = sorted(set(near) | {a.light for a in measured})
     modelled_centers = np.stack([
-        np.where(np.isfinite(a.centers_uv[:, :1]), a.predicted_uv, np.nan) for a in assigned]
-    ) if assigned else None
+        np.where(np.isfinite(solution.assignments[k].centers_uv[:, :1]),
+                 solution.assignments[k].predicted_uv, np.nan) for k in modelled]
+    ) if modelled else None
     result = srde._finish(mask, point, w, used, main.centers_uv, detections, notes,
                           views=views, light=srde.lights_m[main.light],
                           modelled_lights=[srde.lights_m[k] for k in modelled],
