@@ -469,7 +469,8 @@ class SRDE:
         ``light``: the light ``point`` is the virtual light of (one of several); the
         SRDE's light by default. ``refine``: whether to refine; ``self.refine`` by default.
         ``modelled_lights``: further lights whose highlights the refinement renders beside
-        ``light``'s (the other lights' are left out of its windows).
+        ``light``'s (the other lights' are left out of its windows); ``modelled_centers``
+        ``(M, N, 2)``: their highlights, which the refinement's windows go around too.
         """
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}

@@ -1326,8 +1326,8 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     near = [a.light for a in solution.assignments if a.light != main.light
             and np.any(a.on_object & main.on_object & (np.linalg.norm(
                 a.predicted_uv - main.predicted_uv, axis=1) < reach_px))]
-    measured = [a for a in solution.assignments if a.light != main.light and a.n_views]
-    modelled = sorted(set(near) | {a.light for a in measured})
+    measured = {a.light for a in solution.assignments if a.light != main.light and a.n_views}
+    modelled = sorted(set(near) | measured)
     modelled_centers = np.stack([
         np.where(np.isfinite(solution.assignments[k].centers_uv[:, :1]),
                  solution.assignments[k].predicted_uv, np.nan) for k in modelled]

@@ -210,16 +210,16 @@ def refine_plane(
         (:class:`~.joint.JointLobeModel`: one lobe per light on the same plane and
         surface, each light with its own intensity), for highlights merged into one
         blob. They should not also be in ``other_lights_m``. They are points.
-    modelled_centers_uv : array_like, (M, N, 2), pixels, optional
-        The modelled lights' highlight centres per view (a NaN row: none there). The
-        fitting windows then also go around them, in the views where ``light_m``'s
-        highlight has a window: every light's highlight measures the same plane. Without
-        them the windows follow ``light_m``'s highlight only.
     light_radius_m : float, optional
         Radius of the (spherical) light, metres, if known: the lobe model then sees the
         light's disc (a flat-topped highlight over the light's mirror image, see
         :mod:`~srde_fusion.srde.refine.disc`) instead of a point, whose extent the lobe's
         fitted width would otherwise absorb. None or 0: a point light.
+    modelled_centers_uv : array_like, (M, N, 2), pixels, optional
+        The modelled lights' highlight centres per view (a NaN row: none there). The
+        fitting windows then also go around them, in the views where ``light_m``'s
+        highlight has a window: every light's highlight measures the same plane. Without
+        them the windows follow ``light_m``'s highlight only.
 
     Returns
     -------
