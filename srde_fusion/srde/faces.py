@@ -55,10 +55,10 @@ from .lights import (
     PlaneScore,
     gather_candidates,
     lobes_prefer,
+    near_lights,
     reflection_points,
 )
 from .refine import PlaneRefinement
-from .refine.samples import WINDOW_PER_BLOB_RADIUS
 from .result import SRDEResult
 
 if TYPE_CHECKING:
@@ -776,11 +776,8 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     point = score.plane.mirror(lights[main])
     w = 1.0 / (point[2] - rig.reference_center_m[2])
     # Lights whose highlights on this face come near the main one's are rendered with it.
-    reach_px = (WINDOW_PER_BLOB_RADIUS + BLEND_RADII) * gathered.blob_radius_px
-    modelled = [k for k in range(len(lights)) if k != main
-                and np.any(score.on_object[k] & score.on_object[main] & (np.linalg.norm(
-                    score.predicted_uv[k] - score.predicted_uv[main], axis=1) < reach_px))
-                and np.any(_own(where[k], label))]
+    near = near_lights(score.on_object, score.predicted_uv, main, gathered.blob_radius_px)
+    modelled = [k for k in np.flatnonzero(near).tolist() if np.any(_own(where[k], label))]
     result = srde._finish(face_mask, point, w, used, centers, detections, (), views=views,
                           light=lights[main], modelled_lights=[lights[k] for k in modelled])
     face = None

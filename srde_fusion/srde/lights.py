@@ -1322,12 +1322,11 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     # model error of one light's lobe (a highlight cut by the outline, a flank of another
     # light) no longer decides the plane alone. The other lights are left out of the
     # windows.
-    reach_px = (WINDOW_PER_BLOB_RADIUS + BLEND_RADII) * blob_radius_px
-    near = [a.light for a in solution.assignments if a.light != main.light
-            and np.any(a.on_object & main.on_object & (np.linalg.norm(
-                a.predicted_uv - main.predicted_uv, axis=1) < reach_px))]
-    measured = {a.light for a in solution.assignments if a.light != main.light and a.n_views}
-    modelled = sorted(set(near) | measured)
+    near = near_lights(np.stack([a.on_object for a in solution.assignments]),
+                       np.stack([a.predicted_uv for a in solution.assignments]), main.light,
+                       blob_radius_px)
+    modelled = [a.light for a in solution.assignments
+                if a.light != main.light and (near[a.light] or a.n_views)]
     modelled_centers = np.stack([
         np.where(np.isfinite(solution.assignments[k].centers_uv[:, :1]),
                  solution.assignments[k].predicted_uv, np.nan) for k in modelled]
@@ -1422,6 +1421,23 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
               f"or surface (SRDE(max_faces=2..3) splits flat faces); "
               + "; ".join(result.notes[-1:]))
     return dataclasses.replace(failed, status="inconsistent", reason=reason)
+
+
+def near_lights(on_object: np.ndarray, predicted_uv: np.ndarray, main: int,
+                blob_radius_px: float) -> np.ndarray:
+    """Which lights' highlights reach into the main light's fitting windows, ``(K,)`` bool.
+
+    A light is near when, in some view where both are predicted on the object
+    (``on_object`` ``(K, N)``), its highlight lies within the window's reach plus
+    :data:`BLEND_RADII` blob radii of the main one's (``predicted_uv`` ``(K, N, 2)``):
+    its lobe's flank is in the windows, so the refinement renders it. The main light is
+    not near itself.
+    """
+    reach_px = (WINDOW_PER_BLOB_RADIUS + BLEND_RADII) * blob_radius_px
+    gaps = np.linalg.norm(predicted_uv - predicted_uv[main], axis=2)  # (K, N)
+    near = np.any(on_object & on_object[main] & (gaps < reach_px), axis=1)
+    near[main] = False
+    return near
 
 
 def _lobe_options(srde: SRDE, main: int, modelled: list[int]) -> dict:

@@ -617,18 +617,7 @@ def _check_lights(lights_m, name: str) -> np.ndarray | None:
 
 
 def _check_centers(centers_uv, n_views: int) -> np.ndarray | None:
-    if centers_uv is None:
-        return None
-    try:
-        centers = np.asarray(centers_uv, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ImageError(f"centers_uv: expected an array ({n_views}, 2) of pixels, "
-                         f"got {type(centers_uv).__name__}") from None
-    if centers.shape != (n_views, 2):
-        raise ImageError(f"centers_uv: expected shape ({n_views}, 2), got {centers.shape}")
-    if np.any(np.isinf(centers)):
-        raise ImageError("centers_uv: expected finite pixels (a NaN row skips a view), got inf")
-    return centers
+    return _check_pixels(centers_uv, (n_views, 2), "centers_uv")
 
 
 def _check_modelled_centers(centers_uv, modelled: np.ndarray | None,
@@ -638,20 +627,25 @@ def _check_modelled_centers(centers_uv, modelled: np.ndarray | None,
     if modelled is None:
         raise SRDEError("modelled_centers_uv: expected None without modelled_lights_m (they "
                         "are those lights' highlights), got centres")
-    expected = (len(modelled), n_views, 2)
+    return _check_pixels(centers_uv, (len(modelled), n_views, 2), "modelled_centers_uv",
+                         " (a row per modelled light and view)")
+
+
+def _check_pixels(values, expected: tuple[int, ...], name: str,
+                  layout: str = "") -> np.ndarray | None:
+    """Pixel positions of shape ``expected``, NaN allowed (a skipped view), inf not."""
+    if values is None:
+        return None
     try:
-        centers = np.asarray(centers_uv, dtype=np.float64)
+        pixels = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ImageError(f"modelled_centers_uv: expected an array {expected} of pixels (a "
-                         f"row per modelled light and view), got {type(centers_uv).__name__}"
-                         ) from None
-    if centers.shape != expected:
-        raise ImageError(f"modelled_centers_uv: expected shape {expected} (a row per modelled "
-                         f"light and view), got {centers.shape}")
-    if np.any(np.isinf(centers)):
-        raise ImageError("modelled_centers_uv: expected finite pixels (a NaN row skips a "
-                         "view), got inf")
-    return centers
+        raise ImageError(f"{name}: expected an array {expected} of pixels{layout}, "
+                         f"got {type(values).__name__}") from None
+    if pixels.shape != expected:
+        raise ImageError(f"{name}: expected shape {expected}{layout}, got {pixels.shape}")
+    if np.any(np.isinf(pixels)):
+        raise ImageError(f"{name}: expected finite pixels (a NaN row skips a view), got inf")
+    return pixels
 
 
 def _initial_plane_problem(plane: Plane, rig: CameraRig, light: np.ndarray) -> str:
