@@ -28,6 +28,7 @@ from .large_images import (
     plan_large_image,
     run_plan,
 )
+from .propagation import OFFSETS_PX, propagate_disparity
 from .spec import StereoSpec
 
 __all__ = ["Geometry", "ModelInputs", "StereoAdapter", "check_pair", "prepare_inputs",
@@ -320,6 +321,8 @@ class StereoAdapter:
     last_plan: LargeImagePlan | None = None
     #: Share of the pixels the left-right check replaced in the last call (None: no check).
     last_filled_fraction: float | None = None
+    #: Share of the pixels census propagation changed in the last call (None: not run).
+    last_propagated_fraction: float | None = None
 
     def _init_large_images(self, max_pixels: Any, large_images: Any,
                            memory_bytes: int | None = None) -> None:
@@ -354,7 +357,10 @@ class StereoAdapter:
             ``spec.left_right_check`` the model also runs on the mirrored pair; the pixels
             the right view contradicts hold the background fill, the others the mean of
             both views (:func:`~.consistency.fill_left_right`); ``last_filled_fraction``
-            says how many were filled.
+            says how many were filled. With ``spec.census_propagation`` a pixel then
+            takes a neighbour's disparity where the images match it clearly better
+            (:func:`~.propagation.propagate_disparity`); ``last_propagated_fraction``
+            says how many did.
 
         Raises
         ------
@@ -365,13 +371,17 @@ class StereoAdapter:
         """
         left01, right01 = check_pair(left, right)
         disparity_px = self._planned(left01, right01)
-        if not self.spec.left_right_check:
-            return disparity_px
-        right_px = self._planned(*mirrored_pair(left01, right01))[:, ::-1]
-        checked = fill_left_right(disparity_px, right_px,
-                                  max_diff_px=self.spec.left_right_max_diff_px)
-        self.last_filled_fraction = checked.filled_fraction
-        return checked.disparity_px
+        if self.spec.left_right_check:
+            right_px = self._planned(*mirrored_pair(left01, right01))[:, ::-1]
+            checked = fill_left_right(disparity_px, right_px,
+                                      max_diff_px=self.spec.left_right_max_diff_px)
+            self.last_filled_fraction = checked.filled_fraction
+            disparity_px = checked.disparity_px
+        if self.spec.census_propagation:
+            propagated = propagate_disparity(left01, right01, disparity_px)
+            self.last_propagated_fraction = propagated.changed_fraction
+            disparity_px = propagated.disparity_px
+        return disparity_px
 
     def _planned(self, left01: np.ndarray, right01: np.ndarray) -> np.ndarray:
         """Run the model on one checked pair: whole, in strips or downscaled."""
@@ -418,7 +428,11 @@ class StereoAdapter:
                  f"the right image take the row's background, the others the mean of both "
                  f"views)" if spec.left_right_check
                  else "  left-right check: off")
-        return [*self._large_image_lines(), check]
+        propagation = ("  census propagation: on (a pixel takes a neighbour's disparity, "
+                       f"{'/'.join(map(str, OFFSETS_PX))} px along its row or column, where "
+                       "the census cost is clearly lower)" if spec.census_propagation
+                       else "  census propagation: off")
+        return [*self._large_image_lines(), check, propagation]
 
     def _large_image_lines(self) -> list[str]:
         if self.model_size is not None:

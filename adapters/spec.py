@@ -167,6 +167,12 @@ class StereoSpec:
         stays dense. Runs the model twice. On for the bundled stand-in.
     left_right_max_diff_px : float
         Tolerance of ``left_right_check``, px.
+    census_propagation : bool
+        After the model (and the left-right check), let each pixel take a neighbour's
+        disparity where the images' census matching cost is clearly lower there
+        (:func:`~srde_fusion.adapters.propagation.propagate_disparity`): mends the
+        foreground a smooth network spreads over the background beside edges. On for the
+        bundled stand-in.
 
     Examples
     --------
@@ -204,6 +210,7 @@ class StereoSpec:
     bytes_per_px: float | None = None
     left_right_check: bool = False
     left_right_max_diff_px: float = 1.0
+    census_propagation: bool = False
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__  # frozen: normalise fields once, here
@@ -328,10 +335,11 @@ class StereoSpec:
             raise BackboneError(
                 f"bytes_per_px: expected None or a positive number, got {self.bytes_per_px!r}"
             )
-        if not isinstance(self.left_right_check, bool):
-            raise BackboneError(
-                f"left_right_check: expected True or False, got {self.left_right_check!r}"
-            )
+        for attr in ("left_right_check", "census_propagation"):
+            if not isinstance(getattr(self, attr), bool):
+                raise BackboneError(
+                    f"{attr}: expected True or False, got {getattr(self, attr)!r}"
+                )
         diff = self.left_right_max_diff_px
         if not (isinstance(diff, (int, float)) and not isinstance(diff, bool) and diff >= 0):
             raise BackboneError(

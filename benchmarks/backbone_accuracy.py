@@ -15,13 +15,14 @@ Two data sets:
 SGBM is the library's backbone with its documented defaults (``SGBMSpec()``: block 5,
 colour, width / 8 disparities rounded up to 16, P1/P2 = 8/32 * 3 * 25, 3-way). It leaves
 pixels empty (failed uniqueness or left-right checks); the stand-in fills every pixel.
-The stand-in runs as ``load_backbone`` gives it, with its left-right check on (the
-mirrored pair too; pixels the right view contradicts, or that match outside the right
-image, take the row's background, the others the mean of both views), and once more with
-the check off
-(``stand-in, no LR``) to show what the check changes; the share of pixels it filled is
-reported. ``EPE both`` is taken over the pixels where the stand-in and SGBM both gave a
-value (the same pixels for both stand-in rows).
+The stand-in runs as ``load_backbone`` gives it: its left-right check (the mirrored pair
+too; pixels the right view contradicts, or that match outside the right image, take the
+row's background, the others the mean of both views), then census propagation (a pixel
+takes a neighbour's disparity where the census matching cost is clearly lower). It runs
+once more without the propagation (``stand-in, no propagation``) and with neither
+(``network only``) to show what each changes; the shares of pixels the check filled and
+the propagation changed are reported. ``EPE both`` is taken over the pixels where every
+method gave a value (where SGBM did: the same pixels for every stand-in row).
 All methods are counted the same way, over the pixels with finite ground truth:
 
 * ``EPE filled``: every pixel, each method's holes first filled by the KITTI devkit's
@@ -55,6 +56,7 @@ from srde_fusion.adapters import (
     default_model_info,
     default_weights_path,
     load_backbone,
+    propagation,
 )
 
 from srde_fusion.evaluation import evaluate, fill_holes_background, summarize
@@ -62,7 +64,7 @@ from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 KEYS = ("epe_filled", "epe_both", "bad1", "bad2", "d1", "invalid")
-METHODS = ("stand-in", "stand-in, no LR", "SGBM")
+METHODS = ("stand-in", "stand-in, no propagation", "network only", "SGBM")
 SGBM = SGBMSpec()
 TIMING_RUNS = 3
 TARGET_SECONDS_640X480 = 1.0
@@ -117,7 +119,7 @@ def table(rows: list[tuple[str, str, dict]], first: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list]:
+def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list, list]:
     rig = default_rig()
     pair_rig = rig.subset(list(rig.stereo_pair))
     per = {(region, method): [] for region in ("all", "textured", "glossy")
@@ -125,6 +127,7 @@ def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list]:
     seconds = {method: [] for method in METHODS}
     seconds_640 = {}  # median of TIMING_RUNS on the first scene
     filled = []  # share of pixels the stand-in's left-right check filled, per scene
+    changed = []  # ... and its census propagation changed
     for seed in range(n_scenes):
         scene = random_scene(seed, rig, background="textured")
         rendering = render(scene, pair_rig)
@@ -139,19 +142,21 @@ def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list]:
             seconds[method].append(time.perf_counter() - t0)
             if method == METHODS[0]:
                 filled.append(run.last_filled_fraction)
+                changed.append(run.last_propagated_fraction)
             if seed == 0:
                 _, seconds_640[method] = timed(run, left, right)
         for region, mask in regions.items():
             for method, values in score(preds, gt, mask).items():
                 per[(region, method)].append(values)
     rows = [(region, method, summarize(values)) for (region, method), values in per.items()]
-    return rows, {m: float(np.mean(s)) for m, s in seconds.items()}, seconds_640, filled
+    return (rows, {m: float(np.mean(s)) for m, s in seconds.items()}, seconds_640, filled,
+            changed)
 
 
-def motorcycle(runs: dict) -> tuple[list, dict, dict]:
+def motorcycle(runs: dict) -> tuple[list, dict, dict, dict]:
     left, right, gt = skdata.stereo_motorcycle()
     gt = gt.astype(np.float32)
-    rows, seconds, filled = [], {}, {}
+    rows, seconds, filled, changed = [], {}, {}, {}
     for label, factor in (("741x500 (full)", 1), ("370x250 (1/2)", 2)):
         if factor == 1:
             l_img, r_img, g = left, right, gt
@@ -165,8 +170,9 @@ def motorcycle(runs: dict) -> tuple[list, dict, dict]:
         for method, run in runs.items():
             preds[method], seconds[f"{method} {label}"] = timed(run, l_img, r_img)
         filled[label] = runs[METHODS[0]].last_filled_fraction
+        changed[label] = runs[METHODS[0]].last_propagated_fraction
         rows += [(label, method, values) for method, values in score(preds, g).items()]
-    return rows, seconds, filled
+    return rows, seconds, filled, changed
 
 
 def main() -> None:
@@ -176,11 +182,13 @@ def main() -> None:
                         help="'default' or a stand-in .onnx file (igev preset)")
     args = parser.parse_args()
     runs = dict(zip(METHODS, (
-        load_backbone(args.model, "igev", left_right_check=True),
-        load_backbone(args.model, "igev", left_right_check=False),
+        load_backbone(args.model, "igev", left_right_check=True, census_propagation=True),
+        load_backbone(args.model, "igev", left_right_check=True, census_propagation=False),
+        load_backbone(args.model, "igev", left_right_check=False, census_propagation=False),
         load_backbone("sgbm", SGBM)), strict=True))
-    scene_rows, scene_seconds, seconds_640, scene_filled = rendered_scenes(runs, args.scenes)
-    moto_rows, moto_seconds, moto_filled = motorcycle(runs)
+    scene_rows, scene_seconds, seconds_640, scene_filled, scene_changed = rendered_scenes(
+        runs, args.scenes)
+    moto_rows, moto_seconds, moto_filled, moto_changed = motorcycle(runs)
     full = "741x500 (full)"
     ratio = moto_seconds[f"stand-in {full}"] / moto_seconds[f"SGBM {full}"]
     ratio_640 = seconds_640["stand-in"] / seconds_640["SGBM"]
@@ -216,12 +224,18 @@ def main() -> None:
         f"OpenCV StereoSGBM as `load_backbone(\"sgbm\")` (block {SGBM.block_size}, "
         f"{'colour' if SGBM.colour else 'luminance'}, width / 8 disparities rounded up to 16, "
         f"{SGBM.mode}). "
-        "The stand-in runs with its left-right check on, as `load_backbone` gives it (the "
+        "The stand-in runs as `load_backbone` gives it: its left-right check (the "
         "mirrored pair too; pixels the right view contradicts by more than 1 px, or that "
         "match outside the right image, take the smaller of their row's nearest confirmed "
         "disparities: the output stays dense; the others the mean of both views' "
-        "disparities), and once more with the check off "
-        "(`stand-in, no LR`). "
+        "disparities), then census propagation (each pixel is offered its neighbours' "
+        f"disparities {', '.join(map(str, propagation.OFFSETS_PX))} px along its row and "
+        f"column, {propagation.ITERATIONS} rounds, and takes one whose census cost "
+        f"({2 * propagation.CENSUS_RADIUS_PX + 1}x{2 * propagation.CENSUS_RADIUS_PX + 1} "
+        f"census, {propagation.WINDOW_PX}x{propagation.WINDOW_PX} window) is lower by "
+        f"{propagation.MARGIN_BITS:g} bits per pixel and at most "
+        f"{propagation.MATCH_BITS:g}); once more without the propagation (`stand-in, no "
+        "propagation`, the previous default) and with neither (`network only`). "
         "All methods are counted the same way over the pixels with ground truth: "
         "`EPE filled` over every pixel after filling each method's holes with the KITTI "
         "devkit's background interpolation (a hole takes the smaller of its row's nearest "
@@ -235,13 +249,17 @@ def main() -> None:
         + "\nMean time per pair: "
         + ", ".join(f"{m} {s:.2f} s" for m, s in scene_seconds.items())
         + f". Pixels filled by the left-right check: {100 * np.mean(scene_filled):.1f} % "
-        f"(per scene {', '.join(f'{100 * f:.1f}' for f in scene_filled)} %)."
+        f"(per scene {', '.join(f'{100 * f:.1f}' for f in scene_filled)} %); changed by "
+        f"the census propagation: {100 * np.mean(scene_changed):.1f} % (per scene "
+        f"{', '.join(f'{100 * f:.1f}' for f in scene_changed)} %)."
         + "\n\n## Middlebury 2014 Motorcycle (scikit-image copy)\n\n"
         + table(moto_rows, "size")
         + "\nTime per pair (median of 3 after a warm-up): "
         + ", ".join(f"{m} {s:.3f} s" for m, s in moto_seconds.items())
         + f"; stand-in / SGBM at full size: {ratio:.1f}x. Pixels filled by the left-right "
-        "check: " + ", ".join(f"{s} {100 * f:.1f} %" for s, f in moto_filled.items()) + "\n"
+        "check: " + ", ".join(f"{s} {100 * f:.1f} %" for s, f in moto_filled.items())
+        + "; changed by the census propagation: "
+        + ", ".join(f"{s} {100 * f:.1f} %" for s, f in moto_changed.items()) + "\n"
         + "\n## Targets\n\n"
         + "\n".join(target_lines)
         + f"\n\nTime per 640x480 pair (first rendered scene, median of {TIMING_RUNS} after a "
@@ -259,6 +277,7 @@ def main() -> None:
         "standin_over_sgbm_time_full": ratio,
         "seconds_640x480": seconds_640,
         "left_right_filled": {"scenes": scene_filled, "motorcycle": moto_filled},
+        "propagation_changed": {"scenes": scene_changed, "motorcycle": moto_changed},
         "standin_over_sgbm_time_640x480": ratio_640,
         "onnx_mb": onnx_mb,
         "targets": [{"check": n, "standin": a, "sgbm": b, "met": bool(m)}

@@ -1,0 +1,141 @@
+"""Census propagation: the census, what a neighbour's offer must beat, the pixels it leaves
+alone, strips against the whole image, and the switch on the adapters and the stand-in."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from srde_fusion.adapters import StereoSpec, load_backbone, propagation
+from srde_fusion.adapters.propagation import census_transform, propagate_disparity
+
+from srde_fusion.errors import BackboneError
+
+TRUE_PX = 6.0
+
+
+def textured_pair(height: int = 48, width: int = 96, seed: int = 0):
+    """A fronto-parallel random texture at TRUE_PX: ``left[x] = right[x - TRUE_PX]``."""
+    rng = np.random.default_rng(seed)
+    right = rng.random((height, width)).astype(np.float32)
+    left = np.roll(right, int(TRUE_PX), axis=1)
+    return left, right
+
+
+def test_census_sets_one_bit_per_darker_neighbour():
+    grey = np.arange(25, dtype=np.float32).reshape(5, 5)
+    bits = census_transform(grey, 2)
+    # the centre of a ramp: the 12 neighbours before it in raster order are darker
+    assert int(bits[2, 2]).bit_count() == 12
+    # the first 12 bits (raster order, centre skipped) are those neighbours
+    assert int(bits[2, 2]) == (1 << 12) - 1
+    assert bits.dtype == np.uint32 and bits.shape == (5, 5)
+    assert not census_transform(np.ones((4, 4), np.float32)).any()  # nothing is darker
+
+
+def test_bit_counts_fallback_matches_numpy():
+    values = np.random.default_rng(1).integers(0, 2**24, (7, 9)).astype(np.uint32)
+    expected = np.array([[bin(int(v)).count("1") for v in row] for row in values])
+    np.testing.assert_array_equal(propagation._bit_counts(values), expected)
+
+
+def test_a_wrong_band_takes_its_neighbours_value():
+    left, right = textured_pair()
+    wrong = np.full(left.shape, TRUE_PX, np.float32)
+    wrong[:, 40:60] = 14.0  # fattened foreground, 20 px wide: needs more than one round
+    result = propagate_disparity(left, right, wrong)
+    inner = result.disparity_px[4:-4, 40:60]
+    np.testing.assert_array_equal(inner, TRUE_PX)
+    assert result.changed_fraction == pytest.approx(
+        np.mean(result.disparity_px != wrong))
+    assert result.changed_fraction > 0.15
+
+
+def test_right_values_stay():
+    left, right = textured_pair()
+    truth = np.full(left.shape, TRUE_PX, np.float32)
+    truth[:, ::7] += 0.25  # sub-pixel values are kept as they are
+    result = propagate_disparity(left, right, truth)
+    np.testing.assert_array_equal(result.disparity_px, truth)
+    assert result.changed_fraction == 0.0
+
+
+def test_untextured_images_change_nothing():
+    flat = np.full((30, 60), 0.5, np.float32)
+    disparity = np.where(np.arange(60) < 30, 3.0, 9.0).astype(np.float32)[None].repeat(30, 0)
+    result = propagate_disparity(flat, flat, disparity)
+    np.testing.assert_array_equal(result.disparity_px, disparity)
+
+
+def test_unmeasured_and_empty_pixels_keep_their_value():
+    left, right = textured_pair()
+    wrong = np.full(left.shape, TRUE_PX, np.float32)
+    wrong[:, 30:50] = 14.0
+    wrong[:, 5] = 40.0  # matches left of the right image: no cost, kept
+    wrong[10:20, 30:50] = np.nan  # no value: kept, and never offered
+    result = propagate_disparity(left, right, wrong).disparity_px
+    assert np.all(result[:, 5] == 40.0)
+    assert np.all(np.isnan(result[10:20, 30:50]))
+    assert not np.isnan(np.delete(result, np.s_[10:20], axis=0)).any()
+    empty = propagate_disparity(left, right, np.full(left.shape, np.nan))
+    assert np.isnan(empty.disparity_px).all()
+
+
+def test_strips_give_the_whole_image_answer(monkeypatch):
+    left, right = textured_pair(height=200, width=64, seed=3)
+    rng = np.random.default_rng(4)
+    noisy = (TRUE_PX + rng.choice([0.0, 0.0, 5.0, -3.0], size=left.shape)).astype(np.float32)
+    whole = propagate_disparity(left, right, noisy)
+    levels = int(np.ceil(noisy.max()) - np.floor(noisy.min())) + 1
+    reach = propagation.ITERATIONS * max(propagation.OFFSETS_PX) + 4
+    monkeypatch.setattr(propagation, "MAX_VOLUME_BYTES", 2 * levels * 64 * (2 * reach + 10))
+    stripped = propagate_disparity(left, right, noisy)
+    np.testing.assert_array_equal(stripped.disparity_px, whole.disparity_px)
+    assert stripped.changed_fraction == whole.changed_fraction > 0.0
+
+
+def test_rgb_and_grey_pairs_agree():
+    left, right = textured_pair(seed=5)
+    wrong = np.full(left.shape, TRUE_PX, np.float32)
+    wrong[:, 50:58] = 2.0
+    grey = propagate_disparity(left, right, wrong).disparity_px
+    rgb = propagate_disparity(np.repeat(left[..., None], 3, -1),
+                              np.repeat(right[..., None], 3, -1), wrong).disparity_px
+    np.testing.assert_array_equal(rgb, grey)
+
+
+def test_adapter_propagates_after_the_model():
+    torch = pytest.importorskip("torch")
+
+    class Constant(torch.nn.Module):
+        """A disparity of 14 px in a band of columns, 6 px elsewhere."""
+
+        def forward(self, left, right):
+            out = torch.full_like(left[:, :1], TRUE_PX) + 0.0 * right.mean()
+            out[..., 40:60] = 14.0
+            return out
+
+    left, right = textured_pair()
+
+    def to_u8(image):
+        return np.repeat((image * 255).astype(np.uint8)[..., None], 3, -1)
+
+    on = load_backbone(Constant(), "generic", census_propagation=True)
+    fixed = on(to_u8(left), to_u8(right))
+    assert np.all(fixed[4:-4, 40:60] == TRUE_PX)
+    assert on.last_propagated_fraction > 0.15
+    assert "census propagation: on" in on.describe()
+    off = load_backbone(Constant(), "generic")
+    assert np.all(off(to_u8(left), to_u8(right))[:, 40:60] == 14.0)
+    assert off.last_propagated_fraction is None and "census propagation: off" in off.describe()
+
+
+def test_bundled_standin_propagates_by_default_and_can_be_switched_off():
+    pytest.importorskip("onnxruntime")
+    assert load_backbone("default").spec.census_propagation
+    assert not load_backbone("default", census_propagation=False).spec.census_propagation
+    assert not load_backbone("default", StereoSpec(name="mine")).spec.census_propagation
+
+
+def test_bad_propagation_setting():
+    with pytest.raises(BackboneError, match="census_propagation: expected True or False, got 1"):
+        StereoSpec(census_propagation=1)
