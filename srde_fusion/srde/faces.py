@@ -53,6 +53,7 @@ from .lights import (
     SAME_PLANE_PX,
     AssignmentContext,
     PlaneScore,
+    explained_pairs,
     gather_candidates,
     lobes_prefer,
     near_lights,
@@ -193,12 +194,6 @@ class Faces:
 
 
 # ---------------------------------------------------------------------- planes
-def _explained(score: PlaneScore) -> set[tuple[int, int]]:
-    """``(view, candidate)`` of every highlight the plane explains."""
-    lights, views = np.nonzero(score.matched >= 0)
-    return {(int(j), int(score.matched[k, j])) for k, j in zip(lights, views, strict=True)}
-
-
 def _own_views(score: PlaneScore, covered: set[tuple[int, int]]) -> int:
     """Most views in which one light's highlight is explained by this plane and no other."""
     best = 0
@@ -258,7 +253,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     why = ""
     # Evidence of a second face: a plane explaining, in min_views views, one light's
     # highlights the plane that explains the most does not.
-    first = _explained(pool[0])
+    first = explained_pairs(pool[0])
     second = any(_own_views(p, first) >= min_views for p in pool[1:])
     for a, b in combinations(range(len(pool)), 2):
         split, reason = _evaluate(context, (pool[a], pool[b]), min_views, box, inside)
@@ -697,7 +692,7 @@ def unexplained_plane(context: AssignmentContext, pool: list[PlaneScore],
     for plane in planes:
         score = context.score(plane)
         if score is not None:
-            covered |= _explained(score)
+            covered |= explained_pairs(score)
         uv, on_object, _ = context.predict(plane, region=near_mask)
         for j, boxes in enumerate(context.boxes):
             p = uv[on_object[:, j], j]  # (M, 2)

@@ -1025,6 +1025,17 @@ class _Context:
             reason = (f"lights: only light {lights}'s highlights are explained, while other "
                       "lights' are predicted on the object and not seen apart (blended or "
                       "cut); which light the blobs belong to is not established; " + evidence)
+        elif not decisive and _same_highlights_other_light(best, rival):
+            # One virtual light, two lights: both planes mirror a light onto the same point,
+            # so they predict the same highlights in every view. What separates them is
+            # only where their reflection points fall, near the outline or off it.
+            status = "ambiguous"
+            lights = [int(np.flatnonzero((s.matched >= 0).any(axis=1))[0])
+                      for s in (best, rival)]
+            reason = (f"lights: the highlights are one virtual light, explained as light "
+                      f"{lights[0]}'s and, almost as well, as light {lights[1]}'s (the same "
+                      "image points; only where the planes reflect them near the outline "
+                      "differs); which light they belong to is not established; " + evidence)
         elif max(a.n_views for a in assignments) < self.min_views:
             status = "too_few_views"
             reason = (f"lights: no light's highlight is measured in {self.min_views} or more "
@@ -1032,6 +1043,26 @@ class _Context:
         return LightsSolution(status, reason, best.plane, tuple(assignments), rms,
                               self.n_proposed, evidence, tuple(self.cands), best.blends,
                               None if rival is None else rival.plane)
+
+
+def _same_highlights_other_light(best: _Score, rival: _Score | None) -> bool:
+    """Whether ``rival`` explains only highlights ``best`` explains, as another single light.
+
+    Both explain one light's highlights each, different lights, and the rival's
+    ``(view, candidate)`` pairs are among the best's.
+    """
+    if rival is None:
+        return False
+    lights = [np.flatnonzero((s.matched >= 0).any(axis=1)) for s in (best, rival)]
+    if any(ls.size != 1 for ls in lights) or lights[0][0] == lights[1][0]:
+        return False
+    return explained_pairs(rival) <= explained_pairs(best)
+
+
+def explained_pairs(score: _Score) -> set[tuple[int, int]]:
+    """``(view, candidate)`` of every highlight the plane explains."""
+    lights, views = np.nonzero(score.matched >= 0)
+    return {(int(j), int(score.matched[k, j])) for k, j in zip(lights, views, strict=True)}
 
 
 #: The hypothesis machinery (proposals, scores, refits) that :mod:`.faces` shares: one
