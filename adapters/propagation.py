@@ -14,8 +14,8 @@ nearby are ever chosen: the stage corrects where the network put its estimates, 
 their sub-pixel values, and it cannot invent a surface the network missed.
 
 A pixel whose own match falls outside the right image (or too near its border for the
-window) has no measured cost and keeps its value; so does a pixel without a value
-(NaN), which is never offered as a candidate either.
+window) has no measured cost and keeps its value; so does a pixel without a value (NaN,
+inf or negative: NaN in the result), which is never offered as a candidate either.
 
 The rules and constants were chosen on held-out rendered and procedural pairs outside
 every benchmark (see the stand-in's record, ``inference``), as the left-right check was.
@@ -27,6 +27,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from srde_fusion._checks import check_disparity, check_image
+from srde_fusion.errors import ImageError
 
 __all__ = [
     "CENSUS_RADIUS_PX",
@@ -75,7 +78,7 @@ class Propagated:
     Attributes
     ----------
     disparity_px : numpy.ndarray, (H, W), float32, pixels
-        The corrected map (NaN where the input was NaN).
+        The corrected map (NaN where the input had no value: NaN, inf or negative).
     changed_fraction : float
         Share of pixels whose value was replaced.
     """
@@ -117,6 +120,12 @@ def census_transform(grey: np.ndarray, radius: int = CENSUS_RADIUS_PX) -> np.nda
             bits |= darker.astype(np.uint32) << np.uint32(bit)
             bit += 1
     return bits
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    """``(H, W)`` float32 grey of a checked image (uint8 or float in [0, 1])."""
+    image = image.astype(np.float32) / 255.0 if image.dtype == np.uint8 else image
+    return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
 
 
 def _bit_counts(values: np.ndarray) -> np.ndarray:
@@ -210,14 +219,22 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
 
     Parameters
     ----------
-    left01, right01 : numpy.ndarray, (H, W, 3) or (H, W), float32 in [0, 1]
-        The rectified pair (RGB or grey), as the adapters check it.
+    left01, right01 : numpy.ndarray, (H, W, 3) or (H, W), uint8 or float in [0, 1]
+        The rectified pair (RGB or grey).
     disparity_px : numpy.ndarray, (H, W), float, pixels
-        The left view's disparity, positive (``x_right = x_left - d``); NaN: no value.
+        The left view's disparity, positive (``x_right = x_left - d``); NaN, inf or
+        negative: no value.
 
     Returns
     -------
     Propagated
+
+    Raises
+    ------
+    ImageError
+        An image of the wrong type, range or shape, or images of different sizes.
+    DisparityError
+        A disparity map that is not ``(H, W)`` of the images' size.
 
     Examples
     --------
@@ -230,10 +247,12 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
     >>> bool(np.all(fixed.disparity_px[:, 40:46] == 5.0))
     True
     """
-    grey_left, grey_right = (
-        cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-        for image in (np.asarray(left01, np.float32), np.asarray(right01, np.float32)))
-    disparity_px = np.asarray(disparity_px, np.float32)
+    grey_left, grey_right = (_grey(check_image(image, name))
+                             for image, name in ((left01, "left"), (right01, "right")))
+    if grey_left.shape != grey_right.shape:
+        raise ImageError(f"right: expected the left image's size {grey_left.shape}, got "
+                         f"{grey_right.shape}")
+    disparity_px = check_disparity(disparity_px, grey_left.shape, "disparity_px")  # NaN: none
     height, width = disparity_px.shape
     finite = disparity_px[np.isfinite(disparity_px)]
     levels = int(np.ceil(finite.max()) - max(np.floor(finite.min()), 0)) + 1 if finite.size else 1

@@ -8,7 +8,7 @@ import pytest
 from srde_fusion.adapters import StereoSpec, load_backbone, propagation
 from srde_fusion.adapters.propagation import census_transform, propagate_disparity
 
-from srde_fusion.errors import BackboneError
+from srde_fusion.errors import BackboneError, DisparityError, ImageError
 
 TRUE_PX = 6.0
 
@@ -139,3 +139,32 @@ def test_bundled_standin_propagates_by_default_and_can_be_switched_off():
 def test_bad_propagation_setting():
     with pytest.raises(BackboneError, match="census_propagation: expected True or False, got 1"):
         StereoSpec(census_propagation=1)
+
+
+def test_uint8_and_float_pairs_agree():
+    left, right = textured_pair(seed=6)
+    wrong = np.full(left.shape, TRUE_PX, np.float32)
+    wrong[:, 50:58] = 2.0
+    as_u8 = [np.rint(image * 255).astype(np.uint8) for image in (left, right)]
+    from_u8 = propagate_disparity(*as_u8, wrong).disparity_px
+    from_float = propagate_disparity(*(image / np.float32(255) for image in as_u8),
+                                     wrong).disparity_px
+    np.testing.assert_array_equal(from_u8, from_float)
+
+
+@pytest.mark.parametrize(
+    ("args", "error", "message"),
+    [
+        ((np.zeros((8, 8)), np.zeros((8, 9)), np.zeros((8, 8), np.float32)), ImageError,
+         r"right: expected the left image's size \(8, 8\), got \(8, 9\)"),
+        ((np.full((8, 8), 2.0), np.zeros((8, 8)), np.zeros((8, 8), np.float32)), ImageError,
+         r"left: expected float values in \[0, 1\]"),
+        ((np.zeros((8, 8)), np.zeros((8, 8)), np.zeros((8, 7), np.float32)), DisparityError,
+         r"disparity_px: expected shape \(8, 8\), got \(8, 7\)"),
+        ((np.zeros((8, 8)), np.zeros((8, 8)), np.zeros((8, 8), np.int16)), DisparityError,
+         "disparity_px: expected float disparity in pixels"),
+    ],
+)
+def test_bad_inputs_say_what_was_expected(args, error, message):
+    with pytest.raises(error, match=message):
+        propagate_disparity(*args)
