@@ -124,6 +124,8 @@ UNEXPLAINED_RATIO = 2.0
 LOBE_FIT_UNEXPLAINED_RATIO = 1.0
 
 
+_LIGHT_BEHIND = "put a light behind the plane"
+
 #: The best plane is decided against its strongest rival when its net support (explained
 #: highlights less the evidence against) is larger by at least this much.
 DECISIVE_MARGIN = 2
@@ -640,7 +642,7 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         # Partners were found: say what refused every plane they gave.
         hint = ("; a face turned from the other faces' lights, as on an object of several "
                 "flat faces, gives planes with a light behind them" if
-                "put a light behind the plane" in context.refused and len(lights) > 1 else "")
+                _LIGHT_BEHIND in context.refused and len(lights) > 1 else "")
         return _no_plane("too_few_views", "no plane explains the highlights: of the "
                          f"{context.n_proposed} planes proposed (each from a reference "
                          "candidate, a depth its partners in other views give, and a light), "
@@ -655,6 +657,12 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         rival = context.refit(rival)
         if context.plane_gap_px(rival.plane, best.plane) <= SAME_PLANE_PX:
             rival = None
+    if np.count_nonzero((best.matched >= 0).any(axis=1)) == 1:
+        # Only one light's highlights: which light they belong to may also be one the
+        # object turns its back on (a plane this path does not answer with).
+        behind = context.rival_with_light_behind(best)
+        if behind is not None and (rival is None or behind.key > rival.key):
+            rival = behind
     solution = context.solution(best, rival)
     return solution
 
@@ -712,6 +720,7 @@ class _Context:
         self.object_depth_m = object_depth_m
         self.n_proposed = 0
         self.refused: dict[str, int] = {}  # why proposed planes were refused: how many
+        self.behind: list[Plane] = []  # planes refused only for a light behind them
         k = rig.intrinsics
         offsets = rig.centers_m - rig.reference_center_m
         self.steps = np.stack([-k.fx * offsets[:, 0], -k.fy * offsets[:, 1]], axis=1)  # (N, 2)
@@ -770,15 +779,38 @@ class _Context:
             return self._refuse("put the virtual light on the light")
         plane = plane_from_lights(light, virtual, rig.reference_center_m)
         why = self._implausible(plane)
-        if not why:
+        if not why or why == _LIGHT_BEHIND:
             # The reflection point of the reference candidate must be at a plausible depth.
             n = plane.n
             t = (plane.offset_m - float(n @ rig.reference_center_m)) / float(n @ ray)
-            if self.object_depth_m[0] <= t <= self.object_depth_m[1]:
+            in_range = self.object_depth_m[0] <= t <= self.object_depth_m[1]
+            if in_range and not why:
                 return plane
-            why = (f"put the object outside its depth range {self.object_depth_m[0]:g}-"
-                   f"{self.object_depth_m[1]:g} m")
+            if in_range and np.any(plane.signed_distance(self.lights) > 0.0):
+                self.behind.append(plane)  # a rival, never an answer (rival_with_light_behind)
+            why = why or (f"put the object outside its depth range "
+                          f"{self.object_depth_m[0]:g}-{self.object_depth_m[1]:g} m")
         return self._refuse(why)
+
+    def rival_with_light_behind(self, best: _Score) -> _Score | None:
+        """Return the best plane refused only because a known light lies behind it, if any.
+
+        A flat object turned away from one of the lights (a box's face) has that light
+        behind its plane; the one-plane path does not answer with such planes, but one
+        that explains the highlights as well as the best plane makes the best plane no
+        answer either. Scored as a face's plane is (the lights behind it predict
+        nothing); planes within ``SAME_PLANE_PX`` of the best are not rivals.
+        """
+        if not self.behind or not self.all_lights_in_front:
+            return None
+        refused = dict(self.refused)
+        self.all_lights_in_front = False
+        try:
+            scores = [s for s in map(self.score, self.behind) if s is not None
+                      and self.plane_gap_px(s.plane, best.plane) > SAME_PLANE_PX]
+        finally:
+            self.all_lights_in_front, self.refused = True, refused
+        return max(scores, key=lambda s: s.key, default=None)
 
     def _plausible(self, plane: Plane) -> bool:
         return not self._implausible(plane)
@@ -792,7 +824,7 @@ class _Context:
             return "put a camera behind the plane"
         in_front = plane.signed_distance(self.lights) > 0.0
         if not (np.all(in_front) if self.all_lights_in_front else np.any(in_front)):
-            return "put a light behind the plane"
+            return _LIGHT_BEHIND
         return ""
 
     def _refuse(self, why: str) -> None:
@@ -997,7 +1029,9 @@ class _Context:
                     f"{best.n_strays} on the object belong to no light")
         if rival is not None:
             gap_px = self.plane_gap_px(rival.plane, best.plane)
-            evidence += (f"; the best different plane ({gap_px:.1f} px away) explains "
+            behind = np.flatnonzero(rival.plane.signed_distance(self.lights) <= 0.0).tolist()
+            evidence += (f"; the best different plane ({gap_px:.1f} px away"
+                         + (f", light {behind} behind it" if behind else "") + ") explains "
                          f"{rival.n_matched} and {len(rival.blends)} merged "
                          f"({rival.n_missing} missing, {rival.n_strays} stray)")
         status, reason = "ok", ""

@@ -619,3 +619,26 @@ def test_one_virtual_light_two_lights_is_not_decided_by_the_outline(face):
     geometric = SRDE(lit, refine=False).estimate(out.views, part)
     assert geometric.status == "ambiguous"
     assert "one virtual light" in geometric.reason
+
+
+def test_a_plane_with_a_light_behind_it_is_a_rival_though_never_the_answer():
+    # One face of a three-face ridge as its own mask: the face turns its back on another
+    # face's light, so the one-plane path refuses its true plane ("a light behind the
+    # plane") and another light's plane explained the same three highlights unopposed,
+    # 6.6 px off. The refused plane is weighed as a rival: the centres cannot tell the
+    # two apart, and the lobes decide.
+    from srde_fusion.synthetic.faceted import faceted_scene
+    from srde_fusion.synthetic.physics import Physics
+    rig = default_rig()
+    faceted = faceted_scene(33009, rig, n_faces=3, convex=True)
+    out = render(faceted.scene, rig, physics=Physics.faithful(), supersample=2)
+    lit = rig.with_lights(rig_lights(faceted.scene))
+    part = out.instance_mask == 1
+    geometric = SRDE(lit, refine=False).estimate(out.views, part)
+    assert geometric.status == "ambiguous"
+    assert "behind it" in geometric.reason
+    result = SRDE(lit).estimate(out.views, part)
+    assert result.status in ("ok", "ambiguous")
+    if result.ok:
+        gap = np.abs(plane_disparity(result.plane, rig)[part] - out.disparity_px[part])
+        assert gap.max() < 0.5
