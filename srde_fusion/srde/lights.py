@@ -569,9 +569,13 @@ class _Score:
         one. A blob explained as two lights' highlights merged supports the plane though
         its centre measures neither.
         """
+        return (self.support - self.n_against, self.n_matched, -self.rms_px)
+
+    @property
+    def rms_px(self) -> float:
+        """RMS distance of the explained highlights from their predictions (inf if none)."""
         d = self.distance_px[self.matched >= 0]
-        rms = float(np.sqrt(np.mean(d * d))) if d.size else math.inf
-        return (self.support - self.n_against, self.n_matched, -rms)
+        return float(np.sqrt(np.mean(d * d))) if d.size else math.inf
 
 
 def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
@@ -1065,7 +1069,7 @@ class _Context:
                       "lights' are predicted on the object and not seen apart (blended or "
                       "cut); which light the blobs belong to is not established; " + evidence)
         elif _same_highlights_other_light(best, rival) and (
-                not decisive or -rival.key[2] * CLOSER_FIT_RATIO < -best.key[2]):
+                not decisive or rival.rms_px * CLOSER_FIT_RATIO < best.rms_px):
             # One virtual light, two lights: both planes mirror a light onto the same point,
             # so they predict the same highlights in every view. What separates them is
             # only where their reflection points fall, near the outline or off it; a lead
@@ -1075,9 +1079,9 @@ class _Context:
             lights = [int(np.flatnonzero((s.matched >= 0).any(axis=1))[0])
                       for s in (best, rival)]
             reason = (f"lights: the highlights are one virtual light, explained as light "
-                      f"{lights[0]}'s and, almost as well, as light {lights[1]}'s (the same "
-                      "image points; only where the planes reflect them near the outline "
-                      "differs); which light they belong to is not established; " + evidence)
+                      f"{lights[0]}'s and as light {lights[1]}'s (the same image points; the "
+                      "planes differ only in where they reflect them, near the outline or "
+                      "not); which light they belong to is not established; " + evidence)
         elif max(a.n_views for a in assignments) < self.min_views:
             status = "too_few_views"
             reason = (f"lights: no light's highlight is measured in {self.min_views} or more "
