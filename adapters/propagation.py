@@ -15,7 +15,7 @@ their sub-pixel values, and it cannot invent a surface the network missed.
 
 A pixel whose own match falls outside the right image (or too near its border for the
 window) has no measured cost and keeps its value; so does a pixel without a value (NaN,
-inf or negative: NaN in the result), which is never offered as a candidate either.
+inf or negative, returned as given), which is never offered as a candidate either.
 
 The rules and constants were chosen on held-out rendered and procedural pairs outside
 every benchmark (see the stand-in's record, ``inference``), as the left-right check was.
@@ -78,7 +78,7 @@ class Propagated:
     Attributes
     ----------
     disparity_px : numpy.ndarray, (H, W), float32, pixels
-        The corrected map (NaN where the input had no value: NaN, inf or negative).
+        The corrected map; a pixel without a value (NaN, inf or negative) as given.
     changed_fraction : float
         Share of pixels whose value was replaced.
     """
@@ -252,6 +252,7 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
     if grey_left.shape != grey_right.shape:
         raise ImageError(f"right: expected the left image's size {grey_left.shape}, got "
                          f"{grey_right.shape}")
+    given = disparity_px
     disparity_px = check_disparity(disparity_px, grey_left.shape, "disparity_px")  # NaN: none
     height, width = disparity_px.shape
     finite = disparity_px[np.isfinite(disparity_px)]
@@ -269,7 +270,10 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
             lo, hi = max(top - reach, 0), min(top + rows + reach, height)
             block = _propagate(grey_left[lo:hi], grey_right[lo:hi], disparity_px[lo:hi])
             out[top:top + rows] = block[top - lo:top - lo + min(rows, height - top)]
-    changed = ~((out == disparity_px) | (np.isnan(out) & np.isnan(disparity_px)))
+    # A pixel without a value (NaN, inf or negative) is returned as it was given.
+    empty = np.isnan(disparity_px)
+    out[empty] = np.asarray(given, np.float32).reshape(out.shape)[empty]
+    changed = ~(empty | (out == disparity_px))
     return Propagated(out, float(changed.mean()))
 
 

@@ -72,10 +72,12 @@ def test_unmeasured_and_empty_pixels_keep_their_value():
     wrong[:, 30:50] = 14.0
     wrong[:, 5] = 40.0  # matches left of the right image: no cost, kept
     wrong[10:20, 30:50] = np.nan  # no value: kept, and never offered
+    wrong[30, 60:62] = (-0.25, np.inf)  # no value either: returned as given
     result = propagate_disparity(left, right, wrong).disparity_px
     assert np.all(result[:, 5] == 40.0)
     assert np.all(np.isnan(result[10:20, 30:50]))
     assert not np.isnan(np.delete(result, np.s_[10:20], axis=0)).any()
+    assert result[30, 60] == -0.25 and result[30, 61] == np.inf
     empty = propagate_disparity(left, right, np.full(left.shape, np.nan))
     assert np.isnan(empty.disparity_px).all()
 
