@@ -168,14 +168,12 @@ def _shifted(values: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
     return out
 
 
-def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.ndarray
-               ) -> np.ndarray:
-    """:func:`propagate_disparity` on one block whose cost volume fits in memory."""
-    finite = disparity_px[np.isfinite(disparity_px)]
-    if finite.size == 0:
-        return disparity_px.copy()
-    first = max(int(np.floor(finite.min())), 0)
-    count = int(np.ceil(finite.max())) - first + 1
+def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.ndarray,
+               first: int, count: int) -> np.ndarray:
+    """:func:`propagate_disparity` on one block, at integer disparities ``first`` + 0..count-1.
+
+    The levels are the whole map's, so that every block's costs are the same arrays.
+    """
     volume = _cost_volume(census_transform(grey_left), census_transform(grey_right),
                           first, count)  # (count + 1, H, W)
     # Costs are read at ``rows + start``: ``rows`` the pixel, ``start`` the level's plane
@@ -256,10 +254,13 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
     disparity_px = check_disparity(disparity_px, grey_left.shape, "disparity_px")  # NaN: none
     height, width = disparity_px.shape
     finite = disparity_px[np.isfinite(disparity_px)]
-    levels = int(np.ceil(finite.max()) - max(np.floor(finite.min()), 0)) + 1 if finite.size else 1
-    rows = max(1, MAX_VOLUME_BYTES // (2 * levels * width))
+    if finite.size == 0:
+        return Propagated(np.asarray(given, np.float32).reshape(disparity_px.shape).copy(), 0.0)
+    first = max(int(np.floor(finite.min())), 0)
+    count = int(np.ceil(finite.max())) - first + 1
+    rows = max(1, MAX_VOLUME_BYTES // (2 * count * width))
     if rows >= height:
-        out = _propagate(grey_left, grey_right, disparity_px)
+        out = _propagate(grey_left, grey_right, disparity_px, first, count)
     else:
         # Row strips with a margin as wide as a value can travel (and the windows reach):
         # each strip's inner rows come out as they would from the whole image.
@@ -268,7 +269,8 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
         out = np.empty_like(disparity_px)
         for top in range(0, height, rows):
             lo, hi = max(top - reach, 0), min(top + rows + reach, height)
-            block = _propagate(grey_left[lo:hi], grey_right[lo:hi], disparity_px[lo:hi])
+            block = _propagate(grey_left[lo:hi], grey_right[lo:hi], disparity_px[lo:hi], first,
+                               count)
             out[top:top + rows] = block[top - lo:top - lo + min(rows, height - top)]
     # A pixel without a value (NaN, inf or negative) is returned as it was given.
     empty = np.isnan(disparity_px)

@@ -537,6 +537,11 @@ class _Score:
     blends: tuple[tuple[int, int], ...]  # (view, candidate) of blobs of merged highlights
 
     @property
+    def explained_lights(self) -> np.ndarray:
+        """Indices of the lights with at least one explained highlight, ascending."""
+        return np.flatnonzero((self.matched >= 0).any(axis=1))
+
+    @property
     def n_matched(self) -> int:
         return int(np.count_nonzero(self.matched >= 0))
 
@@ -666,7 +671,7 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         rival = context.refit(rival)
         if context.plane_gap_px(rival.plane, best.plane) <= SAME_PLANE_PX:
             rival = None
-    if np.count_nonzero((best.matched >= 0).any(axis=1)) == 1:
+    if best.explained_lights.size == 1:
         # Only one light's highlights: which light they belong to may also be one the
         # object turns its back on (a plane this path does not answer with).
         behind = context.rival_with_light_behind(best)
@@ -810,15 +815,8 @@ class _Context:
         answer either. Scored as a face's plane is (the lights behind it predict
         nothing); planes within ``SAME_PLANE_PX`` of the best are not rivals.
         """
-        if not self.behind or not self.all_lights_in_front:
-            return None
-        refused = dict(self.refused)
-        self.all_lights_in_front = False
-        try:
-            scores = [s for s in map(self.score, self.behind) if s is not None
-                      and self.plane_gap_px(s.plane, best.plane) > SAME_PLANE_PX]
-        finally:
-            self.all_lights_in_front, self.refused = True, refused
+        scores = [s for s in map(self.score, self.behind) if s is not None
+                  and self.plane_gap_px(s.plane, best.plane) > SAME_PLANE_PX]
         return max(scores, key=lambda s: s.key, default=None)
 
     def _plausible(self, plane: Plane) -> bool:
@@ -864,9 +862,10 @@ class _Context:
         ru = np.rint(ref_uv[..., 0]).astype(np.int64)
         rv = np.rint(ref_uv[..., 1]).astype(np.int64)
         h, w = self.mask.shape
-        inside = (ru >= 0) & (ru < w) & (rv >= 0) & (rv < h) & (t > 0) & (t < 1)
-        if not self.all_lights_in_front:
-            inside &= (plane.signed_distance(self.lights) > 0.0)[:, None]
+        # A light behind the plane is reflected nowhere on its front (a face turned from
+        # it; a plane with every light in front loses nothing here).
+        inside = (ru >= 0) & (ru < w) & (rv >= 0) & (rv < h) & (t > 0) & (t < 1) \
+            & (plane.signed_distance(self.lights) > 0.0)[:, None]
         on_object = np.zeros(inside.shape, dtype=bool)
         on_object[inside] = (self.mask if region is None else region)[rv[inside], ru[inside]]
         near_edge = on_object.copy()
@@ -1057,14 +1056,14 @@ class _Context:
                       "explains (blended or hidden highlights, or an unknown light); "
                       + evidence)
         elif len(self.lights) > 1 and not decisive \
-                and np.count_nonzero((best.matched >= 0).any(axis=1)) == 1 \
+                and best.explained_lights.size == 1 \
                 and np.any(best.on_object.sum(axis=1)[(best.matched < 0).all(axis=1)]
                            >= self.min_views):
             # Only one light's blobs are explained while other lights are predicted on the
             # object, and no plane that gives them to another light is clearly contradicted:
             # nothing ties the blobs to that light rather than to another.
             status = "ambiguous"
-            lights = np.flatnonzero((best.matched >= 0).any(axis=1)).tolist()
+            lights = best.explained_lights.tolist()
             reason = (f"lights: only light {lights}'s highlights are explained, while other "
                       "lights' are predicted on the object and not seen apart (blended or "
                       "cut); which light the blobs belong to is not established; " + evidence)
@@ -1076,12 +1075,11 @@ class _Context:
             # in count is no answer when the rival fits its highlights far closer (the
             # extra ones are centres cut by the outline, which the rival leaves out).
             status = "ambiguous"
-            lights = [int(np.flatnonzero((s.matched >= 0).any(axis=1))[0])
-                      for s in (best, rival)]
             reason = (f"lights: the highlights are one virtual light, explained as light "
-                      f"{lights[0]}'s and as light {lights[1]}'s (the same image points; the "
-                      "planes differ only in where they reflect them, near the outline or "
-                      "not); which light they belong to is not established; " + evidence)
+                      f"{best.explained_lights[0]}'s and as light {rival.explained_lights[0]}'s "
+                      "(the same image points; the planes differ only in where they reflect "
+                      "them, near the outline or not); which light they belong to is not "
+                      "established; " + evidence)
         elif max(a.n_views for a in assignments) < self.min_views:
             status = "too_few_views"
             reason = (f"lights: no light's highlight is measured in {self.min_views} or more "
@@ -1099,7 +1097,7 @@ def _same_highlights_other_light(best: _Score, rival: _Score | None) -> bool:
     """
     if rival is None:
         return False
-    lights = [np.flatnonzero((s.matched >= 0).any(axis=1)) for s in (best, rival)]
+    lights = [s.explained_lights for s in (best, rival)]
     if any(ls.size != 1 for ls in lights) or lights[0][0] == lights[1][0]:
         return False
     return explained_pairs(rival) <= explained_pairs(best)

@@ -576,14 +576,20 @@ def test_lit_answers_do_not_depend_on_what_was_asked_before():
 
 
 def test_same_highlights_under_another_light_is_recognised():
-    from types import SimpleNamespace
+    from srde_fusion.srde.lights import PlaneScore, _same_highlights_other_light
 
-    from srde_fusion.srde.lights import _same_highlights_other_light
+    class Matched:
+        """Just the matches of a score, with the score's own reading of them."""
+
+        explained_lights = PlaneScore.explained_lights
+
+        def __init__(self, matched):
+            self.matched = matched
 
     def score(light, views, candidates):
         matched = np.full((3, 9), -1)
         matched[light, views] = candidates
-        return SimpleNamespace(matched=matched)
+        return Matched(matched)
 
     best = score(2, [0, 1, 3, 4, 6], [0, 1, 0, 0, 0])
     assert _same_highlights_other_light(best, score(0, [0, 1, 3, 4], [0, 1, 0, 0]))
@@ -597,19 +603,29 @@ def test_same_highlights_under_another_light_is_recognised():
     assert not _same_highlights_other_light(two, score(0, [0, 1], [0, 1]))
 
 
+def _faces_alone(seed: int):
+    """A three-face ridge (faithful render) and a rig that knows every face's light."""
+    from srde_fusion.synthetic.faceted import faceted_scene
+    from srde_fusion.synthetic.physics import Physics
+    rig = default_rig()
+    faceted = faceted_scene(seed, rig, n_faces=3, convex=True)
+    out = render(faceted.scene, rig, physics=Physics.faithful(), supersample=2)
+    return rig, out, rig.with_lights(rig_lights(faceted.scene))
+
+
+@pytest.fixture(scope="module")
+def ridge_33015():
+    return _faces_alone(33015)
+
+
 @pytest.mark.parametrize("face", [0, 1])
-def test_one_virtual_light_two_lights_is_not_decided_by_the_outline(face):
+def test_one_virtual_light_two_lights_is_not_decided_by_the_outline(ridge_33015, face):
     # One face of a three-face ridge as its own mask, with every face's light known: the
     # face's highlights are one virtual light, and the plane mirroring another light onto
     # it predicts the same image points. It explained one highlight more only because
     # the true plane reflects one view's highlight near the outline; it came out 8-10 px
     # off. The image decides between them now, or the answer is a reasoned failure.
-    from srde_fusion.synthetic.faceted import faceted_scene
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    faceted = faceted_scene(33015, rig, n_faces=3, convex=True)
-    out = render(faceted.scene, rig, physics=Physics.faithful(), supersample=2)
-    lit = rig.with_lights(rig_lights(faceted.scene))
+    rig, out, lit = ridge_33015
     part = out.instance_mask == face + 1
     result = SRDE(lit).estimate(out.views, part)
     assert result.status in ("ok", "ambiguous")
@@ -627,12 +643,7 @@ def test_a_plane_with_a_light_behind_it_is_a_rival_though_never_the_answer():
     # plane") and another light's plane explained the same three highlights unopposed,
     # 6.6 px off. The refused plane is weighed as a rival: the centres cannot tell the
     # two apart, and the lobes decide.
-    from srde_fusion.synthetic.faceted import faceted_scene
-    from srde_fusion.synthetic.physics import Physics
-    rig = default_rig()
-    faceted = faceted_scene(33009, rig, n_faces=3, convex=True)
-    out = render(faceted.scene, rig, physics=Physics.faithful(), supersample=2)
-    lit = rig.with_lights(rig_lights(faceted.scene))
+    rig, out, lit = _faces_alone(33009)
     part = out.instance_mask == 1
     geometric = SRDE(lit, refine=False).estimate(out.views, part)
     assert geometric.status == "ambiguous"
