@@ -428,7 +428,8 @@ class StereoAdapter:
                  f"the right image take the row's background, the others the mean of both "
                  f"views)" if spec.left_right_check
                  else "  left-right check: off")
-        propagation = ("  census propagation: on (a pixel takes a neighbour's disparity, "
+        propagation = ("  census propagation: on (a pixel takes its own best census match "
+                       "where the right view confirms it, or a neighbour's disparity, "
                        f"{'/'.join(map(str, OFFSETS_PX))} px along its row or column, where "
                        "the census cost is clearly lower)" if spec.census_propagation
                        else "  census propagation: off")

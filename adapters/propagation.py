@@ -3,19 +3,30 @@
 A network that builds its cost volume at a quarter of the resolution and upsamples its
 estimate smoothly spreads a foreground disparity over the background beside it and
 through small gaps (between spokes, through a chair's back): its map is right region by
-region but wrong along many edges. The images can tell. Each pixel is offered the
-disparities its neighbours hold :data:`OFFSETS_PX` away along its row and its column, and
-keeps the one whose census matching cost (:data:`CENSUS_RADIUS_PX`, summed over a
-:data:`WINDOW_PX` window) is lowest, if it beats the pixel's own by :data:`MARGIN_BITS`
-bits per window pixel and is a good match itself (:data:`MATCH_BITS`). Repeated
-:data:`ITERATIONS` times, a right value travels across a wrongly filled band up to
-``ITERATIONS * max(OFFSETS_PX)`` px wide. Only values the network produced somewhere
-nearby are ever chosen: the stage corrects where the network put its estimates, not
-their sub-pixel values, and it cannot invent a surface the network missed.
+region but wrong along many edges, and where it is wrong over a whole region (the
+background seen through a wheel) no neighbour holds the right value. The images can tell,
+in two steps, both judged by census matching costs (:data:`CENSUS_RADIUS_PX`, summed
+over a :data:`WINDOW_PX` window) at the disparity levels the map spans:
+
+1. **Seeds.** Each pixel's best level over a wider :data:`SEED_WINDOW_PX` window (the
+   window costs averaged over it; the sub-pixel value from a parabola through the
+   neighbouring levels) replaces the network's value where that wider cost is lower than
+   the network's by :data:`SEED_MARGIN_BITS` bits per window pixel and is a good match
+   itself (:data:`SEED_MATCH_BITS`). The wider window makes a local match reliable where
+   one window's texture is weak; the bounds leave the network's value wherever the
+   images do not clearly contradict it.
+2. **Propagation.** Each pixel is offered the disparities its neighbours hold
+   :data:`OFFSETS_PX` away along its row and its column, and keeps the one whose window
+   cost is lowest, if it beats the pixel's own by :data:`MARGIN_BITS` bits per window
+   pixel and is a good match itself (:data:`MATCH_BITS`). Repeated :data:`ITERATIONS`
+   times, a right value travels across a wrongly filled band up to
+   ``ITERATIONS * max(OFFSETS_PX)`` px wide.
 
 A pixel whose own match falls outside the right image (or too near its border for the
 window) has no measured cost and keeps its value; so does a pixel without a value (NaN,
-inf or negative, returned as given), which is never offered as a candidate either.
+inf or negative, returned as given), which is never offered as a candidate either. Only
+levels within the range of the map's own values are searched: the stage corrects where
+the network put its estimates, not the range it saw.
 
 The rules and constants were chosen on held-out rendered and procedural pairs outside
 every benchmark (see the stand-in's record, ``inference``), as the left-right check was.
@@ -37,6 +48,9 @@ __all__ = [
     "MARGIN_BITS",
     "MATCH_BITS",
     "OFFSETS_PX",
+    "SEED_MARGIN_BITS",
+    "SEED_MATCH_BITS",
+    "SEED_WINDOW_PX",
     "WINDOW_PX",
     "Propagated",
     "census_transform",
@@ -64,6 +78,16 @@ MARGIN_BITS = 2.0
 #: noise on a flat surface) every cost is high and the lowest of many offers would win
 #: by chance.
 MATCH_BITS = 6.0
+
+#: Side of the square over which window costs are averaged for the seeds, px.
+SEED_WINDOW_PX = 9
+
+#: A seed replaces a pixel's value when its averaged cost is lower by this many differing
+#: bits per window pixel ...
+SEED_MARGIN_BITS = 1.0
+
+#: ... and at most this many itself (of 24).
+SEED_MATCH_BITS = 8.0
 
 #: Largest cost volume held at once (bytes); larger images are run in row strips.
 MAX_VOLUME_BYTES = 256 * 2**20
@@ -168,6 +192,90 @@ def _shifted(values: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
     return out
 
 
+def _seeds(volume: np.ndarray, first: int, count: int, own_start: np.ndarray, plane: int
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each pixel's best level over the wider seed window, and whether it replaces the own.
+
+    Parameters
+    ----------
+    volume : numpy.ndarray, (count + 1, H, W), uint16
+        Window costs from :func:`_cost_volume`.
+    first : int
+        Disparity of the first level, px.
+    count : int
+        Levels measured.
+    own_start : numpy.ndarray, (H * W,), intp
+        Each pixel's own level times ``plane`` (``count * plane``: none).
+    plane : int
+        ``H * W``.
+
+    Returns
+    -------
+    take : numpy.ndarray, (H * W,), bool
+        Pixels the seed replaces.
+    level : numpy.ndarray, (H * W,), intp
+        The seed's level.
+    offset : numpy.ndarray, (H * W,), float32
+        Its sub-pixel offset from that level, in [-0.5, 0.5].
+    """
+    shape = volume.shape[1:]
+    width = shape[1]
+    window = WINDOW_PX * WINDOW_PX * SEED_WINDOW_PX * SEED_WINDOW_PX  # cost terms in a sum
+    # A sum above the largest measured one holds an unmeasured entry (65535): that level
+    # is not measured over the wider window. Sums are clipped there, so that each fits
+    # in 16 bits beside its level in 15: the smallest key is the lowest sum, its lowest
+    # level on a tie, and one minimum per level keeps both.
+    largest = ((2 * CENSUS_RADIUS_PX + 1) ** 2 - 1) * window
+    level_bits = 15
+    if count >= 2**level_bits or largest >= _UNMEASURED:
+        return np.zeros(plane, bool), np.zeros(plane, np.intp), np.zeros(plane, np.float32)
+    size = (SEED_WINDOW_PX, SEED_WINDOW_PX)
+    best_key = np.full(shape, np.iinfo(np.int32).max, np.int32)
+    # The right view's best for each of its pixels, from the same sums (a left pixel x at
+    # level i is the right pixel x - first - i).
+    right_key = best_key.copy()
+    # The sum at each pixel's own level: its pixels listed per level once.
+    own = np.full(plane, _UNMEASURED, np.int32)
+    own_level = own_start // plane
+    by_level = np.argsort(own_level.astype(np.int16), kind="stable")
+    bounds = np.searchsorted(own_level[by_level], np.arange(count + 1))
+    # One level at a time: the wider sums are never all held at once.
+    for i in range(count):
+        key = cv2.boxFilter(volume[i], cv2.CV_32S, size, normalize=False,
+                            borderType=cv2.BORDER_REFLECT_101)
+        np.minimum(key, _UNMEASURED, out=key)
+        mine = by_level[bounds[i]:bounds[i + 1]]
+        own[mine] = key.ravel().take(mine)
+        np.left_shift(key, level_bits, out=key)
+        np.bitwise_or(key, i, out=key)
+        np.minimum(best_key, key, out=best_key)
+        shift = first + i
+        if shift < width:
+            held = right_key[:, :width - shift]
+            np.minimum(held, key[:, shift:], out=held)
+    mask = 2**level_bits - 1
+    level = best_key & mask
+    # A seed the right view does not confirm (its best level there differs by more than
+    # one) is the foreground a window drags over an occlusion: not taken.
+    right_x = np.arange(width) - first - level
+    right_says = np.take_along_axis(right_key, np.maximum(right_x, 0), axis=1) & mask
+    confirmed = (right_x >= 0) & (np.abs(right_says - level) <= 1)
+    level, best = level.ravel().astype(np.intp), (best_key >> level_bits).ravel()
+    take = (confirmed.ravel() & (own <= largest) & (level != own_level)
+            & (best + SEED_MARGIN_BITS * window < own)
+            & (best <= SEED_MATCH_BITS * window))
+    # The sub-pixel offset: the parabola through the seed's own window costs at its level
+    # and the two beside it (none at the range's ends or where one is not measured).
+    offset = np.zeros(plane, np.float32)
+    inner = np.flatnonzero(take & (level > 0) & (level < count - 1))
+    below, centre, above = (volume.ravel().take((level[inner] + step) * plane + inner)
+                            .astype(np.float32) for step in (-1, 0, 1))
+    curvature = below - 2 * centre + above
+    fitted = (below < _UNMEASURED) & (above < _UNMEASURED) & (curvature > 0)
+    offset[inner[fitted]] = 0.5 * (below - above)[fitted] / curvature[fitted]
+    return take, level, offset
+
+
 def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.ndarray,
                first: int, count: int) -> np.ndarray:
     """:func:`propagate_disparity` on one block, at integer disparities ``first`` + 0..count-1.
@@ -191,6 +299,11 @@ def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.n
     shape = disparity_px.shape
     current = disparity_px.ravel().copy()
     current_start = plane_start(current)
+    measured = table.take(rows + current_start) < _UNMEASURED
+    seeded, level, offset = _seeds(volume, first, count, current_start, plane)
+    seeded &= measured  # a pixel without a measured cost of its own keeps its value
+    current[seeded] = (first + level[seeded] + offset[seeded]).astype(np.float32)
+    current_start[seeded] = level[seeded] * plane
     for _ in range(ITERATIONS):
         best, best_start = current.copy(), current_start.copy()
         best_cost = table.take(rows + best_start).astype(np.float32)
@@ -264,7 +377,8 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
     else:
         # Row strips with a margin as wide as a value can travel (and the windows reach):
         # each strip's inner rows come out as they would from the whole image.
-        reach = ITERATIONS * max(OFFSETS_PX) + CENSUS_RADIUS_PX + WINDOW_PX // 2
+        reach = (ITERATIONS * max(OFFSETS_PX) + CENSUS_RADIUS_PX + WINDOW_PX // 2
+                 + SEED_WINDOW_PX // 2)
         rows = max(rows - 2 * reach, 1)
         out = np.empty_like(disparity_px)
         for top in range(0, height, rows):

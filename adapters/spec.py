@@ -168,11 +168,12 @@ class StereoSpec:
     left_right_max_diff_px : float
         Tolerance of ``left_right_check``, px.
     census_propagation : bool
-        After the model (and the left-right check), let each pixel take a neighbour's
-        disparity where the images' census matching cost is clearly lower there
-        (:func:`~srde_fusion.adapters.propagation.propagate_disparity`): mends the
-        foreground a smooth network spreads over the background beside edges. On for the
-        bundled stand-in.
+        After the model (and the left-right check), let each pixel take its own best
+        census match over a wider window (where the right view confirms it) or a
+        neighbour's disparity, where the images' census matching cost is clearly lower
+        there (:func:`~srde_fusion.adapters.propagation.propagate_disparity`): mends the
+        foreground a smooth network spreads over the background beside edges and through
+        gaps. On for the bundled stand-in.
 
     Examples
     --------

@@ -18,7 +18,8 @@ pixels empty (failed uniqueness or left-right checks); the stand-in fills every 
 The stand-in runs as ``load_backbone`` gives it: its left-right check (the mirrored pair
 too; pixels the right view contradicts, or that match outside the right image, take the
 row's background, the others the mean of both views), then census propagation (a pixel
-takes a neighbour's disparity where the census matching cost is clearly lower). It runs
+takes its own best census match over a wider window, where the right view confirms it,
+or a neighbour's disparity, where the census matching cost is clearly lower). It runs
 once more without the propagation (``stand-in, no propagation``) and with neither
 (``network only``) to show what each changes; the shares of pixels the check filled and
 the propagation changed are reported. ``EPE both`` is taken over the pixels where every
@@ -228,7 +229,11 @@ def main() -> None:
         "mirrored pair too; pixels the right view contradicts by more than 1 px, or that "
         "match outside the right image, take the smaller of their row's nearest confirmed "
         "disparities: the output stays dense; the others the mean of both views' "
-        "disparities), then census propagation (each pixel is offered its neighbours' "
+        "disparities), then census propagation (first each pixel's best census match "
+        f"averaged over a {propagation.SEED_WINDOW_PX}x{propagation.SEED_WINDOW_PX} "
+        "window, confirmed by the right view's, replaces its value where that cost is "
+        f"lower by {propagation.SEED_MARGIN_BITS:g} bits per pixel and at most "
+        f"{propagation.SEED_MATCH_BITS:g}; then each pixel is offered its neighbours' "
         f"disparities {', '.join(map(str, propagation.OFFSETS_PX))} px along its row and "
         f"column, {propagation.ITERATIONS} rounds, and takes one whose census cost "
         f"({2 * propagation.CENSUS_RADIUS_PX + 1}x{2 * propagation.CENSUS_RADIUS_PX + 1} "
