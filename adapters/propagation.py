@@ -67,7 +67,7 @@ WINDOW_PX = 5
 OFFSETS_PX = (3, 6, 12, 24)
 
 #: Rounds of offers; values travel at most ``ITERATIONS * max(OFFSETS_PX)`` px.
-ITERATIONS = 3
+ITERATIONS = 2
 
 #: A neighbour's disparity replaces a pixel's own when its cost is lower by this many
 #: differing census bits per window pixel.
