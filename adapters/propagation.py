@@ -9,12 +9,14 @@ in two steps, both judged by census matching costs (:data:`CENSUS_RADIUS_PX`, su
 over a :data:`WINDOW_PX` window) at the disparity levels the map spans:
 
 1. **Seeds.** Each pixel's best level over a wider :data:`SEED_WINDOW_PX` window (the
-   window costs averaged over it; the sub-pixel value from a parabola through the
-   neighbouring levels) replaces the network's value where that wider cost is lower than
-   the network's by :data:`SEED_MARGIN_BITS` bits per window pixel and is a good match
-   itself (:data:`SEED_MATCH_BITS`). The wider window makes a local match reliable where
-   one window's texture is weak; the bounds leave the network's value wherever the
-   images do not clearly contradict it.
+   window costs summed over it; the sub-pixel value from a parabola through the pixel's
+   own window costs at the neighbouring levels) replaces the network's value where the
+   right view's best level at the matching pixel agrees within one level, the wider cost
+   is lower than the network's by :data:`SEED_MARGIN_BITS` bits per window pixel and it
+   is a good match itself (:data:`SEED_MATCH_BITS`). The wider window makes a local match
+   reliable where one window's texture is weak; the right view's agreement refuses the
+   foreground a window drags over the occlusion beside it; the bounds leave the
+   network's value wherever the images do not clearly contradict it.
 2. **Propagation.** Each pixel is offered the disparities its neighbours hold
    :data:`OFFSETS_PX` away along its row and its column, and keeps the one whose window
    cost is lowest, if it beats the pixel's own by :data:`MARGIN_BITS` bits per window

@@ -191,3 +191,25 @@ def test_uint8_and_float_pairs_agree():
 def test_bad_inputs_say_what_was_expected(args, error, message):
     with pytest.raises(error, match=message):
         propagate_disparity(*args)
+
+
+def test_a_seed_the_right_view_contradicts_is_not_taken():
+    # A foreground band at 14 px over a background at 6 px: the background just left of
+    # the band is hidden in the right view. There a 9x9 window that reaches the band
+    # matches best at the foreground's disparity, but the right view's best at that match
+    # is the background: the seed is refused and the truth stays.
+    rng = np.random.default_rng(7)
+    height, width, fg_px, bg_px = 48, 160, 14, int(TRUE_PX)
+    background = rng.random((height, width + 40)).astype(np.float32)
+    foreground = rng.random((height, width + 40)).astype(np.float32)
+    band = slice(80, 110)  # the band's columns in the left image
+    left = background[:, 20 - bg_px:20 - bg_px + width].copy()
+    left[:, band] = foreground[:, band]
+    right = background[:, 20:20 + width].copy()
+    right[:, band.start - fg_px:band.stop - fg_px] = foreground[:, band]
+    truth = np.full((height, width), TRUE_PX, np.float32)
+    truth[:, band] = fg_px
+    result = propagate_disparity(left, right, truth).disparity_px
+    # seen in the left view only (the column beside the band is either's)
+    hidden = slice(band.start - (fg_px - bg_px), band.start - 1)
+    assert np.all(result[6:-6, hidden] == TRUE_PX)
