@@ -8,7 +8,9 @@ the stand-in and is scored the same way) and each mask
 source (the ground-truth masks as "user" masks, and the built-in highlight segmenter),
 the backbone's map, SRDE alone and the fused map are scored against ground truth over
 the full scene and over the objects: EPE, RMSE and the paper's bmp, mean ± std over
-scenes. Also measured: the segmenter's IoU with the true objects, and how well the
+scenes. The fused maps with the stand-in and with SGBM are also compared on the same
+pixels (where both have a value, which leaves out SGBM's holes). Also measured: the
+segmenter's IoU with the true objects, and how well the
 fusion's outline check tells correct SRDE planes from grossly wrong ones, for the rule
 in use and for the rules tried before it.
 
