@@ -189,6 +189,8 @@ def _shifted(values: np.ndarray, dy: int, dx: int, fill) -> np.ndarray:
     """``out[y, x] = values[y - dy, x - dx]``; ``fill`` where that lies outside the map."""
     out = np.full_like(values, fill)
     height, width = values.shape
+    if abs(dy) >= height or abs(dx) >= width:  # a shift past the map's edge: all fill
+        return out
     out[max(dy, 0):height + min(dy, 0), max(dx, 0):width + min(dx, 0)] = \
         values[max(-dy, 0):height - max(dy, 0), max(-dx, 0):width - max(dx, 0)]
     return out

@@ -25,7 +25,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from srde_fusion.errors import BackboneError
+from srde_fusion.errors import BackboneError, ImageError
 
 from ._pipeline import check_pair
 from .consistency import seen_from_right
@@ -241,8 +241,26 @@ class SGBMStereo:
         self.spec.penalties()  # p1/p2 given only one-sided: check the pair now, not per call
 
     def matcher(self, width: int) -> Any:
-        """Return the ``cv2.StereoSGBM`` object for images ``width`` px wide."""
+        """Return the ``cv2.StereoSGBM`` object for images ``width`` px wide.
+
+        Raises
+        ------
+        ImageError
+            Images too narrow for the disparity range: OpenCV then fails with an
+            allocation error of a negative size, which may leave the process corrupt.
+        """
         spec = self.spec
+        # Measured with OpenCV 4.x/5.x: "sgbm" and "hh" need width > min_disparity +
+        # num_disparities + block_size // 2, "3way" width > num_disparities +
+        # max(min_disparity, 0); the larger of the two holds for every mode.
+        limit = (spec.num_disparities_for(width) + max(spec.min_disparity, 0)
+                 + spec.block_size // 2)
+        if width <= limit:
+            raise ImageError(
+                f"images: expected a width above {limit} px for SGBM (num_disparities "
+                f"{spec.num_disparities_for(width)}, min_disparity {spec.min_disparity}, "
+                f"block_size {spec.block_size}), got {width} px; a narrower image needs a "
+                f"smaller disparity range (num_disparities is at least 16)")
         p1, p2 = spec.penalties()
         return cv2.StereoSGBM_create(
             minDisparity=spec.min_disparity, numDisparities=spec.num_disparities_for(width),
@@ -268,7 +286,8 @@ class SGBMStereo:
         Raises
         ------
         ImageError
-            Wrong image type, dtype, shape or mismatched sizes.
+            Wrong image type, dtype, shape or mismatched sizes, or images too narrow for
+            the disparity range (see :meth:`matcher`).
         """
         left01, right01 = check_pair(left, right)
         left8, right8 = self._matching_images(left01), self._matching_images(right01)

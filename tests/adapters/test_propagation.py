@@ -213,3 +213,15 @@ def test_a_seed_the_right_view_contradicts_is_not_taken():
     # seen in the left view only (the column beside the band is either's)
     hidden = slice(band.start - (fg_px - bg_px), band.start - 1)
     assert np.all(result[6:-6, hidden] == TRUE_PX)
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (5, 200), (200, 5), (9, 9), (20, 60)])
+def test_images_smaller_than_the_offsets_run(shape):
+    # Offsets (up to 24 px) and the seed window (9 px) reach past such maps' edges.
+    rng = np.random.default_rng(8)
+    left, right = (rng.random(shape).astype(np.float32) for _ in range(2))
+    disparity = rng.uniform(0.0, 30.0, shape).astype(np.float32)
+    disparity[0, 0] = np.nan
+    result = propagate_disparity(left, right, disparity).disparity_px
+    assert result.shape == shape
+    np.testing.assert_array_equal(np.isnan(result), np.isnan(disparity))

@@ -160,3 +160,22 @@ def test_load_backbone_and_the_command_name_it():
         load_backbone("sgbm", "igev")
     with pytest.raises(BackboneError, match="it goes with source 'sgbm'"):
         load_backbone("default", SGBMSpec())
+
+
+@pytest.mark.parametrize(("mode", "changes", "widest_refused"), [
+    ("3way", {}, 18), ("sgbm", {}, 18), ("hh", {"block_size": 11}, 21),
+    ("3way", {"num_disparities": 32}, 34), ("sgbm", {"min_disparity": 8}, 26),
+])
+def test_images_too_narrow_for_the_range_are_refused_before_opencv(mode, changes,
+                                                                   widest_refused):
+    # OpenCV fails on these with an allocation of a negative size (and may leave the
+    # process corrupt); the widths just above the limit run.
+    rng = np.random.default_rng(3)
+    stereo = SGBMStereo(mode=mode, **changes)
+    for width in (2, widest_refused):
+        image = rng.integers(0, 256, (24, width, 3), dtype=np.uint8)
+        with pytest.raises(ImageError, match=f"expected a width above {widest_refused} px "
+                                             f"for SGBM .*got {width} px"):
+            stereo(image, image)
+    image = rng.integers(0, 256, (24, widest_refused + 1, 3), dtype=np.uint8)
+    assert stereo(image, image).shape == (24, widest_refused + 1)
