@@ -3,10 +3,11 @@
 A network that builds its cost volume at a quarter of the resolution and upsamples its
 estimate smoothly spreads a foreground disparity over the background beside it and
 through small gaps (between spokes, through a chair's back): its map is right region by
-region but wrong along many edges, and where it is wrong over a whole region (the
-background seen through a wheel) no neighbour holds the right value. The images can tell,
-in two steps, both judged by census matching costs (:data:`CENSUS_RADIUS_PX`, summed
-over a :data:`WINDOW_PX` window) at the disparity levels the map spans:
+region but wrong along many edges, and where it is wrong over a whole region (background
+seen through a gap wider than the offsets reach) no neighbour holds the right value. The
+images can tell, in two steps, both judged by census matching costs
+(:data:`CENSUS_RADIUS_PX`, summed over a :data:`WINDOW_PX` window) at the disparity
+levels the map spans:
 
 1. **Seeds.** Each pixel's best level over a wider :data:`SEED_WINDOW_PX` window (the
    window costs summed over it; the sub-pixel value from a parabola through the pixel's
@@ -304,9 +305,9 @@ def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.n
     current = disparity_px.ravel().copy()
     current_start = plane_start(current)
     measured = table.take(rows + current_start) < _UNMEASURED
-    seeded, level, offset = _seeds(volume, first, count, current_start, plane)
+    seeded, level, sub_px = _seeds(volume, first, count, current_start, plane)
     seeded &= measured  # a pixel without a measured cost of its own keeps its value
-    current[seeded] = (first + level[seeded] + offset[seeded]).astype(np.float32)
+    current[seeded] = (first + level[seeded] + sub_px[seeded]).astype(np.float32)
     current_start[seeded] = level[seeded] * plane
     for _ in range(ITERATIONS):
         best, best_start = current.copy(), current_start.copy()
