@@ -250,7 +250,7 @@ class SGBMStereo:
             allocation error of a negative size, which may leave the process corrupt.
         """
         spec = self.spec
-        # Measured with OpenCV 4.x/5.x: "sgbm" and "hh" need width > min_disparity +
+        # Measured (OpenCV 5.0): "sgbm" and "hh" need width > min_disparity +
         # num_disparities + block_size // 2, "3way" width > num_disparities +
         # max(min_disparity, 0); the larger of the two holds for every mode.
         limit = (spec.num_disparities_for(width) + max(spec.min_disparity, 0)
