@@ -248,7 +248,11 @@ def _seeds(volume: np.ndarray, first: int, count: int, own_start: np.ndarray, pl
     for i in range(count):
         key = cv2.boxFilter(volume[i], cv2.CV_32S, size, normalize=False,
                             borderType=cv2.BORDER_REFLECT_101)
-        np.minimum(key, _UNMEASURED, out=key)
+        # Unmeasured entries are the level's first columns (see _cost_volume): only the
+        # sums that reach them can exceed 16 bits.
+        edge = min(first + i + CENSUS_RADIUS_PX + WINDOW_PX // 2 + SEED_WINDOW_PX // 2 + 1,
+                   width)
+        np.minimum(key[:, :edge], _UNMEASURED, out=key[:, :edge])
         mine = by_level[bounds[i]:bounds[i + 1]]
         own[mine] = key.ravel().take(mine)
         np.left_shift(key, level_bits, out=key)
@@ -309,6 +313,7 @@ def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.n
     seeded &= measured  # a pixel without a measured cost of its own keeps its value
     current[seeded] = (first + level[seeded] + sub_px[seeded]).astype(np.float32)
     current_start[seeded] = level[seeded] * plane
+    width = shape[1]
     for _ in range(ITERATIONS):
         best, best_start = current.copy(), current_start.copy()
         best_cost = table.take(rows + best_start).astype(np.float32)
@@ -319,12 +324,15 @@ def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.n
                                          count * plane).ravel()
                 # An offer at the level already held cannot be cheaper: not looked up.
                 asked = np.flatnonzero(measured & (offered_start != best_start))
-                offered_cost = table.take(rows[asked] + offered_start[asked])
-                take = asked[(offered_cost + margin < best_cost[asked])
-                             & (offered_cost <= MATCH_BITS * WINDOW_PX * WINDOW_PX)]
-                best[take] = _shifted(current.reshape(shape), dy, dx, np.nan).ravel()[take]
+                offered_cost = table.take(asked + offered_start[asked])
+                better = ((offered_cost + margin < best_cost[asked])
+                          & (offered_cost <= MATCH_BITS * WINDOW_PX * WINDOW_PX))
+                take = asked[better]
+                # A pixel takes its neighbour's value: the one dy rows and dx columns back
+                # (always inside the map, else its offer was unmeasured and not taken).
+                best[take] = current[take - (dy * width + dx)]
                 best_start[take] = offered_start[take]
-                best_cost[take] = table.take(rows[take] + best_start[take])
+                best_cost[take] = offered_cost[better]
         current, current_start = best, best_start
     return current.reshape(shape)
 
