@@ -97,6 +97,9 @@ MAX_VOLUME_BYTES = 256 * 2**20
 
 _UNMEASURED = np.iinfo(np.uint16).max
 
+#: How far a pixel's window cost reads from it, px: the census radius plus half the window.
+_COST_REACH_PX = CENSUS_RADIUS_PX + WINDOW_PX // 2
+
 
 @dataclass(frozen=True)
 class Propagated:
@@ -171,11 +174,10 @@ def _cost_volume(census_left: np.ndarray, census_right: np.ndarray, first: int, 
     wholly inside the image holds ``_UNMEASURED``, and so does the last level throughout.
     """
     height, width = census_left.shape
-    edge = CENSUS_RADIUS_PX + WINDOW_PX // 2
     volume = np.full((count + 1, height, width), _UNMEASURED, np.uint16)
     for i in range(count):
         d = first + i
-        start = d + edge  # first column whose right window lies inside the image
+        start = d + _COST_REACH_PX  # first column whose right window lies inside
         if start >= width:
             continue
         distance = np.zeros((height, width), np.uint8)
@@ -250,8 +252,7 @@ def _seeds(volume: np.ndarray, first: int, count: int, own_start: np.ndarray, pl
                             borderType=cv2.BORDER_REFLECT_101)
         # Unmeasured entries are the level's first columns (see _cost_volume): only the
         # sums that reach them can exceed 16 bits.
-        edge = min(first + i + CENSUS_RADIUS_PX + WINDOW_PX // 2 + SEED_WINDOW_PX // 2 + 1,
-                   width)
+        edge = min(first + i + _COST_REACH_PX + SEED_WINDOW_PX // 2 + 1, width)
         np.minimum(key[:, :edge], _UNMEASURED, out=key[:, :edge])
         mine = by_level[bounds[i]:bounds[i + 1]]
         own[mine] = key.ravel().take(mine)
@@ -308,16 +309,18 @@ def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.n
     shape = disparity_px.shape
     current = disparity_px.ravel().copy()
     current_start = plane_start(current)
+    # Which pixels have a measured cost of their own never changes: a seed or an offer is
+    # only taken at a measured cost, by a pixel that had one.
     measured = table.take(rows + current_start) < _UNMEASURED
     seeded, level, sub_px = _seeds(volume, first, count, current_start, plane)
-    seeded &= measured  # a pixel without a measured cost of its own keeps its value
+    seeded &= measured
     current[seeded] = (first + level[seeded] + sub_px[seeded]).astype(np.float32)
     current_start[seeded] = level[seeded] * plane
+    # The cost of each pixel's value, kept up to date as values are taken.
+    best_cost = table.take(rows + current_start).astype(np.float32)
     width = shape[1]
     for _ in range(ITERATIONS):
         best, best_start = current.copy(), current_start.copy()
-        best_cost = table.take(rows + best_start).astype(np.float32)
-        measured = best_cost < _UNMEASURED
         for offset in OFFSETS_PX:
             for dy, dx in ((0, offset), (0, -offset), (offset, 0), (-offset, 0)):
                 offered_start = _shifted(current_start.reshape(shape), dy, dx,
@@ -390,8 +393,7 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
     else:
         # Row strips with a margin as wide as a value can travel (and the windows reach):
         # each strip's inner rows come out as they would from the whole image.
-        reach = (ITERATIONS * max(OFFSETS_PX) + CENSUS_RADIUS_PX + WINDOW_PX // 2
-                 + SEED_WINDOW_PX // 2)
+        reach = ITERATIONS * max(OFFSETS_PX) + _COST_REACH_PX + SEED_WINDOW_PX // 2
         rows = max(rows - 2 * reach, 1)
         out = np.empty_like(disparity_px)
         for top in range(0, height, rows):

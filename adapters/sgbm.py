@@ -250,20 +250,20 @@ class SGBMStereo:
             allocation error of a negative size, which may leave the process corrupt.
         """
         spec = self.spec
+        num_disparities = spec.num_disparities_for(width)
         # Measured (OpenCV 5.0): "sgbm" and "hh" need width > min_disparity +
         # num_disparities + block_size // 2, "3way" width > num_disparities +
         # max(min_disparity, 0); the larger of the two holds for every mode.
-        limit = (spec.num_disparities_for(width) + max(spec.min_disparity, 0)
-                 + spec.block_size // 2)
+        limit = num_disparities + max(spec.min_disparity, 0) + spec.block_size // 2
         if width <= limit:
             raise ImageError(
                 f"images: expected a width above {limit} px for SGBM (num_disparities "
-                f"{spec.num_disparities_for(width)}, min_disparity {spec.min_disparity}, "
+                f"{num_disparities}, min_disparity {spec.min_disparity}, "
                 f"block_size {spec.block_size}), got {width} px; a narrower image needs a "
                 f"smaller disparity range (num_disparities is at least 16)")
         p1, p2 = spec.penalties()
         return cv2.StereoSGBM_create(
-            minDisparity=spec.min_disparity, numDisparities=spec.num_disparities_for(width),
+            minDisparity=spec.min_disparity, numDisparities=num_disparities,
             blockSize=spec.block_size, P1=p1, P2=p2, disp12MaxDiff=spec.disp12_max_diff,
             preFilterCap=spec.pre_filter_cap, uniquenessRatio=spec.uniqueness_ratio,
             speckleWindowSize=spec.speckle_window_size, speckleRange=spec.speckle_range,

@@ -51,23 +51,28 @@ def test_a_wrong_band_takes_its_neighbours_value():
     assert result.changed_fraction > 0.15
 
 
-def test_a_region_wrong_throughout_takes_the_seeds_value():
-    # Wrong over a band wider than propagation can cross (2 x 72 px): no neighbour within
-    # reach holds the right value, the seeds' local match over the wider window does.
+def wrong_throughout():
+    """A pair at TRUE_PX and a map wrong (14 px) everywhere but its first column (2 px).
+
+    The wrong band is wider than propagation can cross: no neighbour within reach holds
+    the right value. The map's range, 2-14 px, holds the right level.
+    """
     left, right = textured_pair(width=200)
     wrong = np.full(left.shape, 14.0, np.float32)
-    wrong[:, 0] = 2.0  # the map's range, 2-14 px, holds the right level
-    result = propagate_disparity(left, right, wrong).disparity_px
+    wrong[:, 0] = 2.0
+    return left, right, wrong
+
+
+def test_a_region_wrong_throughout_takes_the_seeds_value():
+    # The seeds' local match over the wider window holds the right value.
+    result = propagate_disparity(*wrong_throughout()).disparity_px
     inner = result[6:-6, 30:-6]
     assert np.all(np.abs(inner - TRUE_PX) < 0.25)
 
 
 def test_seeds_must_beat_the_network_by_a_margin(monkeypatch):
-    left, right = textured_pair(width=200)
-    wrong = np.full(left.shape, 14.0, np.float32)
-    wrong[:, 0] = 2.0
     monkeypatch.setattr(propagation, "SEED_MARGIN_BITS", 25.0)  # more than a window can lose
-    kept = propagate_disparity(left, right, wrong).disparity_px
+    kept = propagate_disparity(*wrong_throughout()).disparity_px
     assert np.all(kept[6:-6, 30:-6] == 14.0)
 
 
