@@ -29,6 +29,7 @@ from .large_images import (
     run_plan,
 )
 from .propagation import OFFSETS_PX, propagate_disparity
+from .segment_planes import SEGMENT_PX, fit_segment_planes
 from .spec import StereoSpec
 
 __all__ = ["Geometry", "ModelInputs", "StereoAdapter", "check_pair", "prepare_inputs",
@@ -323,6 +324,8 @@ class StereoAdapter:
     last_filled_fraction: float | None = None
     #: Share of the pixels census propagation changed in the last call (None: not run).
     last_propagated_fraction: float | None = None
+    #: Share of the pixels segment planes changed in the last call (None: not run).
+    last_planes_fraction: float | None = None
 
     def _init_large_images(self, max_pixels: Any, large_images: Any,
                            memory_bytes: int | None = None) -> None:
@@ -360,7 +363,10 @@ class StereoAdapter:
             says how many were filled. With ``spec.census_propagation`` a pixel then
             takes a neighbour's disparity where the images match it clearly better
             (:func:`~.propagation.propagate_disparity`); ``last_propagated_fraction``
-            says how many did.
+            says how many did. With ``spec.segment_planes`` a pixel last takes its
+            colour segment's plane where the images do not prefer its own value
+            (:func:`~.segment_planes.fit_segment_planes`); ``last_planes_fraction`` says
+            how many did.
 
         Raises
         ------
@@ -381,6 +387,10 @@ class StereoAdapter:
             propagated = propagate_disparity(left01, right01, disparity_px)
             self.last_propagated_fraction = propagated.changed_fraction
             disparity_px = propagated.disparity_px
+        if self.spec.segment_planes:
+            planes = fit_segment_planes(left01, right01, disparity_px)
+            self.last_planes_fraction = planes.changed_fraction
+            disparity_px = planes.disparity_px
         return disparity_px
 
     def _planned(self, left01: np.ndarray, right01: np.ndarray) -> np.ndarray:
@@ -433,7 +443,11 @@ class StereoAdapter:
                        f"{'/'.join(map(str, OFFSETS_PX))} px along its row or column, where "
                        "the census cost is clearly lower)" if spec.census_propagation
                        else "  census propagation: off")
-        return [*self._large_image_lines(), check, propagation]
+        planes = (f"  segment planes: on (a pixel takes the robust plane of its colour segment, "
+                  f"about {SEGMENT_PX} px across, where the segment is planar and the census "
+                  f"cost does not prefer its own value)" if spec.segment_planes
+                  else "  segment planes: off")
+        return [*self._large_image_lines(), check, propagation, planes]
 
     def _large_image_lines(self) -> list[str]:
         if self.model_size is not None:

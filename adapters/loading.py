@@ -30,7 +30,8 @@ _DEFAULT_PRESET = "igev"
 #: it the full-resolution census step).
 STANDIN_BYTES_PER_PX = 680.0
 # load_backbone options that are StereoSpec fields rather than adapter options
-_SPEC_OPTIONS = ("left_right_check", "left_right_max_diff_px", "census_propagation")
+_SPEC_OPTIONS = ("left_right_check", "left_right_max_diff_px", "census_propagation",
+                 "segment_planes")
 
 
 def default_weights_path() -> Path:

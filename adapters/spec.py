@@ -174,6 +174,13 @@ class StereoSpec:
         there (:func:`~srde_fusion.adapters.propagation.propagate_disparity`): mends the
         foreground a smooth network spreads over the background beside edges and through
         gaps. On for the bundled stand-in.
+    segment_planes : bool
+        Last, let each pixel take the robust disparity plane of its colour segment where
+        the segment is planar, the plane is within a few pixels of its value and the
+        census cost does not prefer its own value
+        (:func:`~srde_fusion.adapters.segment_planes.fit_segment_planes`): evens out the
+        blotches a network leaves on weakly textured surfaces. On for the bundled
+        stand-in.
 
     Examples
     --------
@@ -212,6 +219,7 @@ class StereoSpec:
     left_right_check: bool = False
     left_right_max_diff_px: float = 1.0
     census_propagation: bool = False
+    segment_planes: bool = False
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__  # frozen: normalise fields once, here
@@ -336,7 +344,7 @@ class StereoSpec:
             raise BackboneError(
                 f"bytes_per_px: expected None or a positive number, got {self.bytes_per_px!r}"
             )
-        for attr in ("left_right_check", "census_propagation"):
+        for attr in ("left_right_check", "census_propagation", "segment_planes"):
             if not isinstance(getattr(self, attr), bool):
                 raise BackboneError(
                     f"{attr}: expected True or False, got {getattr(self, attr)!r}"

@@ -111,7 +111,8 @@ _ITERATION_GAMMA = 0.9
 #: How the adapters run a trained stand-in (StereoSpec fields, written to its record):
 #: a left-right check whose failures take the row's background, chosen on held-out
 #: rendered and procedural pairs (see the module text).
-INFERENCE = {"left_right_check": True, "left_right_max_diff_px": 1.0, "census_propagation": True}
+INFERENCE = {"left_right_check": True, "left_right_max_diff_px": 1.0, "census_propagation": True,
+             "segment_planes": True}
 
 
 @dataclass(frozen=True)
