@@ -19,11 +19,15 @@ The stand-in runs as ``load_backbone`` gives it: its left-right check (the mirro
 too; pixels the right view contradicts, or that match outside the right image, take the
 row's background, the others the mean of both views), then census propagation (a pixel
 takes its own best census match over a wider window, where the right view confirms it,
-or a neighbour's disparity, where the census matching cost is clearly lower). It runs
-once more without the propagation (``stand-in, no propagation``) and with neither
-(``network only``) to show what each changes; the shares of pixels the check filled and
-the propagation changed are reported. ``EPE both`` is taken over the pixels where every
-method gave a value (where SGBM did: the same pixels for every stand-in row).
+or a neighbour's disparity, where the census matching cost is clearly lower), then
+segment planes (a pixel takes its colour segment's robust disparity plane where the
+segment is planar, the plane is within 3 px and the census cost does not prefer its own
+value). It runs once more without the planes (``stand-in, no planes``), without the
+propagation either (``stand-in, no propagation``) and with none of the three
+(``network only``) to show what each changes; the shares of pixels the check filled, the
+propagation changed and the planes changed are reported. ``EPE both`` is taken over the
+pixels where every method gave a value (where SGBM did: the same pixels for every
+stand-in row).
 All methods are counted the same way, over the pixels with finite ground truth:
 
 * ``EPE filled``: every pixel, each method's holes first filled by the KITTI devkit's
@@ -58,6 +62,7 @@ from srde_fusion.adapters import (
     default_weights_path,
     load_backbone,
     propagation,
+    segment_planes,
 )
 
 from srde_fusion.evaluation import evaluate, fill_holes_background, summarize
@@ -65,7 +70,8 @@ from srde_fusion.synthetic import default_rig, random_scene, render
 
 RESULTS = Path(__file__).resolve().parent / "results"
 KEYS = ("epe_filled", "epe_both", "bad1", "bad2", "d1", "invalid")
-METHODS = ("stand-in", "stand-in, no propagation", "network only", "SGBM")
+METHODS = ("stand-in", "stand-in, no planes", "stand-in, no propagation", "network only",
+           "SGBM")
 SGBM = SGBMSpec()
 TIMING_RUNS = 3
 TARGET_SECONDS_640X480 = 1.0
@@ -120,7 +126,7 @@ def table(rows: list[tuple[str, str, dict]], first: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list, list]:
+def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list, list, list]:
     rig = default_rig()
     pair_rig = rig.subset(list(rig.stereo_pair))
     per = {(region, method): [] for region in ("all", "textured", "glossy")
@@ -129,6 +135,7 @@ def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list, 
     seconds_640 = {}  # median of TIMING_RUNS on the first scene
     filled = []  # share of pixels the stand-in's left-right check filled, per scene
     changed = []  # ... and its census propagation changed
+    planar = []  # ... and its segment planes changed
     for seed in range(n_scenes):
         scene = random_scene(seed, rig, background="textured")
         rendering = render(scene, pair_rig)
@@ -144,6 +151,7 @@ def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list, 
             if method == METHODS[0]:
                 filled.append(run.last_filled_fraction)
                 changed.append(run.last_propagated_fraction)
+                planar.append(run.last_planes_fraction)
             if seed == 0:
                 _, seconds_640[method] = timed(run, left, right)
         for region, mask in regions.items():
@@ -151,13 +159,13 @@ def rendered_scenes(runs: dict, n_scenes: int) -> tuple[list, dict, dict, list, 
                 per[(region, method)].append(values)
     rows = [(region, method, summarize(values)) for (region, method), values in per.items()]
     return (rows, {m: float(np.mean(s)) for m, s in seconds.items()}, seconds_640, filled,
-            changed)
+            changed, planar)
 
 
-def motorcycle(runs: dict) -> tuple[list, dict, dict, dict]:
+def motorcycle(runs: dict) -> tuple[list, dict, dict, dict, dict]:
     left, right, gt = skdata.stereo_motorcycle()
     gt = gt.astype(np.float32)
-    rows, seconds, filled, changed = [], {}, {}, {}
+    rows, seconds, filled, changed, planar = [], {}, {}, {}, {}
     for label, factor in (("741x500 (full)", 1), ("370x250 (1/2)", 2)):
         if factor == 1:
             l_img, r_img, g = left, right, gt
@@ -172,8 +180,9 @@ def motorcycle(runs: dict) -> tuple[list, dict, dict, dict]:
             preds[method], seconds[f"{method} {label}"] = timed(run, l_img, r_img)
         filled[label] = runs[METHODS[0]].last_filled_fraction
         changed[label] = runs[METHODS[0]].last_propagated_fraction
+        planar[label] = runs[METHODS[0]].last_planes_fraction
         rows += [(label, method, values) for method, values in score(preds, g).items()]
-    return rows, seconds, filled, changed
+    return rows, seconds, filled, changed, planar
 
 
 def main() -> None:
@@ -183,13 +192,18 @@ def main() -> None:
                         help="'default' or a stand-in .onnx file (igev preset)")
     args = parser.parse_args()
     runs = dict(zip(METHODS, (
-        load_backbone(args.model, "igev", left_right_check=True, census_propagation=True),
-        load_backbone(args.model, "igev", left_right_check=True, census_propagation=False),
-        load_backbone(args.model, "igev", left_right_check=False, census_propagation=False),
+        load_backbone(args.model, "igev", left_right_check=True, census_propagation=True,
+                      segment_planes=True),
+        load_backbone(args.model, "igev", left_right_check=True, census_propagation=True,
+                      segment_planes=False),
+        load_backbone(args.model, "igev", left_right_check=True, census_propagation=False,
+                      segment_planes=False),
+        load_backbone(args.model, "igev", left_right_check=False, census_propagation=False,
+                      segment_planes=False),
         load_backbone("sgbm", SGBM)), strict=True))
-    scene_rows, scene_seconds, seconds_640, scene_filled, scene_changed = rendered_scenes(
-        runs, args.scenes)
-    moto_rows, moto_seconds, moto_filled, moto_changed = motorcycle(runs)
+    (scene_rows, scene_seconds, seconds_640, scene_filled, scene_changed,
+     scene_planar) = rendered_scenes(runs, args.scenes)
+    moto_rows, moto_seconds, moto_filled, moto_changed, moto_planar = motorcycle(runs)
     full = "741x500 (full)"
     ratio = moto_seconds[f"stand-in {full}"] / moto_seconds[f"SGBM {full}"]
     ratio_640 = seconds_640["stand-in"] / seconds_640["SGBM"]
@@ -239,8 +253,15 @@ def main() -> None:
         f"({2 * propagation.CENSUS_RADIUS_PX + 1}x{2 * propagation.CENSUS_RADIUS_PX + 1} "
         f"census, {propagation.WINDOW_PX}x{propagation.WINDOW_PX} window) is lower by "
         f"{propagation.MARGIN_BITS:g} bits per pixel and at most "
-        f"{propagation.MATCH_BITS:g}); once more without the propagation (`stand-in, no "
-        "propagation`, the previous default) and with neither (`network only`). "
+        f"{propagation.MATCH_BITS:g}), then segment planes (each pixel takes the robust "
+        f"disparity plane of its colour segment, about {segment_planes.SEGMENT_PX} px "
+        "across, where at least "
+        f"{100 * segment_planes.MIN_INLIER_SHARE:.0f} % of the segment lies within "
+        f"{segment_planes.INLIER_PX:g} px of it, the plane is within "
+        f"{segment_planes.REPLACE_PX:g} px of the pixel's value and its census cost is at "
+        f"most {segment_planes.COST_TOLERANCE_BITS:g} bit per pixel above the value's); "
+        "once more without the planes (`stand-in, no planes`), without the propagation "
+        "either (`stand-in, no propagation`) and with none of them (`network only`). "
         "All methods are counted the same way over the pixels with ground truth: "
         "`EPE filled` over every pixel after filling each method's holes with the KITTI "
         "devkit's background interpolation (a hole takes the smaller of its row's nearest "
@@ -256,7 +277,9 @@ def main() -> None:
         + f". Pixels filled by the left-right check: {100 * np.mean(scene_filled):.1f} % "
         f"(per scene {', '.join(f'{100 * f:.1f}' for f in scene_filled)} %); changed by "
         f"the census propagation: {100 * np.mean(scene_changed):.1f} % (per scene "
-        f"{', '.join(f'{100 * f:.1f}' for f in scene_changed)} %)."
+        f"{', '.join(f'{100 * f:.1f}' for f in scene_changed)} %); by the segment planes: "
+        f"{100 * np.mean(scene_planar):.1f} % (per scene "
+        f"{', '.join(f'{100 * f:.1f}' for f in scene_planar)} %)."
         + "\n\n## Middlebury 2014 Motorcycle (scikit-image copy)\n\n"
         + table(moto_rows, "size")
         + "\nTime per pair (median of 3 after a warm-up): "
@@ -264,7 +287,9 @@ def main() -> None:
         + f"; stand-in / SGBM at full size: {ratio:.1f}x. Pixels filled by the left-right "
         "check: " + ", ".join(f"{s} {100 * f:.1f} %" for s, f in moto_filled.items())
         + "; changed by the census propagation: "
-        + ", ".join(f"{s} {100 * f:.1f} %" for s, f in moto_changed.items()) + "\n"
+        + ", ".join(f"{s} {100 * f:.1f} %" for s, f in moto_changed.items())
+        + "; by the segment planes: "
+        + ", ".join(f"{s} {100 * f:.1f} %" for s, f in moto_planar.items()) + "\n"
         + "\n## Targets\n\n"
         + "\n".join(target_lines)
         + f"\n\nTime per 640x480 pair (first rendered scene, median of {TIMING_RUNS} after a "
@@ -283,6 +308,7 @@ def main() -> None:
         "seconds_640x480": seconds_640,
         "left_right_filled": {"scenes": scene_filled, "motorcycle": moto_filled},
         "propagation_changed": {"scenes": scene_changed, "motorcycle": moto_changed},
+        "planes_changed": {"scenes": scene_planar, "motorcycle": moto_planar},
         "standin_over_sgbm_time_640x480": ratio_640,
         "onnx_mb": onnx_mb,
         "targets": [{"check": n, "standin": a, "sgbm": b, "met": bool(m)}
