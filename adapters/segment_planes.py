@@ -45,9 +45,7 @@ from skimage.segmentation import slic
 from srde_fusion._checks import check_disparity, check_image
 from srde_fusion.errors import ImageError
 
-from .propagation import WINDOW_PX, census_transform
-from .propagation import _bit_counts as bit_counts
-from .propagation import _grey as grey
+from .propagation import WINDOW_PX, _bit_counts, _grey, census_transform
 
 __all__ = [
     "COST_TOLERANCE_BITS",
@@ -200,7 +198,7 @@ def _window_costs(census_left: np.ndarray, census_right: np.ndarray,
     inside = (level >= 0) & (column >= 0)
     # The right pixel each left pixel matches, flat; pixel 0 where none (masked below).
     flat = np.where(inside, column + (np.arange(height) * width)[:, None], 0).astype(np.intp)
-    distance = bit_counts(census_left ^ census_right.ravel().take(flat))
+    distance = _bit_counts(census_left ^ census_right.ravel().take(flat))
     distance[~inside] = 0
     size = (WINDOW_PX, WINDOW_PX)
     cost = cv2.boxFilter(distance, cv2.CV_16U, size, normalize=False,
@@ -262,7 +260,7 @@ def fit_segment_planes(left01: np.ndarray, right01: np.ndarray, disparity_px: np
     on_plane = a + b * x + c * y
     candidate = (valued & planar[labels] & (np.abs(on_plane - disparity_px) < REPLACE_PX)
                  & (on_plane >= 0))
-    grey_left, grey_right = grey(left01), grey(right01)
+    grey_left, grey_right = _grey(left01), _grey(right01)
     census_left, census_right = census_transform(grey_left), census_transform(grey_right)
     proposed = np.where(candidate, on_plane, disparity_px)
     own_cost, own_measured = _window_costs(census_left, census_right, disparity_px)
