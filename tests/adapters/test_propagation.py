@@ -157,16 +157,19 @@ def test_adapter_propagates_after_the_model():
     assert off.last_propagated_fraction is None and "census propagation: off" in off.describe()
 
 
-def test_bundled_standin_propagates_by_default_and_can_be_switched_off():
+@pytest.mark.parametrize("switch", ["census_propagation", "segment_planes"])
+def test_bundled_standin_has_its_image_stages_on_and_each_can_be_switched_off(switch):
     pytest.importorskip("onnxruntime")
-    assert load_backbone("default").spec.census_propagation
-    assert not load_backbone("default", census_propagation=False).spec.census_propagation
-    assert not load_backbone("default", StereoSpec(name="mine")).spec.census_propagation
+    assert getattr(load_backbone("default").spec, switch)
+    assert not getattr(load_backbone("default", **{switch: False}).spec, switch)
+    assert not getattr(load_backbone("default", StereoSpec(name="mine")).spec, switch)
 
 
-def test_bad_propagation_setting():
-    with pytest.raises(BackboneError, match="census_propagation: expected True or False, got 1"):
-        StereoSpec(census_propagation=1)
+@pytest.mark.parametrize(("switch", "value"), [("census_propagation", 1),
+                                               ("segment_planes", "yes")])
+def test_bad_image_stage_setting(switch, value):
+    with pytest.raises(BackboneError, match=f"{switch}: expected True or False, got {value!r}"):
+        StereoSpec(**{switch: value})
 
 
 def test_uint8_and_float_pairs_agree():

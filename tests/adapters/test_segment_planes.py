@@ -1,16 +1,16 @@
 """Segment planes: a slanted wall's wandering values made planar, what the images keep (a
 curved surface, a depth edge, pixels without a value), and the switch on the adapters
-and the stand-in."""
+(the stand-in's default and a bad setting are tested with census propagation's)."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 import pytest
-from srde_fusion.adapters import StereoSpec, load_backbone, segment_planes
+from srde_fusion.adapters import load_backbone, segment_planes
 from srde_fusion.adapters.segment_planes import fit_segment_planes
 
-from srde_fusion.errors import BackboneError, DisparityError, ImageError
+from srde_fusion.errors import DisparityError, ImageError
 
 HEIGHT, WIDTH = 96, 160
 MEASURED = np.s_[:, 40:]  # right of every match that leaves the right image
@@ -159,18 +159,6 @@ def test_adapter_runs_the_planes_last():
     off = load_backbone(Wandering(), "generic")
     np.testing.assert_array_equal(off(to_u8(left), to_u8(right)), wandering)
     assert off.last_planes_fraction is None and "segment planes: off" in off.describe()
-
-
-def test_bundled_standin_fits_planes_by_default_and_can_be_switched_off():
-    pytest.importorskip("onnxruntime")
-    assert load_backbone("default").spec.segment_planes
-    assert not load_backbone("default", segment_planes=False).spec.segment_planes
-    assert not load_backbone("default", StereoSpec(name="mine")).spec.segment_planes
-
-
-def test_bad_planes_setting():
-    with pytest.raises(BackboneError, match="segment_planes: expected True or False, got 'yes'"):
-        StereoSpec(segment_planes="yes")
 
 
 @pytest.mark.parametrize(
