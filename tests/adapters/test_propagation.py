@@ -1,6 +1,6 @@
 """Census propagation: the census, what a seed and a neighbour's offer must beat, the pixels
 it leaves alone, strips against the whole image, and the switch on the adapters and the
-stand-in."""
+stand-in; with segment planes, the stand-in's defaults and the input checks of both."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from srde_fusion.adapters import StereoSpec, load_backbone, propagation
 from srde_fusion.adapters.propagation import census_transform, propagate_disparity
+from srde_fusion.adapters.segment_planes import fit_segment_planes
 
 from srde_fusion.errors import BackboneError, DisparityError, ImageError
 
@@ -196,9 +197,10 @@ def test_uint8_and_float_pairs_agree():
          "disparity_px: expected float disparity in pixels"),
     ],
 )
-def test_bad_inputs_say_what_was_expected(args, error, message):
+@pytest.mark.parametrize("stage", [propagate_disparity, fit_segment_planes])
+def test_bad_inputs_say_what_was_expected(args, error, message, stage):
     with pytest.raises(error, match=message):
-        propagate_disparity(*args)
+        stage(*args)
 
 
 def test_a_seed_the_right_view_contradicts_is_not_taken():
