@@ -25,6 +25,7 @@ The shading model and its parameters are described in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -63,6 +64,10 @@ __all__ = [
     "disparity_sigma_px",
     "refine_plane",
 ]
+
+#: A fit rerun with the foreshortening exponent held (its free value ran to a bound) is
+#: kept only when its plane's disparity standard error is at most this, px.
+HELD_EXPONENT_MAX_SIGMA_PX = 0.1
 
 #: A fit whose RMS residual exceeds this fraction of the highlight's contrast does not
 #: explain the image (texture, a second light, a curved surface): the plane is kept.
@@ -321,6 +326,18 @@ def refine_plane(
                 retry = _resampled(setup, retry, keep_photometry=False) or retry
             if not retry.problem:
                 attempt = retry
+    if attempt.problem and setup.foreshortening is None \
+            and "foreshortening" in attempt.model.parameters_at_bounds(attempt.fit.theta):
+        # The free exponent ran to its bound: it absorbed what the lobe does not model
+        # (a rough lobe's clipped flank seen by two views). Held at the microfacet value
+        # (0, as real glossy surfaces and Cook-Torrance have it) the fit may still
+        # settle: it is judged as any other, and kept only if the images pin its plane
+        # down (a fallback's plane must not be a loose one).
+        held = dataclasses.replace(setup, foreshortening=0.0)
+        retry = _attempt(held, initial_plane)
+        if isinstance(retry, _Attempt) and not retry.problem \
+                and disparity_sigma_px(retry.model, retry.fit) <= HELD_EXPONENT_MAX_SIGMA_PX:
+            attempt, setup = retry, held
     if not attempt.problem:
         attempt = _resampled(setup, attempt, keep_photometry=True) or attempt
 
