@@ -28,7 +28,7 @@ from .large_images import (
     plan_large_image,
     run_plan,
 )
-from .propagation import OFFSETS_PX, propagate_disparity
+from .propagation import OFFSETS_PX, census_pair, propagate_disparity
 from .segment_planes import SEGMENT_PX, fit_segment_planes
 from .spec import StereoSpec
 
@@ -383,12 +383,15 @@ class StereoAdapter:
                                       max_diff_px=self.spec.left_right_max_diff_px)
             self.last_filled_fraction = checked.filled_fraction
             disparity_px = checked.disparity_px
+        # Both image stages read the pair's census: computed once.
+        census = (census_pair(left01, right01)
+                  if self.spec.census_propagation or self.spec.segment_planes else None)
         if self.spec.census_propagation:
-            propagated = propagate_disparity(left01, right01, disparity_px)
+            propagated = propagate_disparity(left01, right01, disparity_px, census=census)
             self.last_propagated_fraction = propagated.changed_fraction
             disparity_px = propagated.disparity_px
         if self.spec.segment_planes:
-            planes = fit_segment_planes(left01, right01, disparity_px)
+            planes = fit_segment_planes(left01, right01, disparity_px, census=census)
             self.last_planes_fraction = planes.changed_fraction
             disparity_px = planes.disparity_px
         return disparity_px

@@ -56,6 +56,7 @@ __all__ = [
     "SEED_WINDOW_PX",
     "WINDOW_PX",
     "Propagated",
+    "census_pair",
     "census_transform",
     "propagate_disparity",
 ]
@@ -286,14 +287,45 @@ def _seeds(volume: np.ndarray, first: int, count: int, own_start: np.ndarray, pl
     return take, level, offset
 
 
-def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.ndarray,
+def census_pair(left01: np.ndarray, right01: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the census of both views of a checked pair, ``(H, W)`` uint32 each.
+
+    Census propagation and segment planes both read it: an adapter running both computes
+    it once and passes it to each (their ``census`` argument).
+    """
+    return census_transform(_grey(left01)), census_transform(_grey(right01))
+
+
+def _checked(left01: np.ndarray, right01: np.ndarray, disparity_px: np.ndarray,
+             census: tuple[np.ndarray, np.ndarray] | None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Check the image stages' inputs (one code for both stages).
+
+    Returns the checked images and the disparity with NaN where there is no value; a
+    given ``census`` must be the pair's.
+    """
+    left01, right01 = (check_image(image, name) for image, name in ((left01, "left"),
+                                                                     (right01, "right")))
+    if left01.shape[:2] != right01.shape[:2]:
+        raise ImageError(f"right: expected the left image's size {left01.shape[:2]}, got "
+                         f"{right01.shape[:2]}")
+    disparity_px = check_disparity(disparity_px, left01.shape[:2], "disparity_px")
+    if census is not None and not (
+            isinstance(census, tuple) and len(census) == 2
+            and all(isinstance(c, np.ndarray) and c.dtype == np.uint32
+                    and c.shape == left01.shape[:2] for c in census)):
+        raise ImageError(f"census: expected census_pair's two (H, W) uint32 arrays for "
+                         f"images of size {left01.shape[:2]}, got {census!r:.80}")
+    return left01, right01, disparity_px
+
+
+def _propagate(census_left: np.ndarray, census_right: np.ndarray, disparity_px: np.ndarray,
                first: int, count: int) -> np.ndarray:
     """:func:`propagate_disparity` on one block, at integer disparities ``first`` + 0..count-1.
 
     The levels are the whole map's, so that every block's costs are the same arrays.
     """
-    volume = _cost_volume(census_transform(grey_left), census_transform(grey_right),
-                          first, count)  # (count + 1, H, W)
+    volume = _cost_volume(census_left, census_right, first, count)  # (count + 1, H, W)
     # Costs are read at ``rows + start``: ``rows`` the pixel, ``start`` the level's plane
     # (the last plane, never measured, for NaN and levels out of range).
     table = volume.ravel()
@@ -340,8 +372,8 @@ def _propagate(grey_left: np.ndarray, grey_right: np.ndarray, disparity_px: np.n
     return current.reshape(shape)
 
 
-def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: np.ndarray
-                        ) -> Propagated:
+def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: np.ndarray,
+                        *, census: tuple[np.ndarray, np.ndarray] | None = None) -> Propagated:
     """Correct a left disparity map where the images prefer a neighbour's value.
 
     Parameters
@@ -351,6 +383,8 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
     disparity_px : numpy.ndarray, (H, W), float, pixels
         The left view's disparity, positive (``x_right = x_left - d``); NaN, inf or
         negative: no value.
+    census : (numpy.ndarray, numpy.ndarray), optional
+        The pair's census, as :func:`census_pair` returns it, if already computed.
 
     Returns
     -------
@@ -359,7 +393,8 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
     Raises
     ------
     ImageError
-        An image of the wrong type, range or shape, or images of different sizes.
+        An image of the wrong type, range or shape, images of different sizes, or a
+        census that is not the pair's.
     DisparityError
         A disparity map that is not ``(H, W)`` of the images' size.
 
@@ -374,22 +409,18 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
     >>> bool(np.all(fixed.disparity_px[:, 40:46] == 5.0))
     True
     """
-    grey_left, grey_right = (_grey(check_image(image, name))
-                             for image, name in ((left01, "left"), (right01, "right")))
-    if grey_left.shape != grey_right.shape:
-        raise ImageError(f"right: expected the left image's size {grey_left.shape}, got "
-                         f"{grey_right.shape}")
     given = disparity_px
-    disparity_px = check_disparity(disparity_px, grey_left.shape, "disparity_px")  # NaN: none
+    left01, right01, disparity_px = _checked(left01, right01, disparity_px, census)
     height, width = disparity_px.shape
     finite = disparity_px[np.isfinite(disparity_px)]
     if finite.size == 0:
         return Propagated(np.asarray(given, np.float32).reshape(disparity_px.shape).copy(), 0.0)
+    census_left, census_right = census if census is not None else census_pair(left01, right01)
     first = max(int(np.floor(finite.min())), 0)
     count = int(np.ceil(finite.max())) - first + 1
     rows = max(1, MAX_VOLUME_BYTES // (2 * count * width))
     if rows >= height:
-        out = _propagate(grey_left, grey_right, disparity_px, first, count)
+        out = _propagate(census_left, census_right, disparity_px, first, count)
     else:
         # Row strips with a margin as wide as a value can travel (and the windows reach):
         # each strip's inner rows come out as they would from the whole image.
@@ -398,8 +429,8 @@ def propagate_disparity(left01: np.ndarray, right01: np.ndarray, disparity_px: n
         out = np.empty_like(disparity_px)
         for top in range(0, height, rows):
             lo, hi = max(top - reach, 0), min(top + rows + reach, height)
-            block = _propagate(grey_left[lo:hi], grey_right[lo:hi], disparity_px[lo:hi], first,
-                               count)
+            block = _propagate(census_left[lo:hi], census_right[lo:hi], disparity_px[lo:hi],
+                               first, count)
             out[top:top + rows] = block[top - lo:top - lo + min(rows, height - top)]
     # A pixel without a value (NaN, inf or negative) is returned as it was given.
     empty = np.isnan(disparity_px)

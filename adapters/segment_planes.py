@@ -42,10 +42,7 @@ import cv2
 import numpy as np
 from skimage.segmentation import slic
 
-from srde_fusion._checks import check_disparity, check_image
-from srde_fusion.errors import ImageError
-
-from .propagation import WINDOW_PX, _bit_counts, _grey, census_transform
+from .propagation import WINDOW_PX, _bit_counts, _checked, census_pair
 
 __all__ = [
     "COST_TOLERANCE_BITS",
@@ -208,7 +205,8 @@ def _window_costs(census_left: np.ndarray, census_right: np.ndarray,
     return cost, outside == 0
 
 
-def fit_segment_planes(left01: np.ndarray, right01: np.ndarray, disparity_px: np.ndarray
+def fit_segment_planes(left01: np.ndarray, right01: np.ndarray, disparity_px: np.ndarray,
+                       *, census: tuple[np.ndarray, np.ndarray] | None = None
                        ) -> SegmentPlanes:
     """Make a left disparity map planar over colour segments where the images are indifferent.
 
@@ -219,6 +217,9 @@ def fit_segment_planes(left01: np.ndarray, right01: np.ndarray, disparity_px: np
     disparity_px : numpy.ndarray, (H, W), float, pixels
         The left view's disparity, positive (``x_right = x_left - d``); NaN, inf or
         negative: no value.
+    census : (numpy.ndarray, numpy.ndarray), optional
+        The pair's census, as :func:`~.propagation.census_pair` returns it, if already
+        computed (census propagation reads the same).
 
     Returns
     -------
@@ -227,7 +228,8 @@ def fit_segment_planes(left01: np.ndarray, right01: np.ndarray, disparity_px: np
     Raises
     ------
     ImageError
-        An image of the wrong type, range or shape, or images of different sizes.
+        An image of the wrong type, range or shape, images of different sizes, or a
+        census that is not the pair's.
     DisparityError
         A disparity map that is not ``(H, W)`` of the images' size.
 
@@ -242,13 +244,8 @@ def fit_segment_planes(left01: np.ndarray, right01: np.ndarray, disparity_px: np
     >>> [round(float(np.abs(d[measured] - 8.0).mean()), 1) for d in (wandering, flat)]
     [0.4, 0.1]
     """
-    left01, right01 = (check_image(image, name) for image, name in ((left01, "left"),
-                                                                     (right01, "right")))
-    if left01.shape[:2] != right01.shape[:2]:
-        raise ImageError(f"right: expected the left image's size {left01.shape[:2]}, got "
-                         f"{right01.shape[:2]}")
     given = np.asarray(disparity_px)
-    disparity_px = check_disparity(disparity_px, left01.shape[:2], "disparity_px")  # NaN: none
+    left01, right01, disparity_px = _checked(left01, right01, disparity_px, census)
     valued = np.isfinite(disparity_px)
     out = given.astype(np.float32).reshape(disparity_px.shape).copy()
     if not valued.any():
@@ -260,8 +257,7 @@ def fit_segment_planes(left01: np.ndarray, right01: np.ndarray, disparity_px: np
     on_plane = a + b * x + c * y
     candidate = (valued & planar[labels] & (np.abs(on_plane - disparity_px) < REPLACE_PX)
                  & (on_plane >= 0))
-    grey_left, grey_right = _grey(left01), _grey(right01)
-    census_left, census_right = census_transform(grey_left), census_transform(grey_right)
+    census_left, census_right = census if census is not None else census_pair(left01, right01)
     proposed = np.where(candidate, on_plane, disparity_px)
     own_cost, own_measured = _window_costs(census_left, census_right, disparity_px)
     plane_cost, plane_measured = _window_costs(census_left, census_right, proposed)

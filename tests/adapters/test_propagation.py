@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from srde_fusion.adapters import StereoSpec, load_backbone, propagation
-from srde_fusion.adapters.propagation import census_transform, propagate_disparity
+from srde_fusion.adapters.propagation import census_pair, census_transform, propagate_disparity
 from srde_fusion.adapters.segment_planes import fit_segment_planes
 
 from srde_fusion.errors import BackboneError, DisparityError, ImageError
@@ -235,3 +235,15 @@ def test_images_smaller_than_the_offsets_run(shape):
     result = propagate_disparity(left, right, disparity).disparity_px
     assert result.shape == shape
     np.testing.assert_array_equal(np.isnan(result), np.isnan(disparity))
+
+
+@pytest.mark.parametrize("stage", [propagate_disparity, fit_segment_planes])
+def test_a_census_computed_once_gives_the_same_answer(stage):
+    left, right = textured_pair(seed=7)
+    wrong = np.full(left.shape, TRUE_PX, np.float32)
+    wrong[:, 50:58] = 2.0
+    census = census_pair(left, right)
+    np.testing.assert_array_equal(stage(left, right, wrong, census=census).disparity_px,
+                                  stage(left, right, wrong).disparity_px)
+    with pytest.raises(ImageError, match=r"census: expected census_pair's two \(H, W\) uint32"):
+        stage(left, right, wrong, census=(census[0], census[1][:, 1:]))

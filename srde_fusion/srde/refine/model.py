@@ -367,15 +367,20 @@ class LobeModel:
             theta[index] = min(max(theta[index], low), high)
         return theta
 
+    def at_bound(self, theta: np.ndarray, index: int) -> bool:
+        """Whether shape parameter ``index`` (I_WIDTH, I_TAIL, I_FORE) is fitted and stuck.
+
+        Stuck means at a bound of its range; a held parameter never is.
+        """
+        low, high = self._bounds()[index]
+        return index in self.free_all and min(theta[index] - low, high - theta[index]) < 1e-9
+
     def parameters_at_bounds(self, theta: np.ndarray) -> str:
         """Name and value of fitted shape parameters stuck at a bound ("" if none)."""
         names = {I_WIDTH: "width", I_TAIL: "tail", I_FORE: "foreshortening"}
-        stuck = []
-        for index, (low, high) in self._bounds().items():
-            if index in self.free_all and min(theta[index] - low, high - theta[index]) < 1e-9:
-                value = math.exp(theta[index]) if index == I_WIDTH else theta[index]
-                stuck.append(f"{names[index]} {value:.4g}")
-        return ", ".join(stuck)
+        return ", ".join(
+            f"{names[index]} {math.exp(theta[index]) if index == I_WIDTH else theta[index]:.4g}"
+            for index in self._bounds() if self.at_bound(theta, index))
 
     def lobe_fit(self, theta: np.ndarray) -> LobeFit:
         """Return the photometric parameters of ``theta``."""

@@ -25,11 +25,10 @@ The shading model and its parameters are described in
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -326,14 +325,13 @@ def refine_plane(
                 retry = _resampled(setup, retry, keep_photometry=False) or retry
             if not retry.problem:
                 attempt = retry
-    if attempt.problem and setup.foreshortening is None \
-            and "foreshortening" in attempt.model.parameters_at_bounds(attempt.fit.theta):
+    if attempt.problem and attempt.model.at_bound(attempt.fit.theta, I_FORE):
         # The free exponent ran to its bound: it absorbed what the lobe does not model
         # (a rough lobe's clipped flank seen by two views). Held at the microfacet value
         # (0, as real glossy surfaces and Cook-Torrance have it) the fit may still
         # settle: it is judged as any other, and kept only if the images pin its plane
         # down (a fallback's plane must not be a loose one).
-        held = dataclasses.replace(setup, foreshortening=0.0)
+        held = replace(setup, foreshortening=0.0)
         retry = _attempt(held, initial_plane)
         if isinstance(retry, _Attempt) and not retry.problem \
                 and disparity_sigma_px(retry.model, retry.fit) <= HELD_EXPONENT_MAX_SIGMA_PX:
