@@ -82,6 +82,10 @@ class JointLobeModel:
         """Name and value of fitted shape parameters stuck at a bound ("" if none)."""
         return self.parts[0].parameters_at_bounds(theta)
 
+    def at_bound(self, theta: np.ndarray, index: int) -> bool:
+        """Whether shape parameter ``index`` is fitted and stuck at a bound of its range."""
+        return self.parts[0].at_bound(theta, index)
+
     def lobe_fit(self, theta: np.ndarray) -> LobeFit:
         """Return the first light's photometric parameters (the surface's, its intensity)."""
         return self.parts[0].lobe_fit(theta[:N_PARAMS])
