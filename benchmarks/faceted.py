@@ -47,7 +47,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from fusion_eval import sgbm  # the fusion benchmark's SGBM (run from this folder)
+from fusion_eval import sgbm_backbone  # the fusion benchmark's SGBM (run from this folder)
 from results_files import write_results
 
 from srde_fusion.fusion import fuse
@@ -65,6 +65,8 @@ FOUND_PX = 0.5
 TARGET_PX = 0.05
 WRONG_SPLIT_PCT = 5.0
 SEED0 = 31000
+#: The backbone of the fused maps: the fusion benchmark's SGBM.
+SGBM = sgbm_backbone()
 
 
 class Estimated:
@@ -140,7 +142,7 @@ def run_scene(rig, seed: int, n_faces: int, convex: bool) -> dict:
                    if alone.ok else float("nan"))
             face_masks.append({"face": k, "status": alone.status, "gap_px": gap})
     record["face_masks"] = face_masks
-    backbone = sgbm(*(rendering.views[j] for j in rig.stereo_pair))
+    backbone = SGBM(*(rendering.views[j] for j in rig.stereo_pair))
     fused = fuse(backbone, rendering.views, lit_rig, [mask], Estimated(result))
     report = fused.objects[0]
     record.update(fused_status=report.status, fused_reason=report.reason,
