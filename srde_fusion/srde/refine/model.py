@@ -86,6 +86,8 @@ _MIN_LOBE_ON_UNCLIPPED = 1e-3
 _WIDTH_BOUNDS = (1e-3, 1.0)
 _TAIL_BOUNDS = (-0.25, 0.75)
 FORESHORTENING_BOUNDS = (-4.0, 5.0)
+#: A shape parameter this close to a bound, as a fraction of its range, is at the bound.
+AT_BOUND_FRACTION = 1e-3
 
 
 # Fitted foreshortening exponent starts here, halfway between the conventions.
@@ -370,10 +372,13 @@ class LobeModel:
     def at_bound(self, theta: np.ndarray, index: int) -> bool:
         """Whether shape parameter ``index`` (I_WIDTH, I_TAIL, I_FORE) is fitted and stuck.
 
-        Stuck means at a bound of its range; a held parameter never is.
+        Stuck means at a bound of its range, within :data:`AT_BOUND_FRACTION` of the range
+        (a solver may stop a hair short of the bound it is pushing against, by how much
+        depends on the machine's arithmetic); a held parameter never is.
         """
         low, high = self._bounds()[index]
-        return index in self.free_all and min(theta[index] - low, high - theta[index]) < 1e-9
+        slack = AT_BOUND_FRACTION * (high - low)
+        return index in self.free_all and min(theta[index] - low, high - theta[index]) < slack
 
     def parameters_at_bounds(self, theta: np.ndarray) -> str:
         """Name and value of fitted shape parameters stuck at a bound ("" if none)."""

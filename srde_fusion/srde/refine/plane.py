@@ -414,8 +414,18 @@ def compare_planes(views: Sequence[np.ndarray], rig: CameraRig, light_m, mask: n
     costs = np.full(len(planes), math.inf)
     if isinstance(samples, str):
         return costs
+    rendered = setup.light[None] if setup.modelled_lights is None else \
+        np.vstack([setup.light[None], setup.modelled_lights])
     for i, plane in enumerate(planes):
-        model = setup.model(samples, plane)
+        # A light behind this plane lights nothing on it (the plane is held): the plane is
+        # rendered with the lights in front of it only, the first of them fitted (a face
+        # turned from the samples' light is lit there by another, or by none).
+        front = rendered[plane.signed_distance(rendered) > 0.0]
+        if not len(front):
+            continue
+        held = replace(setup, light=front[0],
+                       modelled_lights=front[1:] if len(front) > 1 else None)
+        model = held.model(samples, plane)
         start = model.initial_guess() if model.valid else None
         if start is not None:
             _, costs[i] = _profile_at_start(model, start, max_iterations)
