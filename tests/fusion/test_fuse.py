@@ -362,6 +362,31 @@ def test_mask_spilling_onto_textured_background_is_trimmed(rig):
     assert np.all(untrimmed.source[spilled] == 1)
 
 
+def test_a_textured_patch_the_backbone_puts_apart_from_the_surroundings_is_kept(rig):
+    # The spilled ring's texture is seen at 9 px (a highlight's flank, where a matcher
+    # follows the reflection) while the background outside the mask is at 6 px: the
+    # backbone matches the views better there, but the patch does not continue the
+    # surroundings, so it is the object's and keeps SRDE's plane.
+    views, mask, plane, backbone = flat_object_scene(rig)
+    spilled = ndimage.binary_dilation(mask, iterations=8)
+    ring = spilled & ~mask
+    left, right = views
+    right = right.copy()
+    vs, us = np.nonzero(ring)
+    right[vs, us - 9] = left[vs, us]
+    backbone = backbone.copy()
+    backbone[ring] = 9.0
+    result = fuse(backbone, [left, right], rig, [spilled], FakeSRDE([plane], rig))
+    obj = result.objects[0]
+    assert obj.trimmed_px == 0, obj.reason
+    # The same patch at the surroundings' disparity is spilled background.
+    right_bg = right.copy()
+    right_bg[vs, us - BACKGROUND_PX] = left[vs, us]
+    backbone[ring] = float(BACKGROUND_PX)
+    spilled_result = fuse(backbone, [left, right_bg], rig, [spilled], FakeSRDE([plane], rig))
+    assert spilled_result.objects[0].trimmed_px > 0
+
+
 def test_thin_background_ring_in_the_mask_does_not_hide_the_object(rig, monkeypatch):
     # A mask dilated by a few pixels: the ring of background is too thin for the spill
     # trim, and SRDE's plane explains the mask's inner ring (background) worse than the
