@@ -30,6 +30,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from srde_fusion.adapters import load_backbone
 
 from srde_fusion.evaluation import (
     METHODS,
@@ -69,8 +70,6 @@ def sgbm_backbone():
     The nearest wall of these scenes is over 10 px away in disparity, so a 0 is a failed
     match; emptying it keeps the maps identical to those of earlier runs.
     """
-    from srde_fusion.adapters import load_backbone
-
     matcher = load_backbone("sgbm", **SGBM_SETTINGS)
 
     def sgbm(left: np.ndarray, right: np.ndarray) -> np.ndarray:
@@ -92,12 +91,8 @@ def load_backbones(names: list[str]) -> dict:
             out["SGBM, holes filled"] = lambda left, right: fill_holes_background(
                 sgbm(left, right))
         elif name == "default":
-            from srde_fusion.adapters import load_backbone
-
             out["stand-in"] = load_backbone("default")
         else:
-            from srde_fusion.adapters import load_backbone
-
             out[Path(name).stem] = load_backbone(name)
     return out
 

@@ -329,6 +329,20 @@ def _cost_map(grays: list[np.ndarray], rig: CameraRig, mask: np.ndarray,
     return np.where(mask & (count > 0), mean, np.nan).astype(np.float32)
 
 
+def _continues_outside(mask: np.ndarray, backbone: np.ndarray) -> np.ndarray:
+    """Pixels whose backbone disparity continues the surroundings', ``(h, w)`` bool.
+
+    Within :data:`_RIM_CONTINUITY` of the backbone's at the nearest pixel outside the mask
+    (the window holds a margin), as spilled background is; False where either is NaN, and
+    everywhere when nothing lies outside the mask.
+    """
+    if mask.all():
+        return np.zeros_like(mask)
+    beyond = nearest_value(~mask, backbone)
+    with np.errstate(invalid="ignore"):  # NaN beyond (a hole outside): no continuation
+        return np.abs(backbone - beyond) <= _RIM_CONTINUITY * beyond
+
+
 def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
                textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
                check: BorderCheck, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
@@ -356,15 +370,12 @@ def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
     """
     candidates = (mask & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
                   & (np.abs(backbone - srde_disp) > check.trim_disagreement * srde_disp))
-    if not candidates.any() or mask.all():  # (no pixel outside: nothing spilled into it)
-        return np.zeros_like(candidates)
-    # Spilled background continues the surroundings: its backbone disparity is near the
-    # backbone's at the nearest pixel outside the mask. On a highlight's flank the
-    # backbone matches the reflection instead (faceted objects lost whole flanks at the
-    # outline to the backbone this way, a face 2-7 px off in the fused map).
-    beyond = nearest_value(~mask, backbone)
-    with np.errstate(invalid="ignore"):  # NaN beyond (a hole outside): not background
-        candidates &= np.abs(backbone - beyond) <= _RIM_CONTINUITY * beyond
+    if not candidates.any():
+        return candidates
+    # Spilled background continues the surroundings. On a highlight's flank the backbone
+    # matches the reflection instead (faceted objects lost whole flanks at the outline to
+    # the backbone this way, a face 2-7 px off in the fused map).
+    candidates &= _continues_outside(mask, backbone)
     if not candidates.any():
         return candidates
     # One pixel's cost is at the mercy of image noise (which also makes a textureless
@@ -423,8 +434,9 @@ RIM_DEPTHS_PX = (2, 4, 8, 16, 32, 64)
 _MIN_INNER_FRACTION = 0.25
 #: Share of the rim's textured pixels the backbone must put behind SRDE's plane.
 _RIM_BEHIND_FRACTION = 0.5
-#: Largest relative difference between a rim pixel's backbone disparity and the one at
-#: the nearest pixel outside the mask for the rim pixel to continue the surroundings.
+#: Largest relative difference between a mask pixel's backbone disparity and the one at
+#: the nearest pixel outside the mask for the pixel to continue the surroundings (spilled
+#: background: :func:`spill_trim` and :func:`spilled_rim`).
 _RIM_CONTINUITY = 0.1
 
 
@@ -478,9 +490,7 @@ def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
     """
     none = np.zeros_like(mask)
     total = int(np.count_nonzero(mask))
-    # The backbone at the nearest pixel outside the mask (the window holds a margin).
-    beyond = (np.full_like(backbone, np.nan) if mask.all()
-              else nearest_value(~mask, backbone))
+    continues = _continues_outside(mask, backbone)
     for depth in RIM_DEPTHS_PX:
         rim = _inner_ring(mask, depth) & ~trimmed
         inner = mask & ~rim & ~trimmed
@@ -491,7 +501,7 @@ def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
             continue
         with np.errstate(invalid="ignore"):  # NaN outside ``seen``: not behind
             behind = (seen & (backbone < (1.0 - check.trim_disagreement) * srde_disp)
-                      & (np.abs(backbone - beyond) <= _RIM_CONTINUITY * beyond))
+                      & continues)
         if np.count_nonzero(behind) < _RIM_BEHIND_FRACTION * np.count_nonzero(seen):
             continue
         photo = photo_stats(inner, none, srde_disp, backbone, textured, grays, rig, check,

@@ -971,8 +971,7 @@ class _Context:
                 blobs.append((j, q))
         return blobs, covered, np.flatnonzero(holds.any(axis=0))
 
-    def _strays(self, plane: Plane, matched: np.ndarray, blobs,
-                held: np.ndarray | None = None) -> int:
+    def _strays(self, plane: Plane, matched: np.ndarray, blobs, held: np.ndarray) -> int:
         """Candidates well inside the object (by ``plane``) that no light explains.
 
         With every light known, each highlight on the object belongs to one of them.
@@ -986,8 +985,7 @@ class _Context:
         light_idx, view_idx = np.nonzero(matched >= 0)
         free[self.cand_start[view_idx] + matched[light_idx, view_idx]] = False
         free[[self.cand_start[view] + q for view, q in blobs]] = False
-        if held is not None:
-            free[held] = False
+        free[held] = False
         if not free.any():
             return 0
         maps, uv = maps[free], self.all_cands[free]
