@@ -95,8 +95,11 @@ MAX_FACE_HYPOTHESES = 12
 #: on another face's part by this factor.
 OWN_HIGHLIGHT_RATIO = 2.0
 
-#: Most sets of face planes checked against the image, best-ranked first.
-MAX_SETS_TRIED = 3
+#: Most sets of face planes checked against the image, best-ranked first. The same
+#: highlight centres read as one light's or another's give two planes of equal support, so
+#: each face may come in two versions: up to 2 ** MAX_FACES sets tie, and all are tried
+#: (which one the ranking puts first is then down to rounding).
+MAX_SETS_TRIED = 2 ** MAX_FACES
 
 #: The refinement leaves out a face's pixels this close to another face's part, px.
 FACE_EDGE_MARGIN_PX = 4.0

@@ -192,6 +192,28 @@ def test_a_set_the_image_refuses_gives_way_to_the_next(rig):
                for s in ranked[0].scores) > 1.0
 
 
+def test_sets_the_centres_cannot_tell_apart_are_all_tried_whatever_their_order(rig,
+                                                                              monkeypatch):
+    # Each face's highlights read as either light's give two planes of equal support:
+    # four sets tie here, and only the ridge of the right planes passes the image. Put
+    # last among the ties, it must still be tried and taken.
+    _, rendering, lit = _rendered(rig, SECOND_SET_SEED, 2, True, physics=Physics.faithful())
+    chosen = choose_faces
+
+    def right_set_last(*args, **kwargs):
+        ranked, why, pool = chosen(*args, **kwargs)
+        tied = [s for s in ranked if s.value == ranked[0].value]
+        assert len(tied) == 4 and [s.rule for s in tied].count("ridge") == 1
+        order = sorted(tied, key=lambda s: s.rule == "ridge") + ranked[len(tied):]
+        return order, why, pool
+
+    monkeypatch.setattr(faces_module, "choose_faces", right_set_last)
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
+    assert result.ok, result.reason
+    assert result.faces.rule == "ridge"
+    assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
+
+
 def test_every_failed_set_is_named(rig):
     _, rendering, lit = _rendered(rig, BOTH_SETS_FAIL_SEED, 3, True, physics=Physics.faithful())
     result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
