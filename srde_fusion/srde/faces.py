@@ -483,8 +483,9 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     # when every face passes its checks and refinement; a set that fails gives way to
     # the next. Two sets of equal rank that both pass: ambiguous.
     best = ranked[0]
-    tried = [s for s in ranked if s.value[0] == best.value[0]
-             and len(s.scores) == len(best.scores)][:MAX_SETS_TRIED]
+    tied = [s for s in ranked if s.value[0] == best.value[0]]
+    tried = ([s for s in tied if len(s.scores) == len(best.scores)]
+             + [s for s in tied if len(s.scores) != len(best.scores)])[:MAX_SETS_TRIED]
     failures: list[SRDEResult] = []
     solved: tuple[_Split, SRDEResult] | None = None
     for split in tried:

@@ -824,6 +824,41 @@ class _Context:
                   and self.plane_gap_px(s.plane, best.plane) > SAME_PLANE_PX]
         return max(scores, key=lambda s: s.key, default=None)
 
+    def same_centres_other_light(self, best: _Score) -> _Score | None:
+        """Return a plane that gives the best one's highlights to another light, if any.
+
+        The centres of one light's highlights are one virtual light ``V``; the bisector
+        of ``V`` and any other light ``k`` mirrors ``k`` onto the same point, so it predicts
+        the same highlights in every view. The proposals find that plane only when its
+        reflection points lie well inside the object: near the outline its predictions
+        take no candidate (a cut blob's centre moves), and it is never scored as a rival.
+        Here both planes are scored with those predictions matched: a plausible plane
+        (light ``k`` in front of it; other lights may lie behind, a face turned from them)
+        that then explains the same highlights as the best plane, as ``k``'s, with evidence
+        against it not decisively larger, is returned (scored so), the first such light;
+        None otherwise.
+        """
+        lights = best.explained_lights
+        if lights.size != 1 or len(self.lights) < 2:
+            return None
+        virtual = best.plane.mirror(self.lights[lights[0]])
+        whole = None  # the best plane scored the same way, once needed
+        for k in range(len(self.lights)):
+            if k == lights[0]:
+                continue
+            plane = plane_from_lights(self.lights[k], virtual, self.rig.reference_center_m)
+            why = self._implausible(plane)
+            if why not in ("", _LIGHT_BEHIND) or plane.signed_distance(self.lights[k]) <= 0.0:
+                continue
+            score = self.score(plane, at_least=best.n_matched, near_outline=True)
+            if score is None or score.explained_lights.tolist() != [k]:
+                continue
+            whole = whole or self.score(best.plane, at_least=1, near_outline=True)
+            if whole is not None and explained_pairs(score) == explained_pairs(whole) \
+                    and whole.key[0] - score.key[0] < DECISIVE_MARGIN:
+                return score
+        return None
+
     def _plausible(self, plane: Plane) -> bool:
         return not self._implausible(plane)
 
@@ -877,8 +912,13 @@ class _Context:
         near_edge[inside] &= ~self.inner[rv[inside], ru[inside]]
         return uv, on_object, near_edge
 
-    def score(self, plane: Plane | None, *, at_least: int = 2) -> _Score | None:
-        """Score what ``plane`` explains; None if it explains fewer than ``at_least``."""
+    def score(self, plane: Plane | None, *, at_least: int = 2, near_outline: bool = False
+              ) -> _Score | None:
+        """Score what ``plane`` explains; None if it explains fewer than ``at_least``.
+
+        ``near_outline``: predictions near the outline take candidates too (to ask whether
+        a plane could explain the same centres, not to rank it).
+        """
         if plane is None:
             return None
         uv, on_object, near_edge = self.predict(plane)
@@ -891,7 +931,8 @@ class _Context:
         # off the light's: predictions near the outline take no candidate.
         view = self.cand_view
         gaps = np.linalg.norm(uv[:, view, :] - self.all_cands[None], axis=2)  # (K, M)
-        usable = (gaps <= self.tolerance_px) & (on_object & ~near_edge)[:, view]
+        usable = (gaps <= self.tolerance_px) \
+            & (on_object if near_outline else on_object & ~near_edge)[:, view]
         lights, flat = np.nonzero(usable)
         taken = np.zeros(len(view), dtype=bool)
         for at in np.argsort(gaps[lights, flat], kind="stable"):
@@ -1029,7 +1070,13 @@ class _Context:
         return _plane_gap_px(self.rig, self.corners, a, b)
 
     # -------------------------------------------------------------- the answer
-    def solution(self, best: _Score, rival: _Score | None) -> LightsSolution:
+    def solution(self, best: _Score, rival: _Score | None, *, same_centres: bool = False
+                 ) -> LightsSolution:
+        """Return the answer from the best hypothesis and its strongest rival, with evidence.
+
+        ``same_centres``: the rival is :meth:`same_centres_other_light`'s (the same
+        highlights as another light's): ambiguous.
+        """
         rig = self.rig
         virtual = best.plane.mirror(self.lights)
         assignments = []
@@ -1056,7 +1103,15 @@ class _Context:
                          f"({rival.n_missing} missing, {rival.n_strays} stray)")
         status, reason = "ok", ""
         decisive = rival is None or best.key[0] - rival.key[0] >= DECISIVE_MARGIN
-        if rival is not None and rival.key[:2] >= best.key[:2]:
+        if same_centres:
+            status = "ambiguous"
+            reason = (f"lights: the highlights are one virtual light, explained as light "
+                      f"{best.explained_lights[0]}'s and as light {rival.explained_lights[0]}'s "
+                      f"(the same image points; the plane giving them to light "
+                      f"{rival.explained_lights[0]} reflects some near the outline, where a "
+                      "centre is not trusted, and explains them all once they count); which "
+                      "light they belong to is not established; " + evidence)
+        elif rival is not None and rival.key[:2] >= best.key[:2]:
             status = "ambiguous"
             reason = ("lights: two different planes explain the highlights equally well; "
                       + evidence)
@@ -1447,6 +1502,22 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
                           modelled_lights=[srde.lights_m[k] for k in modelled],
                           modelled_centers=modelled_centers)
     refinement = result.refinement
+    if result.ok and refinement is not None and not refinement.ok:
+        # The images do not confirm the plane. If another light's plane explains the same
+        # centres (reflected near the outline, where they did not count), the centres'
+        # lead is no answer: the lobes decide between the two.
+        context = gathered.context(srde, mask)
+        best = context.score(solution.plane, at_least=1)
+        same = None if best is None else context.same_centres_other_light(best)
+        if same is not None:
+            doubt = context.solution(best, same, same_centres=True)
+            doubt = dataclasses.replace(doubt, reason=(
+                f"{doubt.reason}; the photometric refinement did not confirm the best plane "
+                f"({refinement.reason})"))
+            failed = dataclasses.replace(srde._failed("ambiguous", doubt.reason), lights=doubt)
+            return _no_highlights_left_out(srde, mask, gathered,
+                                           _solve_ambiguous(srde, views, mask, doubt, failed),
+                                           failed)
     if result.ok and refinement is not None and refinement.ok:
         # The refinement sees the lights' highlights near their centres; every light's
         # assigned centres must still agree with its plane, else the joint geometric
@@ -1649,15 +1720,47 @@ def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSoluti
     :data:`DECISIVE_COST_RATIO` times better.
     """
     starts = [solution.plane, solution.rival_plane]
+    if solution.status == "ambiguous":
+        starts += _same_centres_planes(srde, mask, solution, starts)
     presents = _lights_on_object(srde, mask, solution, starts)
     if presents is None:
         return failed
-    note = ("lights: two planes explain the blob centres alike; a joint fit of one lobe per light"
+    alike = {2: "two", 3: "three", 4: "four"}.get(len(starts), str(len(starts)))
+    note = (f"lights: {alike} planes explain the blob centres alike; a joint fit of one "
+            "lobe per light"
             if solution.status == "ambiguous" else
             "lights: the best plane is contradicted by highlights it predicts; a joint fit of "
             "one lobe per light from it and its rival")
     return _solve_by_lobes(srde, views, mask, solution, failed, starts, presents, note,
                            rival_must_fit=True)
+
+
+def _same_centres_planes(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
+                         starts: list[Plane]) -> list[Plane]:
+    """Planes giving the best plane's highlights to each further light, as starts.
+
+    When the best plane explains one light's highlights, every other light is mirrored
+    onto the same virtual light by its own plane (the centres cannot tell them apart);
+    with three or more lights the rival is only one of them. Those plausible for that
+    light (it and the cameras in front; other lights may lie behind, a face turned from
+    them) and more than ``SAME_PLANE_PX`` from every start are returned.
+    """
+    explained = [a.light for a in solution.assignments if a.n_views]
+    if len(explained) != 1 or solution.plane is None:
+        return []
+    context = _plain_context(srde, mask, solution)
+    virtual = solution.plane.mirror(srde.lights_m[explained[0]])
+    found: list[Plane] = []
+    for k, light in enumerate(srde.lights_m):
+        if k == explained[0]:
+            continue
+        plane = plane_from_lights(light, virtual, srde.rig.reference_center_m)
+        if context._implausible(plane) not in ("", _LIGHT_BEHIND) \
+                or plane.signed_distance(light) <= 0.0:
+            continue
+        if all(context.plane_gap_px(plane, p) > SAME_PLANE_PX for p in [*starts, *found]):
+            found.append(plane)
+    return found
 
 
 def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
@@ -1718,7 +1821,11 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     other start's fit alone is then no answer: ``ambiguous``. (Faces of a ridge taken as
     their own masks were solved 6 and 9 px off this way while such fits rendered the light
     behind the plane and were always refused; a fit may still be refused for another
-    reason, as on a three-face object taken as one plane.)
+    reason, as on a three-face object taken as one plane.) It holds for the first two
+    starts, the best plane and its rival; further starts (:func:`_same_centres_planes`)
+    only offer the lobes another light, and a refused fit from one of them is not an
+    answer left open (with it, 8 of 140 faces taken alone that were right turned
+    ambiguous on a new set, seeds 61000+).
     """
     from .refine import refine_plane
     from .refine.plane import compare_planes
@@ -1729,7 +1836,7 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     corners = _box_corners(mask)
     fits: list = []  # (fit, main, used, options) of distinct planes
     mains: set[int] = set()
-    for start, present in zip(starts, presents, strict=True):
+    for i, (start, present) in enumerate(zip(starts, presents, strict=True)):
         main = int(np.argmax(present.sum(axis=1)))
         mains.add(main)
         used = present[main]
@@ -1740,7 +1847,7 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
                                              if k != main and k not in behind], behind)
         fit = refine_plane(views, rig, lights[main], mask, start,
                            centers_uv=_centres(rig, start, lights[main], used), **options)
-        if rival_must_fit and not fit.ok and behind:
+        if rival_must_fit and i < 2 and not fit.ok and behind:
             reason = (f"{note} (lights {np.flatnonzero(everywhere).tolist()}): the fit from "
                       f"the plane with light(s) {list(behind)} behind it (a face turned from "
                       f"them, as on an object of several flat faces) was refused ({fit.reason}); "
