@@ -824,6 +824,25 @@ class _Context:
                   and self.plane_gap_px(s.plane, best.plane) > SAME_PLANE_PX]
         return max(scores, key=lambda s: s.key, default=None)
 
+    def other_lights_planes(self, plane: Plane, light: int) -> list[tuple[int, Plane]]:
+        """Each other light's plane through ``plane``'s virtual light of ``light``.
+
+        The bisector of that virtual light and light ``k`` mirrors ``k`` onto the same
+        point: ``(k, plane)`` for every ``k != light`` whose plane is plausible for it
+        (``k`` and the cameras in front; other lights may lie behind, a face turned from
+        them).
+        """
+        virtual = plane.mirror(self.lights[light])
+        planes = []
+        for k, other in enumerate(self.lights):
+            if k == light:
+                continue
+            through = plane_from_lights(other, virtual, self.rig.reference_center_m)
+            if self._implausible(through) in ("", _LIGHT_BEHIND) \
+                    and through.signed_distance(other) > 0.0:
+                planes.append((k, through))
+        return planes
+
     def same_centres_other_light(self, best: _Score) -> _Score | None:
         """Return a plane that gives the best one's highlights to another light, if any.
 
@@ -833,23 +852,15 @@ class _Context:
         reflection points lie well inside the object: near the outline its predictions
         take no candidate (a cut blob's centre moves), and it is never scored as a rival.
         Here both planes are scored with those predictions matched: a plausible plane
-        (light ``k`` in front of it; other lights may lie behind, a face turned from them)
-        that then explains the same highlights as the best plane, as ``k``'s, with evidence
-        against it not decisively larger, is returned (scored so), the first such light;
-        None otherwise.
+        (:meth:`other_lights_planes`) that then explains the same highlights as the best
+        plane, as ``k``'s, with evidence against it not decisively larger, is returned
+        (scored so), the first such light; None otherwise.
         """
         lights = best.explained_lights
-        if lights.size != 1 or len(self.lights) < 2:
+        if lights.size != 1:
             return None
-        virtual = best.plane.mirror(self.lights[lights[0]])
         whole = None  # the best plane scored the same way, once needed
-        for k in range(len(self.lights)):
-            if k == lights[0]:
-                continue
-            plane = plane_from_lights(self.lights[k], virtual, self.rig.reference_center_m)
-            why = self._implausible(plane)
-            if why not in ("", _LIGHT_BEHIND) or plane.signed_distance(self.lights[k]) <= 0.0:
-                continue
+        for k, plane in self.other_lights_planes(best.plane, int(lights[0])):
             score = self.score(plane, at_least=best.n_matched, near_outline=True)
             if score is None or score.explained_lights.tolist() != [k]:
                 continue
@@ -1741,23 +1752,16 @@ def _same_centres_planes(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
 
     When the best plane explains one light's highlights, every other light is mirrored
     onto the same virtual light by its own plane (the centres cannot tell them apart);
-    with three or more lights the rival is only one of them. Those plausible for that
-    light (it and the cameras in front; other lights may lie behind, a face turned from
-    them) and more than ``SAME_PLANE_PX`` from every start are returned.
+    with three or more lights the rival is only one of them. Those plausible for their
+    light (``_Context.other_lights_planes``) and more than ``SAME_PLANE_PX`` from every
+    start are returned.
     """
     explained = [a.light for a in solution.assignments if a.n_views]
     if len(explained) != 1 or solution.plane is None:
         return []
     context = _plain_context(srde, mask, solution)
-    virtual = solution.plane.mirror(srde.lights_m[explained[0]])
     found: list[Plane] = []
-    for k, light in enumerate(srde.lights_m):
-        if k == explained[0]:
-            continue
-        plane = plane_from_lights(light, virtual, srde.rig.reference_center_m)
-        if context._implausible(plane) not in ("", _LIGHT_BEHIND) \
-                or plane.signed_distance(light) <= 0.0:
-            continue
+    for _, plane in context.other_lights_planes(solution.plane, explained[0]):
         if all(context.plane_gap_px(plane, p) > SAME_PLANE_PX for p in [*starts, *found]):
             found.append(plane)
     return found
@@ -1824,8 +1828,8 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     reason, as on a three-face object taken as one plane.) It holds for the first two
     starts, the best plane and its rival; further starts (:func:`_same_centres_planes`)
     only offer the lobes another light, and a refused fit from one of them is not an
-    answer left open (with it, 8 of 140 faces taken alone that were right turned
-    ambiguous on a new set, seeds 61000+).
+    answer left open (in a trial that checked every one-light plane for such starts,
+    holding them to it turned 8 of 140 right faces taken alone ambiguous, seeds 61000+).
     """
     from .refine import refine_plane
     from .refine.plane import compare_planes

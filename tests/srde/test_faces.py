@@ -184,6 +184,17 @@ def test_three_faces_are_solved_within_the_target(rig, seed):
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
 
 
+def _ranked_sets(srde, rendering, mask):
+    """The sets of face planes ``choose_faces`` ranks for ``mask``, and their context."""
+    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+    context = gathered.context(srde, mask, all_lights_in_front=False)
+    scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
+    u0, v0, u1, v1 = box = search_box(mask, 0)
+    ranked, _, _ = choose_faces(context, scores, max_faces=3, min_views=srde.min_views, box=box,
+                                inside=mask[v0:v1, u0:u1])
+    return context, ranked
+
+
 def test_a_set_the_image_refuses_gives_way_to_the_next(rig):
     _, rendering, lit = _rendered(rig, SECOND_SET_SEED, 2, True, physics=Physics.faithful())
     mask = rendering.instance_mask > 0
@@ -192,12 +203,7 @@ def test_a_set_the_image_refuses_gives_way_to_the_next(rig):
     assert result.ok, result.reason
     assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
     # The set the highlight centres rank first is not the one solved.
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
-    context = gathered.context(srde, mask, all_lights_in_front=False)
-    scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
-    u0, v0, u1, v1 = box = search_box(mask, 0)
-    ranked, _, _ = choose_faces(context, scores, max_faces=3, min_views=srde.min_views, box=box,
-                                inside=mask[v0:v1, u0:u1])
+    context, ranked = _ranked_sets(srde, rendering, mask)
     assert len(ranked) >= 2
     solved = [face.plane for face in result.faces.faces]
     assert max(min(context.plane_gap_px(s.plane, p) for p in solved)
@@ -230,12 +236,7 @@ def test_a_larger_set_as_good_on_the_highlights_is_tried_when_the_best_fails(rig
     _, rendering, lit = _rendered(rig, LARGER_SET_SEED, 3, True, physics=Physics.faithful())
     mask = rendering.instance_mask > 0
     srde = SRDE(lit, max_faces=3)
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
-    context = gathered.context(srde, mask, all_lights_in_front=False)
-    scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
-    u0, v0, u1, v1 = box = search_box(mask, 0)
-    ranked, _, _ = choose_faces(context, scores, max_faces=3, min_views=srde.min_views, box=box,
-                                inside=mask[v0:v1, u0:u1])
+    _, ranked = _ranked_sets(srde, rendering, mask)
     assert len(ranked[0].scores) == 2
     result = srde.estimate(rendering.views, mask)
     assert result.ok, result.reason
