@@ -859,13 +859,14 @@ class _Context:
         lights = best.explained_lights
         if lights.size != 1:
             return None
-        whole = None  # the best plane scored the same way, once needed
-        for k, plane in self.other_lights_planes(best.plane, int(lights[0])):
+        planes = self.other_lights_planes(best.plane, int(lights[0]))
+        whole = self.score(best.plane, at_least=1, near_outline=True) if planes else None
+        if whole is None:
+            return None
+        for k, plane in planes:
             score = self.score(plane, at_least=best.n_matched, near_outline=True)
-            if score is None or score.explained_lights.tolist() != [k]:
-                continue
-            whole = whole or self.score(best.plane, at_least=1, near_outline=True)
-            if whole is not None and explained_pairs(score) == explained_pairs(whole) \
+            if score is not None and score.explained_lights.tolist() == [k] \
+                    and explained_pairs(score) == explained_pairs(whole) \
                     and whole.key[0] - score.key[0] < DECISIVE_MARGIN:
                 return score
         return None
@@ -1742,8 +1743,9 @@ def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSoluti
             if solution.status == "ambiguous" else
             "lights: the best plane is contradicted by highlights it predicts; a joint fit of "
             "one lobe per light from it and its rival")
+    # The best plane and its rival must fit; further starts only offer another light.
     return _solve_by_lobes(srde, views, mask, solution, failed, starts, presents, note,
-                           rival_must_fit=True)
+                           must_fit=2)
 
 
 def _same_centres_planes(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
@@ -1807,7 +1809,7 @@ def _one_light(srde: SRDE, k: int) -> SRDE:
 
 def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
                     failed: SRDEResult, starts: list[Plane], presents: list[np.ndarray],
-                    note: str, *, rival_must_fit: bool = False) -> SRDEResult:
+                    note: str, *, must_fit: int = 0) -> SRDEResult:
     """Fit one lobe per light on one plane from several starts, and decide.
 
     ``presents[i]`` ``(K, N)`` bool: the lights start ``i`` puts on the object. Every light
@@ -1819,17 +1821,17 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     a note (no fit explains the images) or as ``"ambiguous"`` (two planes the images do
     not tell apart).
 
-    ``rival_must_fit``: the starts are two hypotheses that explain the centres alike. A
-    start with a known light behind its plane (a face turned from that light, which the
-    one-plane fit refuses to render) whose fit fails is not ruled out by the images; the
-    other start's fit alone is then no answer: ``ambiguous``. (Faces of a ridge taken as
-    their own masks were solved 6 and 9 px off this way while such fits rendered the light
-    behind the plane and were always refused; a fit may still be refused for another
-    reason, as on a three-face object taken as one plane.) It holds for the first two
-    starts, the best plane and its rival; further starts (:func:`_same_centres_planes`)
-    only offer the lobes another light, and a refused fit from one of them is not an
-    answer left open (in a trial that checked every one-light plane for such starts,
-    holding them to it turned 8 of 140 right faces taken alone ambiguous, seeds 61000+).
+    ``must_fit``: the first ``must_fit`` starts are hypotheses that explain the centres
+    alike (the best plane and its rival). Such a start with a known light behind its plane
+    (a face turned from that light, which the one-plane fit refuses to render) whose fit
+    fails is not ruled out by the images; the other starts' fits alone are then no answer:
+    ``ambiguous``. (Faces of a ridge taken as their own masks were solved 6 and 9 px off
+    this way while such fits rendered the light behind the plane and were always refused;
+    a fit may still be refused for another reason, as on a three-face object taken as one
+    plane.) Further starts (:func:`_same_centres_planes`) only offer the lobes another
+    light, and a refused fit from one of them is not an answer left open (in a trial that
+    checked every one-light plane for such starts, holding them to it turned 8 of 140
+    right faces taken alone ambiguous, seeds 61000+).
     """
     from .refine import refine_plane
     from .refine.plane import compare_planes
@@ -1851,7 +1853,7 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
                                              if k != main and k not in behind], behind)
         fit = refine_plane(views, rig, lights[main], mask, start,
                            centers_uv=_centres(rig, start, lights[main], used), **options)
-        if rival_must_fit and i < 2 and not fit.ok and behind:
+        if i < must_fit and not fit.ok and behind:
             reason = (f"{note} (lights {np.flatnonzero(everywhere).tolist()}): the fit from "
                       f"the plane with light(s) {list(behind)} behind it (a face turned from "
                       f"them, as on an object of several flat faces) was refused ({fit.reason}); "
