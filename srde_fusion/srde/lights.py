@@ -1816,10 +1816,10 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     present for some start is rendered (:class:`~.refine.joint.JointLobeModel`); each
     start's fit places its samples around the highlights of its own main light (the one
     present in most views), so two starts that explain one blob by different lights are
-    judged on that blob. The fits must end on one plane, or on two of which one explains
-    both fits' samples :data:`DECISIVE_COST_RATIO` times better. Otherwise ``failed``, with
-    a note (no fit explains the images) or as ``"ambiguous"`` (two planes the images do
-    not tell apart).
+    judged on that blob. The fits must end on one plane, or on several of which one
+    explains the samples of each fit :data:`DECISIVE_COST_RATIO` times better than every
+    other plane does (:func:`_decisive_fit`). Otherwise ``failed``, with a note (no fit
+    explains the images) or as ``"ambiguous"`` (planes the images do not tell apart).
 
     ``must_fit``: the first ``must_fit`` starts are hypotheses that explain the centres
     alike (the best plane and its rival). Such a start with a known light behind its plane
@@ -1834,7 +1834,6 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     right faces taken alone ambiguous, seeds 61000+).
     """
     from .refine import refine_plane
-    from .refine.plane import compare_planes
 
     rig, lights = srde.rig, srde.lights_m
     everywhere = np.logical_or.reduce(presents).any(axis=1)  # (K,)
@@ -1867,26 +1866,24 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     note = f"{note} (lights {np.flatnonzero(everywhere).tolist()}, main {mains})"
     if not fits:
         return dataclasses.replace(failed, notes=(*failed.notes, note + " explained none"))
-    fit, main, used, _ = fits[0]
-    if len(fits) > 1:
-        # Two fits, two planes: compare them on the same samples, each fit's in turn.
-        (a, main_a, used_a, opt_a), (b, main_b, used_b, opt_b) = fits[0], fits[1]
-        a, b = a.plane, b.plane
-        on_a = compare_planes(views, rig, lights[main_a], mask, [a, b],
-                              _centres(rig, a, lights[main_a], used_a), **opt_a)
-        on_b = compare_planes(views, rig, lights[main_b], mask, [b, a],
-                              _centres(rig, b, lights[main_b], used_b), **opt_b)
-        if on_a[1] > DECISIVE_COST_RATIO * on_a[0] and on_b[0] > DECISIVE_COST_RATIO * on_b[1]:
-            fit, main, used, _ = fits[0]
-        elif on_a[0] > DECISIVE_COST_RATIO * on_a[1] and on_b[1] > DECISIVE_COST_RATIO * on_b[0]:
-            fit, main, used, _ = fits[1]
-        else:
-            gap_px = _plane_gap_px(rig, corners, a, b)
-            reason = (f"{note} ends on planes {gap_px:.1f} px apart from two starts, neither "
-                      f"explaining the images {DECISIVE_COST_RATIO:g}x better (costs "
-                      f"{on_a[0]:.3g} vs {on_a[1]:.3g} and {on_b[1]:.3g} vs {on_b[0]:.3g})"
-                      + (f"; {solution.evidence}" if solution.evidence else ""))
+    winner, costs = _decisive_fit(views, rig, lights, mask, fits)
+    if winner is None:
+        evidence = f"; {solution.evidence}" if solution.evidence else ""
+        undecided = [(i, j) for i in range(len(fits)) for j in range(i + 1, len(fits))
+                     if not (_beats(costs, i, j) or _beats(costs, j, i))]
+        if not undecided:  # every pair decided, in a circle
+            reason = (f"{note} ends on {len(fits)} planes, each explaining the images "
+                      f"{DECISIVE_COST_RATIO:g}x worse than another{evidence}")
             return dataclasses.replace(failed, status="ambiguous", reason=reason)
+        i, j = undecided[0]
+        gap_px = _plane_gap_px(rig, corners, fits[i][0].plane, fits[j][0].plane)
+        reason = (f"{note} ends on planes {gap_px:.1f} px apart from two starts, neither "
+                  f"explaining the images {DECISIVE_COST_RATIO:g}x better (costs "
+                  f"{costs[i, i]:.3g} vs {costs[i, j]:.3g} and {costs[j, j]:.3g} vs "
+                  f"{costs[j, i]:.3g})"
+                  + (f" ({len(fits)} distinct planes)" if len(fits) > 2 else "") + evidence)
+        return dataclasses.replace(failed, status="ambiguous", reason=reason)
+    fit, main, used, _ = fits[winner]
     point = fit.plane.mirror(lights[main])
     w = 1.0 / (point[2] - rig.reference_center_m[2])
     centers = _centres(rig, fit.plane, lights[main], np.ones(rig.n_cameras, bool))
@@ -1899,6 +1896,70 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
         return dataclasses.replace(failed, notes=(*failed.notes, note + f": {result.reason}"))
     return dataclasses.replace(result, refinement=fit,
                                lights=_solved_on(srde, mask, solution, result.plane))
+
+
+def _decisive_fit(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, fits: list
+                  ) -> tuple[int | None, np.ndarray]:
+    """Which of the lobe fits' distinct planes the images prefer decisively, if one.
+
+    ``fits``: ``(fit, main, used, options)`` per distinct plane. Every plane is scored on
+    every fit's samples (:func:`~.refine.plane.compare_planes`, samples placed around
+    that fit's own main light); plane ``i`` beats plane ``j`` when it is
+    :data:`DECISIVE_COST_RATIO` times cheaper on ``i``'s and ``j``'s samples, wherever both
+    have a cost (:func:`_beats`). The answer is the plane that beats every other. Each
+    pair is judged: when only the first two fits were compared, a face lit by one light
+    was handed to another's plane, 12 px off, though a third fit's plane was 57 times
+    cheaper than it on its own samples.
+
+    Returns
+    -------
+    winner : int or None
+        Index into ``fits``; 0 when there is one fit; None when no plane beats all others.
+    costs : numpy.ndarray, (F, F)
+        ``costs[s, p]``: plane ``p``'s best photometric cost on fit ``s``'s samples.
+    """
+    from .refine.plane import compare_planes
+
+    n = len(fits)
+    costs = np.zeros((n, n))
+    if n == 1:
+        return 0, costs
+    planes = [f.plane for f, *_ in fits]
+    for s, (fit, main, used, options) in enumerate(fits):
+        order = [s] + [p for p in range(n) if p != s]
+        costs[s, order] = compare_planes(views, rig, lights[main], mask,
+                                         [planes[p] for p in order],
+                                         _centres(rig, fit.plane, lights[main], used), **options)
+    return _winner(costs), costs
+
+
+def _winner(costs: np.ndarray) -> int | None:
+    """Return the plane that beats every other (:func:`_beats`), or None.
+
+    No inference through a third plane: two planes never judged against each other (each
+    renders none of the lights placed on the other's samples) leave the answer open even
+    when one of them beats a plane that beats the other.
+    """
+    n = len(costs)
+    for i in range(n):
+        if all(_beats(costs, i, j) for j in range(n) if j != i):
+            return i
+    return None
+
+
+def _beats(costs: np.ndarray, i: int, j: int) -> bool:
+    """Plane ``i`` is :data:`DECISIVE_COST_RATIO` times cheaper than ``j`` where both are judged.
+
+    On each fit's samples where both planes have a cost (``inf``: a plane that renders
+    none of the lights placed there, which says nothing of it), and on one at least.
+    """
+    judged = False
+    for s in (i, j):  # i's samples, then j's
+        if np.isfinite(costs[s, i]) and np.isfinite(costs[s, j]):
+            if not costs[s, j] > DECISIVE_COST_RATIO * costs[s, i]:
+                return False
+            judged = True
+    return judged
 
 
 def _solved_on(srde: SRDE, mask: np.ndarray, solution: LightsSolution,

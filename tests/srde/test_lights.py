@@ -653,3 +653,34 @@ def test_a_plane_with_a_light_behind_it_is_a_rival_though_never_the_answer():
     if result.ok:
         gap = np.abs(plane_disparity(result.plane, rig)[part] - out.disparity_px[part])
         assert gap.max() < 0.5
+
+
+def test_lobe_fits_are_judged_pair_by_pair_where_both_planes_have_a_cost():
+    from srde_fusion.srde.lights import DECISIVE_COST_RATIO, _beats, _winner
+
+    inf = np.inf
+    # costs[s, p]: plane p on fit s's samples. Plane 1 is cheaper by more than the ratio
+    # on both fits' samples: it beats plane 0, and not the other way round.
+    two = np.array([[1.0, 0.1], [5.0, 0.2]])
+    assert _beats(two, 1, 0) and not _beats(two, 0, 1) and _winner(two) == 1
+    # Cheaper on both, but not by the ratio on one of them: neither beats.
+    close = np.array([[1.0, 0.1], [0.3, 0.2]])
+    assert 0.3 < DECISIVE_COST_RATIO * 0.2
+    assert not _beats(close, 1, 0) and not _beats(close, 0, 1) and _winner(close) is None
+    # A plane that renders none of the lights placed on fit 0's samples has no cost
+    # there: the pair is judged on fit 1's samples alone (once always left open).
+    silent = np.array([[3e-4, inf], [1.6e-2, 4e-7]])
+    assert _beats(silent, 1, 0) and _winner(silent) == 1
+    # Neither plane has a cost on the other's samples: never judged, never beaten.
+    blind = np.array([[1e-3, inf], [inf, 1e-6]])
+    assert not _beats(blind, 0, 1) and not _beats(blind, 1, 0) and _winner(blind) is None
+    # Three planes: the first two alone would pick plane 1; plane 2 beats it, but plane
+    # 0 and plane 2 were never judged against each other. No inference through plane 1:
+    # open.
+    three = np.array([[1.8e-3, 4.7e-4, inf], [4.8e-2, 4.6e-4, 8.0e-6], [inf, 4.5e-4, 4.1e-6]])
+    assert _beats(three, 1, 0) and _beats(three, 2, 1)
+    assert _winner(three[:2, :2]) == 1 and _winner(three) is None
+    # The same with plane 2 judged cheaper than plane 0 on plane 0's samples: plane 2.
+    judged = three.copy()
+    judged[0, 2] = 1e-5
+    assert _winner(judged) == 2
