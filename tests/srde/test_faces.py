@@ -117,6 +117,15 @@ def _rendered(rig, seed, n_faces, convex, *, physics=None):
     return faceted, rendering, rig.with_lights(rig_lights(faceted.scene))
 
 
+def _alone(rig, seed, n_faces, convex, face):
+    """One face of a faithful render as its own mask, every face's light known.
+
+    Returns ``(result, rendering)`` of the one-plane several-light SRDE.
+    """
+    _, rendering, lit = _rendered(rig, seed, n_faces, convex, physics=Physics.faithful())
+    return SRDE(lit).estimate(rendering.views, rendering.instance_mask == face + 1), rendering
+
+
 def _face_epes(disparity, rendering, n_faces):
     return [float(np.mean(np.abs(disparity[rendering.instance_mask == k + 1]
                                  - rendering.disparity_px[rendering.instance_mask == k + 1])))
@@ -456,8 +465,7 @@ def test_centres_another_light_explains_near_the_outline_leave_the_light_open(
 
 def test_every_light_that_could_own_the_centres_starts_a_lobe_fit(rig):
     seed, n_faces, convex, face = THIRD_LIGHT_FACE
-    _, rendering, lit = _rendered(rig, seed, n_faces, convex, physics=Physics.faithful())
-    result = SRDE(lit).estimate(rendering.views, rendering.instance_mask == face + 1)
+    result, rendering = _alone(rig, seed, n_faces, convex, face)
     assert result.ok, result.reason
     assert any("three planes explain the blob centres alike" in note for note in result.notes)
     assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
@@ -465,8 +473,7 @@ def test_every_light_that_could_own_the_centres_starts_a_lobe_fit(rig):
 
 def test_three_lobe_fits_are_all_judged_against_each_other(rig):
     seed, n_faces, convex, face = THREE_FITS_FACE
-    _, rendering, lit = _rendered(rig, seed, n_faces, convex, physics=Physics.faithful())
-    result = SRDE(lit).estimate(rendering.views, rendering.instance_mask == face + 1)
+    result, rendering = _alone(rig, seed, n_faces, convex, face)
     assert result.status == "ambiguous", (result.status, result.reason)
     assert "(3 distinct planes)" in result.reason
 
@@ -474,8 +481,7 @@ def test_three_lobe_fits_are_all_judged_against_each_other(rig):
 @pytest.mark.parametrize(("seed", "n_faces", "convex", "face"), ONE_SIDED_FACES)
 def test_two_lobe_fits_are_judged_where_both_planes_have_a_cost(rig, seed, n_faces, convex,
                                                                 face):
-    _, rendering, lit = _rendered(rig, seed, n_faces, convex, physics=Physics.faithful())
-    result = SRDE(lit).estimate(rendering.views, rendering.instance_mask == face + 1)
+    result, rendering = _alone(rig, seed, n_faces, convex, face)
     assert result.ok, (result.status, result.reason)
     assert any("joint fit of one lobe per light" in note for note in result.notes)
     assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
@@ -484,8 +490,7 @@ def test_two_lobe_fits_are_judged_where_both_planes_have_a_cost(rig, seed, n_fac
 @pytest.mark.parametrize(("seed", "n_faces", "convex", "face"), UNPINNED_FACES)
 def test_a_several_light_plane_the_images_do_not_pin_down_is_refused(rig, seed, n_faces,
                                                                      convex, face):
-    _, rendering, lit = _rendered(rig, seed, n_faces, convex, physics=Physics.faithful())
-    result = SRDE(lit).estimate(rendering.views, rendering.instance_mask == face + 1)
+    result, rendering = _alone(rig, seed, n_faces, convex, face)
     assert result.status == "ambiguous", (result.status, result.reason)
     assert "not pinned down" in result.reason
     assert result.refinement is not None and result.refinement.disparity_sigma_px > 0.1
@@ -503,8 +508,7 @@ def test_a_turned_plane_whose_fit_is_refused_is_not_ruled_out(rig):
 
 def test_a_lobe_fit_plane_that_explains_no_blob_is_refused(rig):
     seed, n_faces, convex, face = NOTHING_EXPLAINED
-    _, rendering, lit = _rendered(rig, seed, n_faces, convex, physics=Physics.faithful())
-    result = SRDE(lit).estimate(rendering.views, rendering.instance_mask == face + 1)
+    result, rendering = _alone(rig, seed, n_faces, convex, face)
     assert result.status == "inconsistent", (result.status, result.reason)
     assert "explains none of the blobs" in result.reason
 
