@@ -1879,8 +1879,8 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
         gap_px = _plane_gap_px(rig, corners, fits[i][0].plane, fits[j][0].plane)
         reason = (f"{note} ends on planes {gap_px:.1f} px apart from two starts, neither "
                   f"explaining the images {DECISIVE_COST_RATIO:g}x better (costs "
-                  f"{costs[i, i]:.3g} vs {costs[i, j]:.3g} and {costs[j, j]:.3g} vs "
-                  f"{costs[j, i]:.3g})"
+                  f"{costs[i, i]:.3g} vs {costs[i, j]:.3g} and {costs[j, i]:.3g} vs "
+                  f"{costs[j, j]:.3g})"
                   + (f" ({len(fits)} distinct planes)" if len(fits) > 2 else "") + evidence)
         return dataclasses.replace(failed, status="ambiguous", reason=reason)
     fit, main, used, _ = fits[winner]
