@@ -525,6 +525,11 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     # another face), and the mask split again by the refitted planes.
     chosen = []
     where = _highlights_by_face(rig, lights, list(split.scores), split.labels, box, edge_px)
+    # Every highlight a face's plane explains off the other faces' parts is that face's,
+    # whether or not its fit uses it (near the edge its centre may be pulled).
+    theirs = [replace(score, matched=np.where(_own(w, f + 1) | (w == CUT_BY_EDGE),
+                                              score.matched, -1))
+              for f, (score, w) in enumerate(zip(split.scores, where, strict=True))]
     for f, (score, w) in enumerate(zip(split.scores, where, strict=True)):
         strict = np.where(w == f + 1, score.matched, -1)
         own = replace(score, matched=strict if np.count_nonzero(strict >= 0) >= 2
@@ -609,7 +614,9 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     small = _too_small(labels, inside)
     if small:
         return srde._failed("face_split", small)
-    stray = _unexplained_reference(rig, gathered, refined, labels, box, edge_px)
+    # (A highlight near the edge that a face's fit left out may lie away from the edge
+    # the refined planes draw: it is still explained.)
+    stray = _unexplained_reference(rig, gathered, [*refined, *theirs], labels, box, edge_px)
     if stray:
         # With every light known, each highlight on the object is some light's on some
         # face: one that no face explains means a face is missing or a plane is wrong.

@@ -66,6 +66,10 @@ RETRY_SEED = 32012
 # A valley (held-out seed) whose first face's highlight lies on the outline in three
 # views: its mirror point just off the mask, its blob's near half on the object.
 OUTLINE_HIGHLIGHT_SEED = 52007
+# A valley whose second face's reference highlight lies near the edge its highlights'
+# planes draw, so that face's fit leaves it out; the refined planes move the edge away
+# from it, and it was then taken for a highlight no face explains (face_split).
+EDGE_MOVED_SEED = 32017
 # A 3-face scene whose middle face's lobe fit settles 0.33 px off with a standard error of
 # 0.19 px (within SAME_PLANE_PX / 2, not within a third of it).
 UNCERTAIN_FACE_SEED = 33007
@@ -315,6 +319,14 @@ def test_a_highlight_cut_by_the_outline_is_its_face_s_not_a_face_left_out(rig):
     # face's own light's, predicted within a blob radius of the outline.
     _, rendering, lit = _rendered(rig, OUTLINE_HIGHLIGHT_SEED, 2, False,
                                   physics=Physics.faithful())
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
+    assert result.ok, result.reason
+    assert len(result.faces.faces) == 2
+    assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
+
+
+def test_a_highlight_the_face_s_fit_left_out_near_the_edge_is_still_explained(rig):
+    _, rendering, lit = _rendered(rig, EDGE_MOVED_SEED, 2, False, physics=Physics.faithful())
     result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
     assert result.ok, result.reason
     assert len(result.faces.faces) == 2
