@@ -73,6 +73,11 @@ EDGE_MOVED_SEED = 32017
 # A 3-face scene whose middle face's lobe fit settles 0.33 px off with a standard error of
 # 0.19 px (within SAME_PLANE_PX / 2, not within a third of it).
 UNCERTAIN_FACE_SEED = 33007
+# A 3-face scene (held-out seed) whose third face, its light seen in 2 views, was moved
+# 1.03 px by its lobe fit (4.3x cheaper than its start) to 0.63 px off the face: its part
+# held a strip of the neighbouring face past the edge margin. Read without the band where
+# the edge lies if the planes are that far off, the fit lands 0.63 px from the move.
+EDGE_PULLED_SEED = 53012
 # A valley whose first face's lobe fit, read up to 2 px from the faces' edge, settles
 # 0.85 px off with a standard error of 0.53 px (moving its plane by less than 0.5 px).
 UNPINNED_SEED = 32008
@@ -399,8 +404,10 @@ def test_a_face_the_lobe_fit_does_not_confirm_is_read_again_away_from_the_edge(r
     monkeypatch.setattr(faces_module, "_solve_face", spy)
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert result.ok, result.reason
-    # Two faces, the second read twice: the second time on fewer pixels.
-    assert len(read) == 3 and read[2] < read[1]
+    # Two faces, the second read twice: the second time on fewer pixels. That reading
+    # moves the face by 1.1 px, so it is read a third time, without the band where the
+    # edge lies if the planes are that far off, to check the move holds there.
+    assert len(read) == 4 and read[3] < read[2] < read[1]
     assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
     monkeypatch.setattr(faces_module, "RETRY_EDGE_PX", 0.0)  # no band: no second reading
     read.clear()
@@ -408,6 +415,13 @@ def test_a_face_the_lobe_fit_does_not_confirm_is_read_again_away_from_the_edge(r
     assert len(read) == 2
     assert result.status == "inconsistent", result.reason
     assert "did not confirm its plane" in result.reason
+
+
+def test_a_move_that_does_not_hold_away_from_the_edge_is_refused(rig):
+    _, rendering, lit = _rendered(rig, EDGE_PULLED_SEED, 3, True, physics=Physics.faithful())
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
+    assert result.status == "inconsistent", (result.status, result.reason)
+    assert "the move rests on pixels by the edge" in result.reason
 
 
 def test_without_the_decisive_image_the_moved_face_is_refused(rig, monkeypatch):
