@@ -34,7 +34,8 @@ median of the whole ``estimate`` call (two processes may share the two cores).
 
 Run: ``python benchmarks/faceted.py [--scenes 20]``; writes
 ``benchmarks/results/faceted.md`` and ``.json``. Scenes the method was not tuned on:
-``--scenes 20 --seed0 51000 --name faceted_heldout``.
+``--scenes 20 --seed0 51000 --name faceted_heldout``; seeds first run after the rules
+were drawn from those two sets: ``--scenes 20 --seed0 61000 --name faceted_new``.
 """
 
 from __future__ import annotations

@@ -117,6 +117,16 @@ RETRY_EDGE_PX = 1.0
 #: the edge, 0.63 px off its face, landed 0.63 px away, 0.22 px off the face.)
 OFF_EDGE_PX = SAME_PLANE_PX / 2
 
+#: The faces' edge is placed within this many standard errors of the refined planes ...
+EDGE_SIGMAS = 2.0
+
+#: ... and the pixels it leaves to either of two faces there may be at most this fraction
+#: of the mask (the faceted benchmark's bound for a wrong split). A shallow edge (20-22
+#: deg) between loosely pinned faces (standard errors 0.09-0.13 px) left 7-15 % open, and
+#: those objects came out with 6-9 % of the mask on the wrong face; right objects left at
+#: most 5.5 %.
+MAX_OPEN_EDGE_FRACTION = 0.05
+
 #: Largest standard error of a refined face's disparity over the object, px: three times
 #: it stays within SAME_PLANE_PX, so another plane is told apart. (A face whose lobe fit
 #: moved it off its highlight centres' plane may stand, so the fit's own certainty must
@@ -636,6 +646,14 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     small = _too_small(labels, inside)
     if small:
         return srde._failed("face_split", small)
+    open_px = _edge_uncertain_px(faces, rig, box, labels)
+    if open_px > MAX_OPEN_EDGE_FRACTION * np.count_nonzero(inside):
+        # A shallow edge between faces whose planes the images pin down loosely: a plane
+        # error within the standard errors moves the edge across many pixels.
+        return srde._failed("face_split", f"faces: the refined planes' standard errors leave "
+                            f"{open_px} of the mask's {np.count_nonzero(inside)} px to either "
+                            f"of two faces (within {EDGE_SIGMAS:g} standard errors of their "
+                            f"edge; limit {MAX_OPEN_EDGE_FRACTION:.0%})")
     # (A highlight near the edge that a face's fit left out may lie away from the edge
     # the refined planes draw: it is still explained.)
     stray = _unexplained_reference(rig, gathered, [*refined, *theirs], labels, box, edge_px)
@@ -766,6 +784,24 @@ def _off_edge_gap_px(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore
     if not again.ok or not again_face.refinement:
         return None
     return context.plane_gap_px(again_face.plane, face.plane)
+
+
+def _edge_uncertain_px(faces: list[FaceResult], rig, box, labels: np.ndarray) -> int:
+    """Pixels that may belong to either of two faces, given the planes' standard errors.
+
+    A pixel of face ``a`` or ``b`` where the two planes' disparities differ by less than
+    :data:`EDGE_SIGMAS` times their combined standard error (``hypot`` of the refined
+    faces' ``disparity_sigma_px``) changes face when the planes move within it.
+    """
+    disparity = [plane_disparity(face.plane, rig, window=box) for face in faces]
+    sigma = [face.refinement.disparity_sigma_px if face.refinement is not None else 0.0
+             for face in faces]
+    open_ = np.zeros(labels.shape, dtype=bool)
+    for a, b in combinations(range(len(faces)), 2):
+        limit = EDGE_SIGMAS * math.hypot(sigma[a], sigma[b])
+        either = (labels == faces[a].label) | (labels == faces[b].label)
+        open_ |= either & (np.abs(disparity[a] - disparity[b]) < limit)
+    return int(np.count_nonzero(open_))
 
 
 def _edge_band(scores: list[PlaneScore], f: int, rig, box, limit_px: float) -> np.ndarray:
