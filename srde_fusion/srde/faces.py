@@ -545,7 +545,8 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     chosen = []
     where = _highlights_by_face(rig, lights, list(split.scores), split.labels, box, edge_px)
     # Every highlight a face's plane explains off the other faces' parts is that face's,
-    # whether or not its fit uses it (near the edge its centre may be pulled).
+    # whether or not its fit uses it (near the edge its centre may be pulled); the fits'
+    # own highlights below are some of these.
     theirs = [replace(score, matched=np.where(_own(w, f + 1) | (w == CUT_BY_EDGE),
                                               score.matched, -1))
               for f, (score, w) in enumerate(zip(split.scores, where, strict=True))]
@@ -571,12 +572,10 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
             # off, and the face's windows hold its neighbour's shading: read the face once
             # more without the band where its plane and a neighbour's are within
             # RETRY_EDGE_PX of each other (where the edge may lie).
-            narrow = face_mask.copy()
-            narrow[v0:v1, u0:u1] &= ~_edge_band(chosen, f, rig, box, RETRY_EDGE_PX)
-            if MIN_FACE_PX <= np.count_nonzero(narrow) < np.count_nonzero(face_mask):
-                again = _solve_face(srde, views, narrow, score, f + 1, labels, box, gathered)
-                if again[0].ok and again[1].refinement:
-                    (result, face, modelled), face_mask = again, narrow
+            narrow, again = _read_off_edge(srde, views, face_mask, score, f, chosen, labels,
+                                           box, gathered, RETRY_EDGE_PX)
+            if again is not None and again[0].ok and again[1].refinement:
+                (result, face, modelled), face_mask = again, narrow
         if not result.ok:
             return srde._failed(result.status, f"face {f + 1} of {len(chosen)}: {result.reason}",
                                 plane=result.plane)
@@ -647,7 +646,8 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     small = _too_small(labels, inside)
     if small:
         return srde._failed("face_split", small)
-    open_px = _edge_uncertain_px(faces, rig, box, labels)
+    face_disparity = [plane_disparity(face.plane, rig, window=box) for face in faces]
+    open_px = _edge_uncertain_px(faces, face_disparity, labels)
     if open_px > MAX_OPEN_EDGE_FRACTION * np.count_nonzero(inside):
         # A shallow edge between faces whose planes the images pin down loosely: a plane
         # error within the standard errors moves the edge across many pixels.
@@ -657,7 +657,7 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
                             f"edge; limit {MAX_OPEN_EDGE_FRACTION:.0%})")
     # (A highlight near the edge that a face's fit left out may lie away from the edge
     # the refined planes draw: it is still explained.)
-    stray = _unexplained_reference(rig, gathered, [*refined, *theirs], labels, box, edge_px)
+    stray = _unexplained_reference(rig, gathered, theirs, labels, box, edge_px)
     if stray:
         # With every light known, each highlight on the object is some light's on some
         # face: one that no face explains means a face is missing or a plane is wrong.
@@ -676,7 +676,7 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     disparity = np.full(inside.shape, np.nan, dtype=np.float32)
     for f, face in enumerate(faces):
         part = labels == f + 1
-        disparity[part] = plane_disparity(face.plane, rig, window=box)[part]
+        disparity[part] = face_disparity[f][part]
         faces[f] = FaceResult(face.label, face.plane, face.light, face.virtual_light_m,
                               face.highlight_centers, face.used_views, face.residual_px,
                               int(part.sum()), face.refinement, face.notes)
@@ -775,26 +775,40 @@ def _off_edge_gap_px(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore
     that far off) and refined as before. None when nothing is left out, too little is
     left, or that fit fails: then nothing says the move is wrong.
     """
+    _, again = _read_off_edge(srde, views, face_mask, score, f, chosen, labels, box,
+                              gathered, moved_px)
+    if again is None or not again[0].ok or not again[1].refinement:
+        return None
+    return context.plane_gap_px(again[1].plane, face.plane)
+
+
+def _read_off_edge(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, f: int,
+                   chosen: list[PlaneScore], labels: np.ndarray, box, gathered,
+                   limit_px: float):
+    """Solve face ``f`` again without the band where the edge lies if planes are off.
+
+    The band: pixels where the face's start plane and a neighbour's are within
+    ``limit_px`` of each other (:func:`_edge_band`). Returns ``(narrow, solved)``: the
+    face's mask without the band, and :func:`_solve_face`'s answer on it, None when the
+    band holds none of the face's pixels or leaves fewer than :data:`MIN_FACE_PX`.
+    """
     u0, v0, u1, v1 = box
     narrow = face_mask.copy()
-    narrow[v0:v1, u0:u1] &= ~_edge_band(chosen, f, srde.rig, box, moved_px)
-    left = np.count_nonzero(narrow)
-    if left < MIN_FACE_PX or left == np.count_nonzero(face_mask):
-        return None
-    again, again_face, _ = _solve_face(srde, views, narrow, score, f + 1, labels, box, gathered)
-    if not again.ok or not again_face.refinement:
-        return None
-    return context.plane_gap_px(again_face.plane, face.plane)
+    narrow[v0:v1, u0:u1] &= ~_edge_band(chosen, f, srde.rig, box, limit_px)
+    if not MIN_FACE_PX <= np.count_nonzero(narrow) < np.count_nonzero(face_mask):
+        return narrow, None
+    return narrow, _solve_face(srde, views, narrow, score, f + 1, labels, box, gathered)
 
 
-def _edge_uncertain_px(faces: list[FaceResult], rig, box, labels: np.ndarray) -> int:
+def _edge_uncertain_px(faces: list[FaceResult], disparity: list[np.ndarray],
+                       labels: np.ndarray) -> int:
     """Pixels that may belong to either of two faces, given the planes' standard errors.
 
-    A pixel of face ``a`` or ``b`` where the two planes' disparities differ by less than
-    :data:`EDGE_SIGMAS` times their combined standard error (``hypot`` of the refined
-    faces' ``disparity_sigma_px``) changes face when the planes move within it.
+    A pixel of face ``a`` or ``b`` where the two planes' disparities (``disparity``, each
+    face's over the box) differ by less than :data:`EDGE_SIGMAS` times their combined
+    standard error (``hypot`` of the refined faces' ``disparity_sigma_px``) changes face
+    when the planes move within it.
     """
-    disparity = [plane_disparity(face.plane, rig, window=box) for face in faces]
     sigma = [face.refinement.disparity_sigma_px if face.refinement is not None else 0.0
              for face in faces]
     undecided = np.zeros(labels.shape, dtype=bool)

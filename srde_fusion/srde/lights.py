@@ -1670,16 +1670,13 @@ def lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled: list[
     both. ``used`` ``(N,)`` bool: the views whose samples count (the main light's
     highlight on the object).
     """
-    from .refine.plane import compare_planes
-
-    rig, lights = srde.rig, srde.lights_m
     options = _lobe_options(srde, main, modelled)
-    on_refined = compare_planes(views, rig, lights[main], mask, [refined, joint],
-                                _centres(rig, refined, lights[main], used), **options)
-    on_joint = compare_planes(views, rig, lights[main], mask, [joint, refined],
-                              _centres(rig, joint, lights[main], used), **options)
-    return bool(on_refined[1] > DECISIVE_COST_RATIO * on_refined[0]
-                and on_joint[0] > DECISIVE_COST_RATIO * on_joint[1])
+    costs = _costs_on_samples(views, srde.rig, srde.lights_m, mask,
+                              [(refined, main, used, options), (joint, main, used, options)])
+    # (Both planes render the same lights here: a cost of inf is a plane that lights
+    # nothing where the main light's highlight is, and counts against it.)
+    return bool(costs[0, 1] > DECISIVE_COST_RATIO * costs[0, 0]
+                and costs[1, 1] > DECISIVE_COST_RATIO * costs[1, 0])
 
 
 def _plain_context(srde: SRDE, mask: np.ndarray, solution: LightsSolution) -> _Context:
@@ -1918,19 +1915,34 @@ def _decisive_fit(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, f
     costs : numpy.ndarray, (F, F)
         ``costs[s, p]``: plane ``p``'s best photometric cost on fit ``s``'s samples.
     """
+    if len(fits) == 1:
+        return 0, np.zeros((1, 1))
+    costs = _costs_on_samples(views, rig, lights, mask,
+                              [(fit.plane, main, used, options)
+                               for fit, main, used, options in fits])
+    return _winner(costs), costs
+
+
+def _costs_on_samples(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray,
+                      planes: list) -> np.ndarray:
+    """Every plane's best photometric cost on every plane's samples, ``(P, P)``.
+
+    ``planes``: ``(plane, main, used, options)`` each: the samples of plane ``s`` are
+    placed around its main light's highlights in the ``used`` views and rendered with
+    ``options`` (:func:`_lobe_options`); ``costs[s, p]`` is plane ``p``'s cost there
+    (:func:`~.refine.plane.compare_planes`; ``inf`` where ``p`` renders none of those
+    lights).
+    """
     from .refine.plane import compare_planes
 
-    n = len(fits)
+    n = len(planes)
     costs = np.zeros((n, n))
-    if n == 1:
-        return 0, costs
-    planes = [f.plane for f, *_ in fits]
-    for s, (fit, main, used, options) in enumerate(fits):
+    for s, (plane, main, used, options) in enumerate(planes):
         order = [s] + [p for p in range(n) if p != s]
         costs[s, order] = compare_planes(views, rig, lights[main], mask,
-                                         [planes[p] for p in order],
-                                         _centres(rig, fit.plane, lights[main], used), **options)
-    return _winner(costs), costs
+                                         [planes[p][0] for p in order],
+                                         _centres(rig, plane, lights[main], used), **options)
+    return costs
 
 
 def _winner(costs: np.ndarray) -> int | None:
