@@ -481,8 +481,26 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     gathered = gather_candidates(srde, views, search)
     if gathered is None:
         return None
+    result = _estimate_faces(srde, views, mask, gathered, anchors=None)
+    if result is None or result.ok:
+        return result
+    # Sets of face planes were tried and failed. The reference view may see a face's
+    # blob cut by the outline or the edge (its centre pulled by pixels) where the other
+    # views see it whole: the planes its candidates propose then miss that face or start
+    # it off. Every view's candidates propose then, as a second try only: the extra
+    # planes also widen the sets a right split competes with (first, they lost three
+    # objects the reference's planes solve), and a one-plane object (None) is not retried.
+    again = _estimate_faces(srde, views, mask, gathered,
+                            anchors=tuple(range(srde.rig.n_cameras)))
+    return again if again is not None and again.ok else result
+
+
+def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
+                    anchors: tuple[int, ...] | None) -> SRDEResult | None:
+    """:func:`estimate_faces` with the planes proposed from ``anchors``' candidates."""
     context = gathered.context(srde, mask, all_lights_in_front=False)
-    scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
+    scores = [s for s in (context.score(p) for p in context.proposals(anchors=anchors))
+              if s is not None]
     box = search_box(mask, 0)
     u0, v0, u1, v1 = box
     inside = mask[v0:v1, u0:u1]

@@ -746,50 +746,62 @@ class _Context:
         self.corners = _box_corners(mask)
 
     # -------------------------------------------------------------- proposals
-    def proposals(self, *, loose: bool = False):
-        """Candidate planes: a reference candidate, a depth its partners agree on, a light.
+    def proposals(self, *, loose: bool = False, anchors: tuple[int, ...] | None = None):
+        """Candidate planes: an anchor view's candidate, a depth its partners agree on, a light.
 
-        Partners of a reference candidate lie on its baseline lines; each gives the
-        virtual light's inverse depth ``w``. Partners from different views at the same
-        ``w`` (within the tolerance) are one virtual light seen several times: only depths
+        Partners of an anchor candidate lie on its baseline lines; each gives the virtual
+        light's inverse depth ``w``. Partners from different views at the same ``w``
+        (within the tolerance) are one virtual light seen several times: only depths
         that two views agree on are proposed when three or more views have candidates,
         which keeps the proposals from growing with every pairing of unrelated blobs.
 
         ``loose``: every partner within a blob radius of the baseline line proposes its
         own depth (the centres of merged or outline-cut blobs wander off the line and
         disagree on the depth; such planes are only starts for the joint lobe fit).
+
+        ``anchors``: the views whose candidates anchor proposals, the reference's only by
+        default. The cameras share one ``z`` plane, so a virtual light at inverse depth
+        ``w`` moves by ``w`` times the difference of two views' steps between them, and
+        any view can anchor. (The reference view may see a face's blob cut by the
+        outline where the other views see it whole.)
         """
-        rig, ref = self.rig, self.rig.reference
+        rig = self.rig
         line_px = max(self.tolerance_px, self.blob_radius_px) if loose else self.tolerance_px
-        span = float(np.max(np.hypot(self.steps[:, 0], self.steps[:, 1])))
-        others = [j for j in range(rig.n_cameras) if j != ref and len(self.cands[j])
-                  and float(self.steps[j] @ self.steps[j]) > 0.0]
-        need = 2 if len(others) >= 2 and not loose else 1
-        for c_ref in self.cands[ref]:
-            ray = rig.rays(c_ref)
-            depths, views = [], []
-            for j in others:
-                step = self.steps[j]
-                norm2 = float(step @ step)
-                d = self.cands[j] - c_ref
-                w = d @ step / norm2  # inverse depth of the virtual light
-                perp = np.abs(d[:, 0] * step[1] - d[:, 1] * step[0]) / math.sqrt(norm2)
-                keep = (perp <= line_px) & (w > 0.0)
-                depths += w[keep].tolist()
-                views += [j] * int(keep.sum())
-            order = np.argsort(depths)
-            depths, views = np.asarray(depths)[order], np.asarray(views)[order]
-            # Runs of depths closer than the tolerance (as a shift in the widest view).
-            breaks = np.flatnonzero(np.diff(depths) * span > self.tolerance_px) + 1
-            for run in np.split(np.arange(len(depths)), breaks):
-                if run.size == 0 or len(set(views[run].tolist())) < need:
-                    continue
-                virtual = rig.reference_center_m + ray / float(np.median(depths[run]))
-                for light in self.lights:
-                    self.n_proposed += 1
-                    plane = self._plane(light, virtual, ray)
-                    if plane is not None:
-                        yield plane
+        for anchor in (rig.reference,) if anchors is None else anchors:
+            steps = self.steps - self.steps[anchor]
+            span = float(np.max(np.hypot(steps[:, 0], steps[:, 1])))
+            others = [j for j in range(rig.n_cameras) if j != anchor and len(self.cands[j])
+                      and float(steps[j] @ steps[j]) > 0.0]
+            need = 2 if len(others) >= 2 and not loose else 1
+            for c_anchor in self.cands[anchor]:
+                ray = rig.rays(c_anchor)
+                depths, views = [], []
+                for j in others:
+                    step = steps[j]
+                    norm2 = float(step @ step)
+                    d = self.cands[j] - c_anchor
+                    w = d @ step / norm2  # inverse depth of the virtual light
+                    perp = np.abs(d[:, 0] * step[1] - d[:, 1] * step[0]) / math.sqrt(norm2)
+                    keep = (perp <= line_px) & (w > 0.0)
+                    depths += w[keep].tolist()
+                    views += [j] * int(keep.sum())
+                order = np.argsort(depths)
+                depths, views = np.asarray(depths)[order], np.asarray(views)[order]
+                # Runs of depths closer than the tolerance (as a shift in the widest view).
+                breaks = np.flatnonzero(np.diff(depths) * span > self.tolerance_px) + 1
+                for run in np.split(np.arange(len(depths)), breaks):
+                    if run.size == 0 or len(set(views[run].tolist())) < need:
+                        continue
+                    virtual = rig.centers_m[anchor] + ray / float(np.median(depths[run]))
+                    # The reference camera's ray through the virtual light.
+                    ref_ray = ray if anchor == rig.reference else (
+                        (virtual - rig.reference_center_m)
+                        / (virtual[2] - rig.reference_center_m[2]))
+                    for light in self.lights:
+                        self.n_proposed += 1
+                        plane = self._plane(light, virtual, ref_ray)
+                        if plane is not None:
+                            yield plane
 
     def _plane(self, light: np.ndarray, virtual: np.ndarray, ray: np.ndarray) -> Plane | None:
         """Return the bisector plane of a light and a virtual light, if a plausible one."""

@@ -10,6 +10,7 @@ from srde_fusion.geometry import CameraRig, Plane, plane_disparity
 from srde_fusion.srde import SRDE, SRDE_STATUSES
 from srde_fusion.srde.config import DetectorConfig
 from srde_fusion.srde.lights import (
+    AssignmentContext,
     assign_lights,
     candidate_band,
     check_lights,
@@ -60,6 +61,34 @@ def test_assignment_recovers_each_light_and_the_plane(grid):
     summary = solution.to_dict()["lights"]
     assert [d["views"] for d in summary] == [
         np.flatnonzero(np.isfinite(a.centers_uv[:, 0])).tolist() for a in solution.assignments]
+
+
+def test_any_view_can_anchor_the_proposed_planes(grid):
+    # The reference view's centre pulled 7 px off, as by the outline cutting its blob:
+    # no other view's candidate lies on its baseline lines, so it proposes no plane,
+    # while every other view's candidate proposes the true one.
+    light = LIGHTS[:1]
+    cands = projected(grid, PLANE, light)
+    ref = grid.reference
+    cands[ref] = cands[ref] + [6.0, -4.0]
+    everywhere = np.ones((H, W), bool)
+    # tolerance 1 px, depths 0.2-10 m, 2 views, blob radius 4 px
+    context = AssignmentContext(grid, light, everywhere, cands, None, 1.0, (0.2, 10.0), 2, 4.0)
+    assert list(context.proposals()) == []
+    for anchor in range(grid.n_cameras):
+        planes = list(context.proposals(anchors=(anchor,)))
+        if anchor == ref:
+            assert planes == []
+        else:
+            assert len(planes) == 1
+            assert context.plane_gap_px(planes[0], PLANE) < 1e-6
+    # Unmoved, every view anchors the same plane as the reference does.
+    clean = AssignmentContext(grid, light, everywhere, projected(grid, PLANE, light), None, 1.0,
+                              (0.2, 10.0), 2, 4.0)
+    from_reference = list(clean.proposals())
+    every = list(clean.proposals(anchors=tuple(range(grid.n_cameras))))
+    assert len(from_reference) == 1 and len(every) == grid.n_cameras
+    assert max(clean.plane_gap_px(p, from_reference[0]) for p in every) < 1e-6
 
 
 def test_a_stray_blob_is_left_out_and_counted(grid):
