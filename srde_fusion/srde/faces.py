@@ -237,7 +237,7 @@ class _Split:
 
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
-                 min_views: int, box, inside: np.ndarray
+                 min_views: int, box, inside: np.ndarray, keep_proposed: bool = False
                  ) -> tuple[list[_Split], str, list[PlaneScore]]:
     """Rank the sets of face planes by how well their splits agree with the highlights.
 
@@ -249,6 +249,13 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     highlights than the first plane does alone, counting those the faces' edge cuts
     (:data:`CUT_BY_EDGE`): they do not place the split, but the first plane's count
     holds every highlight it explains.
+
+    ``keep_proposed`` (the second try of :func:`estimate_faces`): each proposed plane
+    joins the pool beside its refit, and the pool holds twice as many. A refit moves a
+    plane onto every highlight it explains, and a face's centres cut by the outline or
+    the edge can pull it pixels off the plane the well-seen centres proposed; the
+    refits of the face that explains most crowd the planes of faces seen in fewer views
+    out of a pool of :data:`MAX_FACE_HYPOTHESES`.
 
     Returns
     -------
@@ -263,11 +270,16 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     """
     ranked = sorted(scores, key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
     pool: list[PlaneScore] = []
+    cap = 2 * MAX_FACE_HYPOTHESES if keep_proposed else MAX_FACE_HYPOTHESES
     for score in ranked:
-        score = context.refit(score)
-        if all(context.plane_gap_px(score.plane, p.plane) > SAME_PLANE_PX for p in pool):
-            pool.append(score)
-        if len(pool) == MAX_FACE_HYPOTHESES:
+        refit = context.refit(score)
+        for candidate in (refit, score) if keep_proposed else (refit,):
+            if all(context.plane_gap_px(candidate.plane, p.plane) > SAME_PLANE_PX
+                   for p in pool):
+                pool.append(candidate)
+            if len(pool) == cap:
+                break
+        if len(pool) == cap:
             break
     if len(pool) < 2:
         return [], "", pool
@@ -487,9 +499,11 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     # Sets of face planes were tried and failed. The reference view may see a face's
     # blob cut by the outline or the edge (its centre pulled by pixels) where the other
     # views see it whole: the planes its candidates propose then miss that face or start
-    # it off. Every view's candidates propose then, as a second try only: the extra
-    # planes also widen the sets a right split competes with (first, they lost three
-    # objects the reference's planes solve), and a one-plane object (None) is not retried.
+    # it off. Every view's candidates propose then, and the proposed planes join the
+    # pool beside their refits (choose_faces' keep_proposed), as a second try only: the
+    # extra planes also widen the sets a right split competes with (first, they lost
+    # three objects the reference's planes solve), and a one-plane object (None) is not
+    # retried.
     again = _estimate_faces(srde, views, mask, gathered,
                             anchors=tuple(range(srde.rig.n_cameras)))
     return again if again is not None and again.ok else result
@@ -505,7 +519,8 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
     u0, v0, u1, v1 = box
     inside = mask[v0:v1, u0:u1]
     ranked, why, pool = choose_faces(context, scores, max_faces=srde.max_faces,
-                                     min_views=srde.min_views, box=box, inside=inside)
+                                     min_views=srde.min_views, box=box, inside=inside,
+                                     keep_proposed=anchors is not None)
     if not ranked:
         if why:
             # Evidence of a second plane that splits nothing consistently: the one-plane
