@@ -41,11 +41,11 @@ at 0.35-0.6 m under a 15 mm light, a disc about 1.5-5 lobe widths in radius, wit
 integrated over 1024 points (the default 64 alias on lobes this sharp), with and without
 the sensor's noise, and compares the refinement told the radius with the one not told.
 
-Run: ``python benchmarks/mismatched_physics.py [--scenes 3]``; writes
-``benchmarks/results/mismatched_physics.md`` and ``.json``. With ``--speed-only`` only the
-speed section runs (one typical scene per roughness bin and light radius, and the harsh
-scenes; nothing scored but the timed planes' status) and writes
-``mismatched_physics_speed.md`` and ``.json`` instead.
+Run: ``python benchmarks/mismatched_physics.py [--scenes 10]`` (about 25 minutes on 2
+cores); writes ``benchmarks/results/mismatched_physics.md`` and ``.json``. With
+``--speed-only`` only the speed section runs (one typical scene per roughness bin and
+light radius, and the harsh scenes; nothing scored but the timed planes' status) and
+writes ``mismatched_physics_speed.md`` and ``.json`` instead.
 """
 
 from __future__ import annotations
@@ -412,7 +412,7 @@ def speed_only(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", type=int, default=3,
+    parser.add_argument("--scenes", type=int, default=10,
                         help="scenes per (rig, roughness bin, light radius)")
     parser.add_argument("--harsh", type=int, default=6, help="harsh scenes per rig (timing)")
     parser.add_argument("--wide", type=int, default=6,
