@@ -327,7 +327,15 @@ class SRDE:
             if faceted is not None:
                 return faceted
         if len(self.lights_m) > 1:
-            return estimate_with_lights(self, views, mask, search)
+            result = estimate_with_lights(self, views, mask, search)
+            if self.max_faces == 1 or result.status not in ("inconsistent", "ambiguous"):
+                return result
+            # No face split was found, and the highlights hold evidence against one plane
+            # or two planes explain them alike: faces from every view's candidates
+            # (faces.estimate_faces), or this failure. (Objects without such evidence,
+            # a highlight missing say, are not tried again: the try costs tens of ms.)
+            again = estimate_faces(self, views, mask, search, every_view=True)
+            return result if again is None else again
         ref = rig.reference
         search_bbox = search_box(search, 0)
         if search_bbox is None:  # an empty region: the detector says so

@@ -480,8 +480,8 @@ def _rule_fit(where: list[np.ndarray], min_views: int) -> tuple[bool, int, str]:
 
 
 # ---------------------------------------------------------------------- the estimate
-def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
-                   ) -> SRDEResult | None:
+def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray, *,
+                   every_view: bool = False) -> SRDEResult | None:
     """:meth:`SRDE.estimate` for an object of up to ``srde.max_faces`` flat faces.
 
     Returns None when the highlights show one plane only (or none): the caller then
@@ -489,10 +489,17 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     every face and whose disparity is the faces' planes pieced together, or a failure
     with its reason (``"face_split"`` when the planes do not split the mask consistently
     with the highlights; a face's own failure, named, otherwise).
+
+    ``every_view``: the second try only (below), for an object the one-plane path could
+    not solve either; an ``ok`` result or None.
     """
     gathered = gather_candidates(srde, views, search)
     if gathered is None:
         return None
+    every = tuple(range(srde.rig.n_cameras))
+    if every_view:
+        again = _estimate_faces(srde, views, mask, gathered, anchors=every)
+        return again if again is not None and again.ok else None
     result = _estimate_faces(srde, views, mask, gathered, anchors=None)
     if result is None or result.ok:
         return result
@@ -502,10 +509,10 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     # it off. Every view's candidates propose then, and the proposed planes join the
     # pool beside their refits (choose_faces' keep_proposed), as a second try only: the
     # extra planes also widen the sets a right split competes with (first, they lost
-    # three objects the reference's planes solve), and a one-plane object (None) is not
-    # retried.
-    again = _estimate_faces(srde, views, mask, gathered,
-                            anchors=tuple(range(srde.rig.n_cameras)))
+    # three objects the reference's planes solve). An object that shows one plane (None)
+    # is tried again only when the one-plane path fails too (SRDE.estimate): tried here,
+    # a flat object with max_faces=3 took three times as long.
+    again = _estimate_faces(srde, views, mask, gathered, anchors=every)
     return again if again is not None and again.ok else result
 
 

@@ -73,6 +73,10 @@ EDGE_MOVED_SEED = 32017
 # A 3-face scene whose middle face's lobe fit settles 0.33 px off with a standard error of
 # 0.19 px (within SAME_PLANE_PX / 2, not within a third of it).
 UNCERTAIN_FACE_SEED = 33007
+# A valley (seeds first run after the rules were drawn) whose highlights the reference
+# view's candidates explain as one plane, which the one-plane path refuses
+# (inconsistent); every view's candidates then split it into its two faces.
+ONE_PLANE_REFUSED_SEED = 62009
 # A 3-face scene (held-out seed) whose third face, its light seen in 2 views, was moved
 # 1.03 px by its lobe fit (4.3x cheaper than its start) to 0.63 px off the face: its part
 # held a strip of the neighbouring face past the edge margin. Read without the band where
@@ -360,6 +364,22 @@ def test_a_highlight_the_face_s_fit_left_out_near_the_edge_is_still_explained(ri
     assert result.ok, result.reason
     assert len(result.faces.faces) == 2
     assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
+
+
+def test_faces_are_tried_again_when_the_one_plane_path_refuses_the_object(rig, monkeypatch):
+    _, rendering, lit = _rendered(rig, ONE_PLANE_REFUSED_SEED, 2, False,
+                                  physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    tries = _record_tries(monkeypatch)
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    # The first try finds no split (one plane); the one-plane path refuses the object.
+    assert tries[0] is None
+    assert SRDE(lit).estimate(rendering.views, mask).status == "inconsistent"
+    assert len(tries) == 2 and result is tries[1]
+    assert result.ok and len(result.faces.faces) == 2, result.reason
+    assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
+    # Without max_faces, or when the one-plane path succeeds, faces are not tried again
+    # (test_max_faces_leaves_single_plane_objects_as_they_were).
 
 
 def test_a_face_left_out_is_refused(rig, monkeypatch):
