@@ -765,43 +765,47 @@ class _Context:
         any view can anchor. (The reference view may see a face's blob cut by the
         outline where the other views see it whole.)
         """
-        rig = self.rig
         line_px = max(self.tolerance_px, self.blob_radius_px) if loose else self.tolerance_px
-        for anchor in (rig.reference,) if anchors is None else anchors:
-            steps = self.steps - self.steps[anchor]
-            span = float(np.max(np.hypot(steps[:, 0], steps[:, 1])))
-            others = [j for j in range(rig.n_cameras) if j != anchor and len(self.cands[j])
-                      and float(steps[j] @ steps[j]) > 0.0]
-            need = 2 if len(others) >= 2 and not loose else 1
-            for c_anchor in self.cands[anchor]:
-                ray = rig.rays(c_anchor)
-                depths, views = [], []
-                for j in others:
-                    step = steps[j]
-                    norm2 = float(step @ step)
-                    d = self.cands[j] - c_anchor
-                    w = d @ step / norm2  # inverse depth of the virtual light
-                    perp = np.abs(d[:, 0] * step[1] - d[:, 1] * step[0]) / math.sqrt(norm2)
-                    keep = (perp <= line_px) & (w > 0.0)
-                    depths += w[keep].tolist()
-                    views += [j] * int(keep.sum())
-                order = np.argsort(depths)
-                depths, views = np.asarray(depths)[order], np.asarray(views)[order]
-                # Runs of depths closer than the tolerance (as a shift in the widest view).
-                breaks = np.flatnonzero(np.diff(depths) * span > self.tolerance_px) + 1
-                for run in np.split(np.arange(len(depths)), breaks):
-                    if run.size == 0 or len(set(views[run].tolist())) < need:
-                        continue
-                    virtual = rig.centers_m[anchor] + ray / float(np.median(depths[run]))
-                    # The reference camera's ray through the virtual light.
-                    ref_ray = ray if anchor == rig.reference else (
-                        (virtual - rig.reference_center_m)
-                        / (virtual[2] - rig.reference_center_m[2]))
-                    for light in self.lights:
-                        self.n_proposed += 1
-                        plane = self._plane(light, virtual, ref_ray)
-                        if plane is not None:
-                            yield plane
+        for anchor in (self.rig.reference,) if anchors is None else anchors:
+            yield from self._anchored_proposals(anchor, line_px, loose)
+
+    def _anchored_proposals(self, anchor: int, line_px: float, loose: bool):
+        """:meth:`proposals` from one view's candidates, partners within ``line_px``."""
+        rig = self.rig
+        steps = self.steps - self.steps[anchor]
+        span = float(np.max(np.hypot(steps[:, 0], steps[:, 1])))
+        others = [j for j in range(rig.n_cameras) if j != anchor and len(self.cands[j])
+                  and float(steps[j] @ steps[j]) > 0.0]
+        need = 2 if len(others) >= 2 and not loose else 1
+        for c_anchor in self.cands[anchor]:
+            ray = rig.rays(c_anchor)
+            depths, views = [], []
+            for j in others:
+                step = steps[j]
+                norm2 = float(step @ step)
+                d = self.cands[j] - c_anchor
+                w = d @ step / norm2  # inverse depth of the virtual light
+                perp = np.abs(d[:, 0] * step[1] - d[:, 1] * step[0]) / math.sqrt(norm2)
+                keep = (perp <= line_px) & (w > 0.0)
+                depths += w[keep].tolist()
+                views += [j] * int(keep.sum())
+            order = np.argsort(depths)
+            depths, views = np.asarray(depths)[order], np.asarray(views)[order]
+            # Runs of depths closer than the tolerance (as a shift in the widest view).
+            breaks = np.flatnonzero(np.diff(depths) * span > self.tolerance_px) + 1
+            for run in np.split(np.arange(len(depths)), breaks):
+                if run.size == 0 or len(set(views[run].tolist())) < need:
+                    continue
+                virtual = rig.centers_m[anchor] + ray / float(np.median(depths[run]))
+                # The reference camera's ray through the virtual light (z = 1).
+                ref_ray = ray if anchor == rig.reference else (
+                    (virtual - rig.reference_center_m)
+                    / (virtual[2] - rig.reference_center_m[2]))
+                for light in self.lights:
+                    self.n_proposed += 1
+                    plane = self._plane(light, virtual, ref_ray)
+                    if plane is not None:
+                        yield plane
 
     def _plane(self, light: np.ndarray, virtual: np.ndarray, ray: np.ndarray) -> Plane | None:
         """Return the bisector plane of a light and a virtual light, if a plausible one."""
