@@ -220,17 +220,22 @@ def test_three_faces_are_solved_within_the_target(rig, seed):
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
 
 
-def _record_tries(monkeypatch) -> list:
-    """Record each try's result (``faces._estimate_faces``) in the list returned."""
-    tries = []
-    each_try = faces_module._estimate_faces
+def _record(monkeypatch, name: str) -> list:
+    """Record what each call of ``faces.<name>`` returns, in the list returned."""
+    returned = []
+    function = getattr(faces_module, name)
 
     def recorded(*args, **kwargs):
-        tries.append(each_try(*args, **kwargs))
-        return tries[-1]
+        returned.append(function(*args, **kwargs))
+        return returned[-1]
 
-    monkeypatch.setattr(faces_module, "_estimate_faces", recorded)
-    return tries
+    monkeypatch.setattr(faces_module, name, recorded)
+    return returned
+
+
+def _record_tries(monkeypatch) -> list:
+    """Each try's ``faces._estimate_faces`` result: the reference's planes, then all views'."""
+    return _record(monkeypatch, "_estimate_faces")
 
 
 def _ranked_sets(srde, rendering, mask):
@@ -412,14 +417,7 @@ def test_a_face_of_three_pieced_off_from_two_views_is_refused(rig):
 def test_a_face_the_lobe_fit_moves_decisively_stands(rig, monkeypatch):
     _, rendering, lit = _rendered(rig, MOVED_FACE_SEED, 3, True, physics=Physics.faithful())
     mask = rendering.instance_mask > 0
-    asked = []
-    prefer = faces_module.lobes_prefer
-
-    def spy(*args, **kwargs):
-        asked.append(prefer(*args, **kwargs))
-        return asked[-1]
-
-    monkeypatch.setattr(faces_module, "lobes_prefer", spy)
+    asked = _record(monkeypatch, "lobes_prefer")
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert result.ok, result.reason
     assert len(result.faces.faces) == 3
