@@ -509,7 +509,7 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray, *,
     # it off. Every view's candidates propose then, and the proposed planes join the
     # pool beside their refits (choose_faces' keep_proposed), as a second try only: the
     # extra planes also widen the sets a right split competes with (first, they lost
-    # three objects the reference's planes solve). An object that shows one plane (None)
+    # four objects the reference's planes solve, gaining one). An object that shows one plane (None)
     # is tried again only when the one-plane path fails too (SRDE.estimate): tried here,
     # a flat object with max_faces=3 took three times as long.
     again = _estimate_faces(srde, views, mask, gathered, anchors=every)
