@@ -54,7 +54,7 @@ from .backends import DetectionRequest, HighlightBackend, NumpyBackend
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
 from .faces import MAX_FACES, estimate_faces
 from .highlight import HighlightDetection, search_box
-from .lights import check_lights, estimate_with_lights
+from .lights import check_lights, estimate_with_lights, gather_candidates
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
 from .result import SRDEResult
 from .search import BaselineSearch
@@ -322,19 +322,21 @@ class SRDE:
                 return self._failed(
                     "mask_too_small", f"mask: nothing left to search after eroding the "
                     f"{int(mask.sum())}-px mask by {self.mask_erosion_px} px")
+        gathered = None  # every view's candidates, found once for faces and lights
         if self.max_faces > 1:
-            faceted = estimate_faces(self, views, mask, search)
+            gathered = gather_candidates(self, views, search)
+            faceted = estimate_faces(self, views, mask, gathered)
             if faceted is not None:
                 return faceted
         if len(self.lights_m) > 1:
-            result = estimate_with_lights(self, views, mask, search)
+            result = estimate_with_lights(self, views, mask, search, gathered=gathered)
             if self.max_faces == 1 or result.status not in ("inconsistent", "ambiguous"):
                 return result
             # No face split was found, and the highlights hold evidence against one plane
             # or two planes explain them alike: faces from every view's candidates
             # (faces.estimate_faces), or this failure. (Objects without such evidence,
             # a highlight missing say, are not tried again: the try costs tens of ms.)
-            again = estimate_faces(self, views, mask, search, every_view=True)
+            again = estimate_faces(self, views, mask, gathered, every_view=True)
             return result if again is None else again
         ref = rig.reference
         search_bbox = search_box(search, 0)

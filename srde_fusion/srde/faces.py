@@ -54,8 +54,8 @@ from .lights import (
     SAME_PLANE_PX,
     AssignmentContext,
     PlaneScore,
+    ViewCandidates,
     explained_pairs,
-    gather_candidates,
     lobes_prefer,
     near_lights,
     reflection_points,
@@ -480,7 +480,7 @@ def _rule_fit(where: list[np.ndarray], min_views: int) -> tuple[bool, int, str]:
 
 
 # ---------------------------------------------------------------------- the estimate
-def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray, *,
+def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates | None, *,
                    every_view: bool = False) -> SRDEResult | None:
     """:meth:`SRDE.estimate` for an object of up to ``srde.max_faces`` flat faces.
 
@@ -490,10 +490,10 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray, *,
     with its reason (``"face_split"`` when the planes do not split the mask consistently
     with the highlights; a face's own failure, named, otherwise).
 
-    ``every_view``: the second try only (below), for an object the one-plane path could
-    not solve either; an ``ok`` result or None.
+    ``gathered``: :func:`~.lights.gather_candidates` for the object's search region
+    (None: no candidate, so no faces). ``every_view``: the second try only (below), for
+    an object the one-plane path could not solve either; an ``ok`` result or None.
     """
-    gathered = gather_candidates(srde, views, search)
     if gathered is None:
         return None
     every = tuple(range(srde.rig.n_cameras))
@@ -509,9 +509,9 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, search: np.ndarray, *,
     # it off. Every view's candidates propose then, and the proposed planes join the
     # pool beside their refits (choose_faces' keep_proposed), as a second try only: the
     # extra planes also widen the sets a right split competes with (first, they lost
-    # four objects the reference's planes solve, gaining one). An object that shows one plane (None)
-    # is tried again only when the one-plane path fails too (SRDE.estimate): tried here,
-    # a flat object with max_faces=3 took three times as long.
+    # four objects the reference's planes solve, gaining one). An object that shows one
+    # plane (None) is tried again only when the one-plane path fails too (SRDE.estimate):
+    # tried here, a flat object with max_faces=3 took three times as long.
     again = _estimate_faces(srde, views, mask, gathered, anchors=every)
     return again if again is not None and again.ok else result
 

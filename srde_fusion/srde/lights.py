@@ -1429,8 +1429,8 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
     return ViewCandidates(found, cands, lit, blob_radius_px)
 
 
-def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
-                         ) -> SRDEResult:
+def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray, *,
+                         gathered: ViewCandidates | None = None) -> SRDEResult:
     """:meth:`SRDE.estimate` with several known lights (``srde.lights_m``).
 
     Candidates in the reference search region and, in every other view, in the band
@@ -1445,8 +1445,11 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     solved 10.3 and 1.0 px off with errors of 0.37 and 0.16 px; on the several-light
     benchmark every plane's error is below 0.03 px, and of the faces alone one correct
     plane, 0.10 px off with 0.104 px, is refused with them).
+
+    ``gathered``: :func:`gather_candidates`' answer for ``search``, if the caller has it
+    (the faces' estimate found it first); found here otherwise.
     """
-    result = _estimate_with_lights(srde, views, mask, search)
+    result = _estimate_with_lights(srde, views, mask, search, gathered)
     refinement = result.refinement
     if result.ok and refinement is not None and refinement.ok \
             and refinement.disparity_sigma_px > LIGHTS_MAX_SIGMA_PX:
@@ -1461,11 +1464,12 @@ def estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
     return result
 
 
-def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray
-                          ) -> SRDEResult:
+def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarray,
+                          gathered: ViewCandidates | None) -> SRDEResult:
     rig = srde.rig
     ref = rig.reference
-    gathered = gather_candidates(srde, views, search)
+    if gathered is None:  # (none found by the caller finds none here either, cheaply)
+        gathered = gather_candidates(srde, views, search)
     if gathered is None:
         reason = detect_in_view(views[ref], search, srde.config).reason
         return srde._failed("no_highlight", f"{srde._view(ref)}: {reason}")
