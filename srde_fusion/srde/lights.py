@@ -1534,22 +1534,38 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
                           modelled_lights=[srde.lights_m[k] for k in modelled],
                           modelled_centers=modelled_centers)
     refinement = result.refinement
-    if result.ok and refinement is not None and not refinement.ok:
-        # The images do not confirm the plane. If another light's plane explains the same
-        # centres (reflected near the outline, where they did not count), the centres'
-        # lead is no answer: the lobes decide between the two.
+    if result.ok and refinement is not None:
+        # If another light's plane explains the same centres (reflected near the outline,
+        # where they did not count), the centres' lead is no answer, whether the
+        # refinement confirms the plane or not: it fits the one light's lobe it is given,
+        # and fitted the wrong light's lobe to another light's blobs as readily (faces
+        # taken alone, 3.5 and 4.9 px off). The lobes of both decide between the two.
         context = gathered.context(srde, mask)
         best = context.score(solution.plane, at_least=1)
         same = None if best is None else context.same_centres_other_light(best)
         if same is not None:
             doubt = context.solution(best, same, same_centres=True)
-            doubt = dataclasses.replace(doubt, reason=(
-                f"{doubt.reason}; the photometric refinement did not confirm the best plane "
-                f"({refinement.reason})"))
+            if not refinement.ok:
+                doubt = dataclasses.replace(doubt, reason=(
+                    f"{doubt.reason}; the photometric refinement did not confirm the best "
+                    f"plane ({refinement.reason})"))
             failed = dataclasses.replace(srde._failed("ambiguous", doubt.reason), lights=doubt)
             return _no_highlights_left_out(srde, mask, gathered,
                                            _solve_ambiguous(srde, views, mask, doubt, failed),
                                            failed)
+        explained = [a.light for a in solution.assignments if a.n_views]
+        if not refinement.ok and len(explained) == 1:
+            # One light's highlights, and the images do not confirm the plane: only the
+            # blob centres give them to that light, and pulled centres of large blobs gave
+            # a face taken alone to another light's plane 16 px off. A single light's
+            # geometric plane may stand; here, as for a face (faces.py), it does not.
+            reason = (f"lights: the photometric refinement did not confirm the plane that "
+                      f"gives the highlights to light {explained[0]} ({refinement.reason}), "
+                      f"and with {len(srde.lights_m)} lights known their centres alone do "
+                      f"not say whose they are; {solution.evidence}")
+            doubt = dataclasses.replace(solution, status="inconsistent", reason=reason)
+            return dataclasses.replace(srde._failed("inconsistent", reason,
+                                                    plane=result.plane), lights=doubt)
     if result.ok and refinement is not None and refinement.ok:
         # The refinement sees the lights' highlights near their centres; every light's
         # assigned centres must still agree with its plane, else the joint geometric
