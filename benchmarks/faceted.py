@@ -35,7 +35,10 @@ median of the whole ``estimate`` call (two processes may share the two cores).
 Run: ``python benchmarks/faceted.py [--scenes 20]``; writes
 ``benchmarks/results/faceted.md`` and ``.json``. Scenes the method was not tuned on:
 ``--scenes 20 --seed0 51000 --name faceted_heldout``; seeds first run after the rules
-were drawn from those two sets: ``--scenes 20 --seed0 61000 --name faceted_new``.
+were drawn from those two sets: ``--scenes 20 --seed0 61000 --name faceted_new``; further
+sets, each first run with the code of its time: ``--seed0 71000 --name faceted_71000``,
+``--seed0 81000 --name faceted_81000`` (both then shaped rules) and ``--seed0 91000 --name
+faceted_91000`` (run only after them).
 """
 
 from __future__ import annotations
