@@ -131,6 +131,10 @@ _LIGHT_BEHIND = "put a light behind the plane"
 #: taken as their own masks: wrong planes fitted 0.4-0.5 px, the true ones 0.01-0.05).
 CLOSER_FIT_RATIO = 5.0
 
+#: A refused lobe fit whose cost ends within this fraction above its start's best cost has
+#: settled on its start (:func:`_settled_at_start`).
+SETTLED_COST_RTOL = 1e-3
+
 #: The best plane is decided against its strongest rival when its net support (explained
 #: highlights less the evidence against) is larger by at least this much.
 DECISIVE_MARGIN = 2
@@ -1892,8 +1896,9 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
                       "the images do not rule that plane out"
                       + (f"; {solution.evidence}" if solution.evidence else ""))
             return dataclasses.replace(failed, status="ambiguous", reason=reason)
-        if fit.ok and all(_plane_gap_px(rig, corners, fit.plane, f.plane) > SAME_PLANE_PX
-                          for f, *_ in fits):
+        if (fit.ok or _settled_at_start(fit)) \
+                and all(_plane_gap_px(rig, corners, fit.plane, f.plane) > SAME_PLANE_PX
+                        for f, *_ in fits):
             fits.append((fit, main, used, options))
     mains = sorted(mains)
     note = f"{note} (lights {np.flatnonzero(everywhere).tolist()}, main {mains})"
@@ -1929,6 +1934,19 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
         return dataclasses.replace(failed, notes=(*failed.notes, note + f": {result.reason}"))
     return dataclasses.replace(result, refinement=fit,
                                lights=_solved_on(srde, mask, solution, result.plane))
+
+
+def _settled_at_start(fit) -> bool:
+    """Whether a refused lobe fit was refused only for ending where it began.
+
+    A start on the right plane with clean highlights leaves the fit nothing to improve:
+    it ends within :data:`SETTLED_COST_RTOL` of the start's own best cost and is refused
+    as "does not improve" (its plane, the start's, is kept). That plane is still a
+    contender for the lobes' judge; dropped, it let another light's plane win unopposed
+    (a face taken alone, 10.9 px off, whose own plane's fit ended 0.05 % above its start).
+    """
+    return (not fit.ok and math.isfinite(fit.cost_final) and math.isfinite(fit.cost_initial)
+            and fit.cost_initial <= fit.cost_final <= (1.0 + SETTLED_COST_RTOL) * fit.cost_initial)
 
 
 def _decisive_fit(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, fits: list

@@ -117,6 +117,10 @@ UNCONFIRMED_OTHER_LIGHT_FACE = (82011, 2, False, 0)
 # one-plane path answered it with its geometric plane (its lobe fit refused), 0.4 and 2.4
 # px off the two faces, one light's highlights explained.
 UNCONFIRMED_ONE_PLANE_SEED = 81009
+# Faces alone (seeds 91000+) whose own light's plane, from clean centres, leaves its lobe
+# fit nothing to improve (refused as "does not improve", 0.05 % above its start's cost):
+# the other light's confirmed plane, 10.9 and 1.9 px off, then won unopposed.
+SETTLED_START_FACES = [(92016, 2, False, 1), (93002, 3, True, 1)]
 # A face of three, alone, whose highlights are its own light's (the third of three), once
 # solved 2.4 px off from the fit started from the other two lights' planes only.
 THIRD_LIGHT_FACE = (63017, 3, True, 2)
@@ -632,6 +636,20 @@ def test_an_unconfirmed_plane_of_one_lights_highlights_is_refused(rig):
     assert result.status == "inconsistent", (result.status, result.reason)
     assert "did not confirm the plane that gives the highlights to light 1" in result.reason
     assert result.lights.status == "inconsistent"
+
+
+@pytest.mark.parametrize(("seed", "n_faces", "convex", "face"), SETTLED_START_FACES)
+def test_a_lobe_fit_that_ends_where_it_began_still_contends(rig, seed, n_faces, convex, face,
+                                                            monkeypatch):
+    result, rendering = _alone(rig, seed, n_faces, convex, face)
+    assert result.ok, (result.status, result.reason)
+    assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
+    # The answer's own fit did not move from its start: the lobes' judge chose the start.
+    assert not result.refinement.ok and "does not improve" in result.refinement.reason
+    # Dropped from the judge, the other light's plane is the answer (mean EPE 8.6 and 0.76 px).
+    monkeypatch.setattr(lights_module, "_settled_at_start", lambda fit: False)
+    dropped, _ = _alone(rig, seed, n_faces, convex, face)
+    assert dropped.ok and _face_epes(dropped.disparity, rendering, n_faces)[face] > 0.5
 
 
 def test_every_light_that_could_own_the_centres_starts_a_lobe_fit(rig):

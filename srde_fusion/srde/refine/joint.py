@@ -219,13 +219,23 @@ class JointLobeModel:
         return best
 
 
+#: A normal-equation diagonal at or below this fraction of the largest is a basis vector
+#: that is zero on the samples (:func:`_solve_scaled`).
+_NEGLIGIBLE_DIAGONAL = 1e-24
+
+
 def _solve_scaled(normal: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """Solve small normal equations ``(B, B)`` for ``rhs`` ``(B,)`` or ``(B, F)``.
 
     Jacobi scaling keeps the nearly collinear diffuse and level columns solvable; a
-    singular system falls back to least squares.
+    singular system falls back to least squares. A basis vector that is zero on the
+    samples for all purposes (a lobe that underflows there: its diagonal 1e-24 of the
+    largest or less) gets no coefficient: scaled by ``1 / sqrt`` of its diagonal, it
+    made the solution overflow.
     """
-    scale = 1.0 / np.sqrt(np.maximum(normal.diagonal(), 1e-300))
+    diagonal = normal.diagonal()
+    negligible = diagonal <= _NEGLIGIBLE_DIAGONAL * max(float(diagonal.max()), 0.0)
+    scale = np.where(negligible, 0.0, 1.0 / np.sqrt(np.where(negligible, 1.0, diagonal)))
     scaled = normal * scale[:, None] * scale[None, :]
     column = scale if rhs.ndim == 1 else scale[:, None]
     try:
