@@ -18,6 +18,7 @@ from srde_fusion.errors import ImageError, LightError, MaskError, SRDEError
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity, plane_from_lights
 from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine import LOBES, PlaneRefinement, refine_plane
+from srde_fusion.srde.refine import joint as joint_module
 from srde_fusion.srde.refine.joint import JointLobeModel
 from srde_fusion.srde.refine.layout import I_FORE, I_SPEC, I_TAIL, N_PLANE
 from srde_fusion.srde.refine.model import DEFAULT_F0, LobeModel
@@ -274,6 +275,21 @@ def test_a_far_light_gets_no_intensity_and_changes_nothing(rough_ggx):
                       "ggx", DEFAULT_F0, None)
     np.testing.assert_allclose(joint.evaluate(theta)[0], alone.evaluate(theta[:-1])[0],
                                atol=1e-12)
+
+
+def test_a_basis_vector_that_underflows_gets_no_coefficient():
+    # A lobe that underflows on the samples (1e-160 there): its Jacobi scale of 1e160 made
+    # the intensities' solution overflow. It gets 0; the others are solved as without it.
+    rng = np.random.default_rng(3)
+    basis = np.vstack([rng.uniform(0.1, 1.0, 50), np.full(50, 1e-160), np.ones(50)])
+    y = 0.7 * basis[0] + 0.2
+    normal, rhs = basis @ basis.T, basis @ y
+    with np.errstate(all="raise"):
+        coef = joint_module._solve_scaled(normal, rhs)
+    np.testing.assert_allclose(coef, [0.7, 0.0, 0.2], atol=1e-9)
+    kept = [0, 2]
+    np.testing.assert_allclose(coef[kept], np.linalg.solve(normal[np.ix_(kept, kept)],
+                                                           rhs[kept]), rtol=1e-9)
 
 
 def test_compare_planes_ranks_the_true_plane_first(rough_ggx):
