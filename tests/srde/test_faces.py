@@ -657,7 +657,7 @@ def test_every_light_that_could_own_the_centres_starts_a_lobe_fit(rig):
     seed, n_faces, convex, face = THIRD_LIGHT_FACE
     result, rendering = _alone(rig, seed, n_faces, convex, face)
     assert result.ok, result.reason
-    assert any("single-light planes of 3 light(s)" in note for note in result.notes)
+    assert any("three planes explain the blob centres alike" in note for note in result.notes)
     assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
 
 
