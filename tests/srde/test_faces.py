@@ -130,6 +130,9 @@ THIRD_LIGHT_FACE = (63017, 3, True, 2)
 # on its own samples (seeds 61000+). Judged pair by pair it was left ambiguous until each
 # plane was rendered with every fit's light in front of it.
 THREE_FITS_FACE = (63013, 3, True, 2)
+# A face alone (seeds 71000+) once solved 7.0 px off on the other light's plane by the
+# lobes' judge (test_each_plane_is_judged_with_its_own_light).
+OWN_LIGHT_JUDGED_FACE = (71014, 2, True, 0)
 # Faces alone whose two lobe fits end on two planes, each with no cost on the other's
 # samples (it renders none of the lights placed there); the pair was always left open.
 # Judged on the samples where both have a cost, each is solved.
@@ -659,6 +662,20 @@ def test_every_light_that_could_own_the_centres_starts_a_lobe_fit(rig):
     assert result.ok, result.reason
     assert any("three planes explain the blob centres alike" in note for note in result.notes)
     assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
+
+
+def test_each_plane_is_judged_with_its_own_light(rig, monkeypatch):
+    # Seeds 71000+: each light's single-light plane starts a fit; rendered on the other
+    # fit's samples with that fit's light alone, the face's own plane cost 950x more, and
+    # the other light's plane (the face's light behind it: no cost on the face's samples)
+    # won, 7 px off. Rendered with its own light there too, the face's plane wins.
+    seed, n_faces, convex, face = OWN_LIGHT_JUDGED_FACE
+    result, rendering = _alone(rig, seed, n_faces, convex, face)
+    assert result.ok, (result.status, result.reason)
+    assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
+    monkeypatch.setattr(lights_module, "_with_rendered", lambda lights, options, extra: options)
+    alone, _ = _alone(rig, seed, n_faces, convex, face)
+    assert alone.ok and _face_epes(alone.disparity, rendering, n_faces)[face] > 1.0
 
 
 def test_three_lobe_fits_are_all_judged_against_each_other(rig):
