@@ -1955,7 +1955,8 @@ def _decisive_fit(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, f
 
     ``fits``: ``(fit, main, used, options)`` per distinct plane. Every plane is scored on
     every fit's samples (:func:`~.refine.plane.compare_planes`, samples placed around
-    that fit's own main light); plane ``i`` beats plane ``j`` when it is
+    that fit's own main light, every fit's main light rendered where it lies in front of
+    the plane scored); plane ``i`` beats plane ``j`` when it is
     :data:`DECISIVE_COST_RATIO` times cheaper on ``i``'s and ``j``'s samples, wherever both
     have a cost (:func:`_beats`). The answer is the plane that beats every other. Each
     pair is judged: when only the first two fits were compared, a face lit by one light
@@ -1985,18 +1986,24 @@ def _decisive_fit(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, f
 
 
 def _with_rendered(lights: np.ndarray, options: dict, extra: list[int]) -> dict:
-    """``options`` with lights ``extra`` rendered too (and no longer cut out of the windows)."""
+    """``options`` with lights ``extra`` rendered too (and no longer cut out of the windows).
+
+    ``options`` hold light positions (:func:`_lobe_options`); a light is matched by its
+    position.
+    """
     if not extra:
         return options
-    def rows(key):
-        held = options.get(key)
-        return [] if held is None else [np.asarray(x, np.float64) for x in held]
-    def same(a, b):
-        return bool(np.allclose(a, b))
-    modelled = rows("modelled_lights_m")
-    modelled += [lights[k] for k in extra if not any(same(lights[k], m) for m in modelled)]
-    others = [o for o in rows("other_lights_m")
-              if not any(same(lights[k], o) for k in extra)]
+    added = [lights[k] for k in extra]
+
+    def held(key: str) -> list[np.ndarray]:
+        return [] if options.get(key) is None else list(np.asarray(options[key], np.float64))
+
+    def among(light: np.ndarray, group: list[np.ndarray]) -> bool:
+        return any(np.allclose(light, other) for other in group)
+
+    modelled = held("modelled_lights_m")
+    modelled += [light for light in added if not among(light, modelled)]
+    others = [light for light in held("other_lights_m") if not among(light, added)]
     return {**options, "modelled_lights_m": np.array(modelled),
             "other_lights_m": np.array(others) if others else None}
 
