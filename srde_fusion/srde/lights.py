@@ -258,6 +258,11 @@ class LightsSolution:
         """Assigned highlight centres, all lights and views together."""
         return sum(a.n_views for a in self.assignments)
 
+    @property
+    def explained_lights(self) -> list[int]:
+        """The lights with assigned highlights, ascending."""
+        return [a.light for a in self.assignments if a.n_views]
+
     def to_dict(self) -> dict:
         """JSON-ready summary of the assignment and its evidence."""
         return {
@@ -1557,7 +1562,7 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
             return _no_highlights_left_out(srde, mask, gathered,
                                            _solve_ambiguous(srde, views, mask, doubt, failed),
                                            failed)
-        explained = [a.light for a in solution.assignments if a.n_views]
+        explained = solution.explained_lights
         if not refinement.ok and len(explained) == 1:
             # One light's highlights, and the images do not confirm the plane: only the
             # blob centres give them to that light, and pulled centres of large blobs gave
@@ -1795,7 +1800,7 @@ def _same_centres_planes(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
     light (``_Context.other_lights_planes``) and more than ``SAME_PLANE_PX`` from every
     start are returned.
     """
-    explained = [a.light for a in solution.assignments if a.n_views]
+    explained = solution.explained_lights
     if len(explained) != 1 or solution.plane is None:
         return []
     context = _plain_context(srde, mask, solution)
@@ -1876,7 +1881,7 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     everywhere = np.logical_or.reduce(presents).any(axis=1)  # (K,)
 
     corners = _box_corners(mask)
-    fits: list = []  # (fit, main, used, options) of distinct planes
+    fits: list = []  # (fit, main, used, modelled, behind) of distinct planes
     mains: set[int] = set()
     for i, (start, present) in enumerate(zip(starts, presents, strict=True)):
         main = int(np.argmax(present.sum(axis=1)))
@@ -1885,10 +1890,11 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
         # A light behind the start's plane lights nothing on it: not rendered (a plane
         # with a light behind it is a face turned from that light).
         behind = tuple(np.flatnonzero(start.signed_distance(lights) <= 0.0).tolist())
-        options = _lobe_options(srde, main, [k for k in np.flatnonzero(everywhere)
-                                             if k != main and k not in behind], behind)
+        modelled = [k for k in np.flatnonzero(everywhere).tolist()
+                    if k != main and k not in behind]
         fit = refine_plane(views, rig, lights[main], mask, start,
-                           centers_uv=_centres(rig, start, lights[main], used), **options)
+                           centers_uv=_centres(rig, start, lights[main], used),
+                           **_lobe_options(srde, main, modelled, behind))
         if i < must_fit and not fit.ok and behind:
             reason = (f"{note} (lights {np.flatnonzero(everywhere).tolist()}): the fit from "
                       f"the plane with light(s) {list(behind)} behind it (a face turned from "
@@ -1899,12 +1905,12 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
         if (fit.ok or _settled_at_start(fit)) \
                 and all(_plane_gap_px(rig, corners, fit.plane, f.plane) > SAME_PLANE_PX
                         for f, *_ in fits):
-            fits.append((fit, main, used, options))
+            fits.append((fit, main, used, modelled, behind))
     mains = sorted(mains)
     note = f"{note} (lights {np.flatnonzero(everywhere).tolist()}, main {mains})"
     if not fits:
         return dataclasses.replace(failed, notes=(*failed.notes, note + " explained none"))
-    winner, costs = _decisive_fit(views, rig, lights, mask, fits)
+    winner, costs = _decisive_fit(srde, views, mask, fits)
     if winner is None:
         evidence = f"; {solution.evidence}" if solution.evidence else ""
         undecided = [(i, j) for i in range(len(fits)) for j in range(i + 1, len(fits))
@@ -1921,7 +1927,7 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
                   f"{costs[j, j]:.3g})"
                   + (f" ({len(fits)} distinct planes)" if len(fits) > 2 else "") + evidence)
         return dataclasses.replace(failed, status="ambiguous", reason=reason)
-    fit, main, used, _ = fits[winner]
+    fit, main, used, *_ = fits[winner]
     point = fit.plane.mirror(lights[main])
     w = 1.0 / (point[2] - rig.reference_center_m[2])
     centers = _centres(rig, fit.plane, lights[main], np.ones(rig.n_cameras, bool))
@@ -1949,11 +1955,12 @@ def _settled_at_start(fit) -> bool:
             and fit.cost_initial <= fit.cost_final <= (1.0 + SETTLED_COST_RTOL) * fit.cost_initial)
 
 
-def _decisive_fit(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, fits: list
+def _decisive_fit(srde: SRDE, views, mask: np.ndarray, fits: list
                   ) -> tuple[int | None, np.ndarray]:
     """Which of the lobe fits' distinct planes the images prefer decisively, if one.
 
-    ``fits``: ``(fit, main, used, options)`` per distinct plane. Every plane is scored on
+    ``fits``: ``(fit, main, used, modelled, behind)`` per distinct plane (the lights its
+    fit rendered beside ``main``, and those behind its start's plane). Every plane is scored on
     every fit's samples (:func:`~.refine.plane.compare_planes`, samples placed around
     that fit's own main light, every fit's main light rendered where it lies in front of
     the plane scored); plane ``i`` beats plane ``j`` when it is
@@ -1977,35 +1984,20 @@ def _decisive_fit(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, f
     # by the light another fit gave them. (Rendered with that light alone, a face's own
     # plane lost 950x on the other light's samples, while that light's plane, its face's
     # light behind it, had no cost on the face's: another light's plane, 7 px off, won.)
-    mains = sorted({main for _, main, _, _ in fits})
-    costs = _costs_on_samples(views, rig, lights, mask,
-                              [(fit.plane, main, used,
-                                _with_rendered(lights, options, [k for k in mains if k != main]))
-                               for fit, main, used, options in fits])
+    mains = sorted({main for _, main, *_ in fits})
+    costs = _costs_on_samples(views, srde.rig, srde.lights_m, mask, [
+        (fit.plane, main, used,
+         _lobe_options(srde, main, _judged_lights(main, modelled, mains), behind))
+        for fit, main, used, modelled, behind in fits])
     return _winner(costs), costs
 
 
-def _with_rendered(lights: np.ndarray, options: dict, extra: list[int]) -> dict:
-    """``options`` with lights ``extra`` rendered too (and no longer cut out of the windows).
+def _judged_lights(main: int, modelled: list[int], mains: list[int]) -> list[int]:
+    """Return the lights the judge renders beside ``main`` on its fit's samples.
 
-    ``options`` hold light positions (:func:`_lobe_options`); a light is matched by its
-    position.
+    The fit's own (``modelled``), then every other fit's main light.
     """
-    if not extra:
-        return options
-    added = [lights[k] for k in extra]
-
-    def held(key: str) -> list[np.ndarray]:
-        return [] if options.get(key) is None else list(np.asarray(options[key], np.float64))
-
-    def among(light: np.ndarray, group: list[np.ndarray]) -> bool:
-        return any(np.allclose(light, other) for other in group)
-
-    modelled = held("modelled_lights_m")
-    modelled += [light for light in added if not among(light, modelled)]
-    others = [light for light in held("other_lights_m") if not among(light, added)]
-    return {**options, "modelled_lights_m": np.array(modelled),
-            "other_lights_m": np.array(others) if others else None}
+    return modelled + [k for k in mains if k != main and k not in modelled]
 
 
 def _costs_on_samples(views, rig: CameraRig, lights: np.ndarray, mask: np.ndarray,

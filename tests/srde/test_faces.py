@@ -259,6 +259,12 @@ def _record_tries(monkeypatch) -> list:
     return _record(monkeypatch, "_estimate_faces")
 
 
+def _without_same_centres(monkeypatch) -> None:
+    """No other light's plane through the best plane's centres is ever found."""
+    monkeypatch.setattr(lights_module._Context, "same_centres_other_light",
+                        lambda self, best: None)
+
+
 def _ranked_sets(srde, rendering, mask):
     """The sets of face planes ``choose_faces`` ranks for ``mask``, and their context."""
     gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
@@ -622,8 +628,7 @@ def test_a_confirmed_plane_does_not_settle_whose_highlights_they_are(
         assert "explain the blob centres alike" in result.reason
     # Without the other light's plane through the same centres, the confirmed plane stands,
     # pixels off the face (3.5 and 4.9 px at its worst pixel).
-    monkeypatch.setattr(lights_module._Context, "same_centres_other_light",
-                        lambda self, best: None)
+    _without_same_centres(monkeypatch)
     held, _ = _alone(rig, seed, n_faces, convex, face)
     assert held.ok and held.refinement.ok
     assert _face_epes(held.disparity, rendering, n_faces)[face] > 1.0
@@ -673,7 +678,7 @@ def test_each_plane_is_judged_with_its_own_light(rig, monkeypatch):
     result, rendering = _alone(rig, seed, n_faces, convex, face)
     assert result.ok, (result.status, result.reason)
     assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
-    monkeypatch.setattr(lights_module, "_with_rendered", lambda lights, options, extra: options)
+    monkeypatch.setattr(lights_module, "_judged_lights", lambda main, modelled, mains: modelled)
     alone, _ = _alone(rig, seed, n_faces, convex, face)
     assert alone.ok and _face_epes(alone.disparity, rendering, n_faces)[face] > 1.0
 
@@ -708,8 +713,7 @@ def test_a_several_light_plane_the_images_do_not_pin_down_is_refused(rig, seed, 
         assert any("explain the blob centres alike" in note for note in result.notes)
         assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
         # Without that plane, the refined plane is the answer, and it is not pinned down.
-        monkeypatch.setattr(lights_module._Context, "same_centres_other_light",
-                            lambda self, best: None)
+        _without_same_centres(monkeypatch)
     result, rendering = _alone(rig, seed, n_faces, convex, face)
     assert result.status == "ambiguous", (result.status, result.reason)
     assert "not pinned down" in result.reason
