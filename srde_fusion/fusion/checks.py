@@ -21,6 +21,7 @@ from .estimate import ObjectEstimate
 
 __all__ = [
     "border_band",
+    "reflection_mask",
     "spilled_rim",
     "SpilledRim",
     "textured_mask",
@@ -345,7 +346,8 @@ def _continues_outside(mask: np.ndarray, backbone: np.ndarray) -> np.ndarray:
 
 def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
                textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
-               check: BorderCheck, origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+               check: BorderCheck, origin: tuple[int, int] = (0, 0),
+               reflection: np.ndarray | None = None) -> np.ndarray:
     """Return the mask pixels that are not the object, (h, w) bool.
 
     The maps (not ``grays``, whole views) may be a window of the image starting at
@@ -359,14 +361,24 @@ def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
     pixels whose backbone disparity continues the surroundings' (within 10 % of the
     backbone at the nearest pixel outside the mask), as spilled background does.
 
-    Known limit: image noise makes the object's interior look textured, and on a
-    highlight's flank the backbone matches the reflection better than SRDE's plane
-    matches the surface, so where the backbone there happens to continue the
-    surroundings part of a highlight can still be trimmed (``benchmarks/degradation.py``:
-    0.10-0.24 px object EPE at 5-40 grey levels of noise, 0.30-0.41 px before the
-    continuity test; faceted objects against a black background, where SGBM smears one
-    value over the object's edge and beyond). Judging texture after a blur removed that
-    but trimmed the highlight rim of clean views instead.
+    On a highlight's flanks a matcher follows the reflection, and there the backbone
+    matches the other views better than SRDE's plane does: the pixels of ``reflection``
+    (:func:`reflection_mask`) are the object's however they touch the outline (against
+    a dark background a matcher smears the reflection's value over the object's edge and
+    beyond, so the continuity test alone let faceted objects lose a highlight's ring of
+    1400 px, a face 4.9 px off in the fused map).
+
+    Known limit: image noise makes the object's interior look textured, and where the
+    backbone on a highlight's flank neither follows its virtual light nor the object,
+    but continues the surroundings, part of a highlight can still be trimmed. Judging
+    texture after a blur removed that but trimmed the highlight rim of clean views
+    instead.
+
+    Parameters
+    ----------
+    reflection : numpy.ndarray, (h, w) bool, optional
+        Pixels on a highlight where the backbone follows its virtual light; none by
+        default.
     """
     candidates = (mask & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
                   & (np.abs(backbone - srde_disp) > check.trim_disagreement * srde_disp))
@@ -376,6 +388,8 @@ def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
     # matches the reflection instead (faceted objects lost whole flanks at the outline to
     # the backbone this way, a face 2-7 px off in the fused map).
     candidates &= _continues_outside(mask, backbone)
+    if reflection is not None:
+        candidates &= ~reflection
     if not candidates.any():
         return candidates
     # One pixel's cost is at the mercy of image noise (which also makes a textureless
@@ -392,6 +406,86 @@ def spill_trim(mask: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
     return np.isin(labels, keep[keep > 0])
 
 
+def reflection_mask(mask: np.ndarray, backbone: np.ndarray, textured: np.ndarray,
+                    grays: list[np.ndarray], rig: CameraRig, virtual_lights_m: np.ndarray,
+                    margin_px: int, origin: tuple[int, int] = (0, 0),
+                    face_labels: np.ndarray | None = None) -> np.ndarray:
+    """Return the pixels on a highlight where the backbone follows its virtual light.
+
+    A highlight is the image of a virtual light (a light mirrored in the object's plane)
+    and a matcher follows it: on its flanks the backbone puts it at the virtual light's
+    depth, which no surface disparity explains. A virtual light's highlight is every part
+    of the mask brighter than the object's body by :data:`_HIGHLIGHT_CONTRAST` that comes
+    within ``margin_px`` of the virtual light's reference-view image, grown by
+    ``margin_px`` (a matcher locks onto its flanks); on it, the pixels whose backbone
+    disparity is within :data:`_RIM_CONTINUITY` of the virtual light's are the
+    reflection. The body's grey is the brightest of the common levels among the mask's
+    untextured pixels (a median or a low quantile follows a large highlight's flanks, and
+    the most common level of a mask spilled far over a darker background is the
+    background's), on each face of a faceted object (their shading differs).
+
+    Parameters
+    ----------
+    mask, backbone, textured : numpy.ndarray, (h, w)
+        A window of the image starting at ``origin = (u0, v0)``.
+    grays : list of numpy.ndarray, (H, W) float32
+        Every view's grey levels (:func:`gray_levels`), whole.
+    rig : CameraRig
+    virtual_lights_m : numpy.ndarray, (V, 3)
+        The known lights mirrored in the estimate's planes, metres, the rig's frame.
+    margin_px : int
+    origin : (int, int)
+    face_labels : numpy.ndarray, (h, w) uint8, optional
+        Over the window: k on the estimate's k-th face, 0 elsewhere; the mask is one face
+        by default.
+
+    Returns
+    -------
+    numpy.ndarray, (h, w) bool
+    """
+    out = np.zeros(mask.shape, dtype=bool)
+    points = np.asarray(virtual_lights_m, dtype=np.float64).reshape(-1, 3)
+    depth_m = points[:, 2] - rig.reference_center_m[2]
+    points, depth_m = points[depth_m > 0], depth_m[depth_m > 0]
+    if not len(points) or not mask.any():
+        return out
+    u0, v0 = origin
+    gray = grays[rig.reference][v0:v0 + mask.shape[0], u0:u0 + mask.shape[1]]
+    # A highlight brightens the surface smoothly; smoothed, background texture does not
+    # stand out from its own level.
+    gray = cv2.GaussianBlur(gray, (0, 0), _HIGHLIGHT_SMOOTHING_PX)
+    faces = [mask] if face_labels is None else [
+        mask & (face_labels == k) for k in np.unique(face_labels[mask]) if k > 0]
+    bright = np.zeros(mask.shape, dtype=bool)
+    for face in faces:
+        bright |= face & (gray > _body_gray(gray[face & ~textured] if (face & ~textured).any()
+                                            else gray[face]) + _HIGHLIGHT_CONTRAST)
+    n, labels = cv2.connectedComponents(bright.view(np.uint8), connectivity=8)
+    if n <= 1:
+        return out
+    uv = rig.project(points, rig.reference) - np.asarray(origin, dtype=np.float64)
+    for (u, v), disparity_px in zip(uv, rig.depth_to_disparity(depth_m), strict=True):
+        a0, b0 = int(math.floor(u)) - margin_px, int(math.floor(v)) - margin_px
+        near = labels[max(b0, 0):max(b0 + 2 * margin_px + 2, 0),
+                      max(a0, 0):max(a0 + 2 * margin_px + 2, 0)]
+        parts = np.unique(near[near > 0])
+        if not parts.size:
+            continue
+        highlight = cv2.dilate(np.isin(labels, parts).view(np.uint8), _disc(margin_px)) > 0
+        with np.errstate(invalid="ignore"):  # NaN backbone: not the reflection
+            out |= highlight & (np.abs(backbone - disparity_px)
+                                <= _RIM_CONTINUITY * disparity_px)
+    return out & mask
+
+
+def _body_gray(values: np.ndarray) -> float:
+    """Return the brightest common grey level of ``values`` (in [0, 1]), the body's."""
+    bins = np.bincount(np.clip(values * _GRAY_BINS, 0, _GRAY_BINS - 1).astype(np.intp),
+                       minlength=_GRAY_BINS)[:-1]  # (the top bin holds clipped cores)
+    common = np.flatnonzero(bins >= _BODY_SHARE * bins.max())
+    return (int(common[-1]) + 0.5) / _GRAY_BINS if common.size else 1.0
+
+
 @dataclass(frozen=True)
 class PhotoStats:
     n_px: int = 0
@@ -401,10 +495,13 @@ class PhotoStats:
 
 def photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, backbone: np.ndarray,
                  textured: np.ndarray, grays: list[np.ndarray], rig: CameraRig,
-                 check: BorderCheck, origin: tuple[int, int] = (0, 0)) -> PhotoStats:
+                 check: BorderCheck, origin: tuple[int, int] = (0, 0),
+                 reflection: np.ndarray | None = None) -> PhotoStats:
     """Return the photometric cost of SRDE and the backbone on the mask's inner ring.
 
-    The maps may be a window of the image starting at ``origin = (u0, v0)``.
+    The maps may be a window of the image starting at ``origin = (u0, v0)``. The pixels
+    of ``reflection`` (:func:`reflection_mask`) are left out: where the backbone follows
+    a highlight's virtual light it explains the views better than any surface does.
     """
     # Only ring pixels next to texture (the silhouette edge): inside a glossy object the
     # shading follows the reflection, whose depth is the virtual light's, not the
@@ -412,6 +509,8 @@ def photo_stats(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray, ba
     near_texture = cv2.dilate(textured.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
     ring = (_inner_ring(mask, check.photo_ring_px) & near_texture & np.isfinite(srde_disp)
             & np.isfinite(backbone))
+    if reflection is not None:
+        ring &= ~reflection
     if trimmed.any():
         # Next to trimmed background the mask is background too, texture or not.
         size = 4 * check.width_px + 1
@@ -438,6 +537,15 @@ _RIM_BEHIND_FRACTION = 0.5
 #: the nearest pixel outside the mask for the pixel to continue the surroundings (spilled
 #: background: :func:`spill_trim` and :func:`spilled_rim`).
 _RIM_CONTINUITY = 0.1
+#: How much brighter than the object's body (encoded grey, in [0, 1]) a highlight is.
+_HIGHLIGHT_CONTRAST = 0.03
+#: Bins of the grey-level histogram whose peak is the object's body.
+_GRAY_BINS = 64
+#: A grey level is one of the mask's common ones when its bin holds this share of the
+#: fullest bin's pixels.
+_BODY_SHARE = 0.25
+#: Gaussian sigma (px) of the smoothing before the highlight is told from the body.
+_HIGHLIGHT_SMOOTHING_PX = 2.0
 
 
 @dataclass(frozen=True)
@@ -468,8 +576,8 @@ class SpilledRim:
 
 def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
                 backbone: np.ndarray, textured: np.ndarray, grays: list[np.ndarray],
-                rig: CameraRig, check: BorderCheck, origin: tuple[int, int] = (0, 0)
-                ) -> SpilledRim:
+                rig: CameraRig, check: BorderCheck, origin: tuple[int, int] = (0, 0),
+                reflection: np.ndarray | None = None) -> SpilledRim:
     """Find a rim of the mask that is background all around the object.
 
     A mask dilated by a careless segmenter holds a ring of the background around the
@@ -486,7 +594,8 @@ def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
     left SRDE's plane explains the other views at least as well as the backbone (over
     ``check.min_px`` pixels). A wrong plane meets (b) at no depth, and a textureless
     object's own rim has no outline texture to meet it with, so both keep the mask. The
-    maps may be a window of the image starting at ``origin``.
+    maps may be a window of the image starting at ``origin``; the pixels of
+    ``reflection`` (:func:`reflection_mask`) are neither background nor outline evidence.
     """
     none = np.zeros_like(mask)
     total = int(np.count_nonzero(mask))
@@ -497,6 +606,8 @@ def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
         if np.count_nonzero(inner) < _MIN_INNER_FRACTION * total:
             break
         seen = rim & textured & np.isfinite(backbone) & np.isfinite(srde_disp)
+        if reflection is not None:
+            seen &= ~reflection
         if np.count_nonzero(seen) < check.min_px:
             continue
         with np.errstate(invalid="ignore"):  # NaN outside ``seen``: not behind
@@ -505,7 +616,7 @@ def spilled_rim(mask: np.ndarray, trimmed: np.ndarray, srde_disp: np.ndarray,
         if np.count_nonzero(behind) < _RIM_BEHIND_FRACTION * np.count_nonzero(seen):
             continue
         photo = photo_stats(inner, none, srde_disp, backbone, textured, grays, rig, check,
-                            origin)
+                            origin, reflection)
         if photo.n_px >= check.min_px and photo.cost_srde <= photo.cost_backbone:
             # Along an outline, the object's or the mask's, a matcher mixes both depths
             # (a background-fattened edge looks like background): those bands stay.

@@ -45,6 +45,7 @@ from .checks import (
     border_stats,
     gray_levels,
     photo_stats,
+    reflection_mask,
     spill_trim,
     spilled_rim,
     textured_mask,
@@ -158,9 +159,15 @@ def fuse(backbone_disparity: np.ndarray, views: Sequence[np.ndarray], rig: Camer
     source = np.zeros((h, w), dtype=np.int32)
     context = _Context(backbone, rig, border_check)
     if border_check is not None and mask_list:
+        # The lights tell a highlight from background (spill_trim): the rig's, or the
+        # estimator's when the rig was given without them.
+        lights_m = rig.light_positions_m
+        own_rig = getattr(srde, "rig", None)
+        if not len(lights_m) and isinstance(own_rig, CameraRig):
+            lights_m = own_rig.light_positions_m
         context = _Context(backbone, rig, border_check,
                            textured_mask(views[rig.reference], border_check.min_gradient),
-                           [gray_levels(v) for v in views])
+                           [gray_levels(v) for v in views], lights_m)
 
     reports = []
     _log.info("fusing %d object(s)", len(mask_list))
@@ -210,6 +217,7 @@ class _Context:
     check: BorderCheck | None
     textured: np.ndarray | None = None     # (H, W) bool, reference view
     grays: list[np.ndarray] | None = None  # N x (H, W) float32
+    lights_m: np.ndarray | None = None     # (L, 3) float64, the known lights
 
 
 @dataclass(frozen=True)
@@ -218,6 +226,15 @@ class _Decision:
 
     report: ObjectReport
     take: np.ndarray | None = None         # (h, w) bool over the window; None on fallback
+
+
+def _virtual_lights_m(estimate: ObjectEstimate, lights_m: np.ndarray | None) -> np.ndarray:
+    """Each light in front of one of the estimate's planes mirrored in it, ``(V, 3)`` m."""
+    planes = [p for p in (estimate.plane, *estimate.face_planes) if p is not None]
+    if lights_m is None or not len(lights_m) or not planes:
+        return np.zeros((0, 3))
+    return np.concatenate([plane.mirror(lights_m[plane.signed_distance(lights_m) > 0])
+                           for plane in planes])
 
 
 def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
@@ -239,8 +256,14 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
     textured = None if context.textured is None else context.textured[v0:v1, u0:u1]
     grays = context.grays
     trimmed = np.zeros_like(mask)
+    reflection = None
+    if check is not None:
+        reflection = reflection_mask(mask, backbone, textured, grays, rig,
+                                     _virtual_lights_m(estimate, context.lights_m),
+                                     check.width_px, origin, estimate.face_labels(window))
     if check is not None and check.trim_disagreement > 0:
-        trimmed = spill_trim(mask, srde_disp, backbone, textured, grays, rig, check, origin)
+        trimmed = spill_trim(mask, srde_disp, backbone, textured, grays, rig, check, origin,
+                             reflection)
     n_trimmed = int(np.count_nonzero(trimmed))
     object_mask = mask & ~trimmed
     checked_mask = object_mask  # what the outline checks judge
@@ -248,13 +271,13 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
     rim_depth_px = 0
     if check is not None and check.photo_ring_px > 0:
         photo = photo_stats(mask, trimmed, srde_disp, backbone, textured, grays, rig, check,
-                            origin)
+                            origin, reflection)
         if photo.n_px >= check.min_px and photo.cost_srde > photo.cost_backbone \
                 and check.trim_disagreement > 0:
             # The mask may hold a ring of background around the object: check the object
             # inside it instead, and leave the ring to the backbone.
             spilled = spilled_rim(mask, trimmed, srde_disp, backbone, textured, grays, rig,
-                                  check, origin)
+                                  check, origin, reflection)
             if spilled.depth_px:
                 rim_depth_px, photo = spilled.depth_px, spilled.photo
                 checked_mask = object_mask & ~spilled.rim

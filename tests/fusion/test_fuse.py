@@ -387,6 +387,53 @@ def test_a_textured_patch_the_backbone_puts_apart_from_the_surroundings_is_kept(
     assert spilled_result.objects[0].trimmed_px > 0
 
 
+def highlight_scene(rig):
+    """flat_object_scene with a highlight at the light's mirror image near the mask's edge.
+
+    The highlight moves between the views as its virtual light does (5.6 px), and the
+    backbone follows it on the flanks and smears that value over the mask's edge, as
+    matchers do.
+    """
+    views, mask, plane, backbone = flat_object_scene(rig)
+    virtual_m = plane.mirror(rig.light_positions_m)[0]
+    disparity_px = float(rig.depth_to_disparity(virtual_m[2]))
+    u_c, v_c = rig.project(virtual_m[None], rig.reference)[0]
+    vv, uu = np.mgrid[0:H, 0:W].astype(np.float64)
+
+    def blob(shift_px: float) -> np.ndarray:
+        return 300.0 * np.exp(-((uu + shift_px - u_c) ** 2 + (vv - v_c) ** 2) / (2 * 4.0 ** 2))
+
+    left, right = (v.copy() for v in views)
+    left[mask] = np.clip(128 + blob(0.0)[mask], 0, 255).astype(np.uint8)[:, None]
+    truth = plane_disparity(plane, rig)
+    vs, us = np.nonzero(mask)
+    painted = np.zeros((H, W), bool)
+    painted[vs, np.rint(us - truth[vs, us]).astype(int)] = True
+    right[painted] = np.clip(128 + blob(disparity_px)[painted], 0, 255).astype(np.uint8)[:, None]
+    backbone = backbone.copy()
+    flank = mask & (blob(0.0) > 2.0)
+    backbone[flank | (ndimage.binary_dilation(flank, iterations=3) & ~mask)] = disparity_px
+    return [left, right], mask, plane, backbone, flank
+
+
+def test_a_highlight_the_backbone_puts_at_its_virtual_light_is_not_trimmed(rig):
+    # The highlight's flank reaches the mask's edge, is textured, matches the other view
+    # better at the backbone's disparity and continues the surroundings (the virtual
+    # light lies about as far as the background): all a spilled background shows. The
+    # backbone there is the virtual light's disparity, and the reference view is bright
+    # there: the highlight, which keeps SRDE's plane.
+    views, mask, plane, backbone, flank = highlight_scene(rig)
+    result = fuse(backbone, views, rig, [mask], FakeSRDE([plane], rig))
+    obj = result.objects[0]
+    assert obj.status == "srde", obj.reason
+    assert obj.trimmed_px == 0, obj.reason
+    np.testing.assert_array_equal(result.source[mask], 1)
+    # Without a known light nothing tells the highlight from background: it is trimmed.
+    dark = rig.with_light(None)
+    unlit = fuse(backbone, views, dark, [mask], FakeSRDE([plane], dark)).objects[0]
+    assert unlit.trimmed_px > 0.25 * int(flank.sum()), unlit.reason
+
+
 def test_thin_background_ring_in_the_mask_does_not_hide_the_object(rig, monkeypatch):
     # A mask dilated by a few pixels: the ring of background is too thin for the spill
     # trim, and SRDE's plane explains the mask's inner ring (background) worse than the
