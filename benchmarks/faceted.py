@@ -38,7 +38,8 @@ Run: ``python benchmarks/faceted.py [--scenes 20]``; writes
 were drawn from those two sets: ``--scenes 20 --seed0 61000 --name faceted_new``; further
 sets, each first run with the code of its time: ``--seed0 71000 --name faceted_71000``,
 ``--seed0 81000 --name faceted_81000``, ``--seed0 91000 --name faceted_91000`` (each then
-shaped a rule) and ``--seed0 101000 --name faceted_101000`` (run only after them).
+shaped a rule), ``--seed0 101000 --name faceted_101000`` (run only after them) and
+``--seed0 111000 --name faceted_111000`` (first run when fusion learnt the highlights).
 """
 
 from __future__ import annotations
