@@ -419,10 +419,12 @@ def reflection_mask(mask: np.ndarray, backbone: np.ndarray, textured: np.ndarray
     within ``margin_px`` of the virtual light's reference-view image, grown by
     ``margin_px`` (a matcher locks onto its flanks); on it, the pixels whose backbone
     disparity is within :data:`_RIM_CONTINUITY` of the virtual light's are the
-    reflection. The body's grey is the brightest of the common levels among the mask's
-    untextured pixels (a median or a low quantile follows a large highlight's flanks, and
-    the most common level of a mask spilled far over a darker background is the
-    background's), on each face of a faceted object (their shading differs).
+    reflection. The body's grey is the darkest of the common levels among the mask's
+    untextured pixels, on each face of a faceted object (their shading differs): a median
+    follows a large highlight's flanks, and with several lights the highlights may cover
+    most of the object. Known limit: in a mask spilled far over a darker background the
+    body is the background's, and background at about the virtual light's depth next to
+    the object is spared as well (benchmarks/degradation.py, masks dilated by 64 px).
 
     Parameters
     ----------
@@ -479,11 +481,11 @@ def reflection_mask(mask: np.ndarray, backbone: np.ndarray, textured: np.ndarray
 
 
 def _body_gray(values: np.ndarray) -> float:
-    """Return the brightest common grey level of ``values`` (in [0, 1]), the body's."""
+    """Return the darkest common grey level of ``values`` (in [0, 1]), the body's."""
     bins = np.bincount(np.clip(values * _GRAY_BINS, 0, _GRAY_BINS - 1).astype(np.intp),
                        minlength=_GRAY_BINS)[:-1]  # (the top bin holds clipped cores)
     common = np.flatnonzero(bins >= _BODY_SHARE * bins.max())
-    return (int(common[-1]) + 0.5) / _GRAY_BINS if common.size else 1.0
+    return (int(common[0]) + 0.5) / _GRAY_BINS if common.size else 1.0
 
 
 @dataclass(frozen=True)
@@ -539,7 +541,7 @@ _RIM_BEHIND_FRACTION = 0.5
 _RIM_CONTINUITY = 0.1
 #: How much brighter than the object's body (encoded grey, in [0, 1]) a highlight is.
 _HIGHLIGHT_CONTRAST = 0.03
-#: Bins of the grey-level histogram whose peak is the object's body.
+#: Bins of the grey-level histogram whose common levels hold the object's body.
 _GRAY_BINS = 64
 #: A grey level is one of the mask's common ones when its bin holds this share of the
 #: fullest bin's pixels.

@@ -19,7 +19,12 @@ from srde_fusion.errors import (
     SRDEError,
 )
 from srde_fusion.fusion import BorderCheck, FusionResult, HybridStereo, fuse, postprocess
-from srde_fusion.fusion.checks import gray_levels, spilled_rim, textured_mask
+from srde_fusion.fusion.checks import (
+    gray_levels,
+    reflection_mask,
+    spilled_rim,
+    textured_mask,
+)
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity
 
 H, W = 48, 64
@@ -432,6 +437,31 @@ def test_a_highlight_the_backbone_puts_at_its_virtual_light_is_not_trimmed(rig):
     dark = rig.with_light(None)
     unlit = fuse(backbone, views, dark, [mask], FakeSRDE([plane], dark)).objects[0]
     assert unlit.trimmed_px > 0.25 * int(flank.sum()), unlit.reason
+
+
+@pytest.mark.parametrize("radius_px", [6, 16])
+def test_the_reflection_is_the_bright_part_at_the_mirror_image(rig, radius_px):
+    # A flat grey object (0.3) with an even brighter disc (0.6) around the light's mirror
+    # image, where the backbone holds the mirror image's disparity. At 16 px the disc
+    # covers most of the object, as the highlights of several lights may: the body is
+    # still the darker grey, and the disc the reflection.
+    mask = box(12, 36, 16, 48)
+    plane = Plane.from_point_normal([0.0, 0.0, 0.5], [0.1, -0.2, -1.0])
+    virtual_m = plane.mirror(rig.light_positions_m)
+    disparity_px = float(rig.depth_to_disparity(virtual_m[0, 2]))
+    u_c, v_c = rig.project(virtual_m, rig.reference)[0]
+    vv, uu = np.mgrid[0:H, 0:W]
+    disc = (uu - u_c) ** 2 + (vv - v_c) ** 2 <= radius_px ** 2
+    gray = np.where(mask & disc, 0.6, 0.3).astype(np.float32)
+    assert np.count_nonzero(mask & disc) > (0.5 * mask.sum() if radius_px == 16 else 0)
+    backbone = np.where(disc, disparity_px, 12.0).astype(np.float32)
+    untextured = np.zeros((H, W), bool)
+    found = reflection_mask(mask, backbone, untextured, [gray, gray], rig, virtual_m, 4)
+    np.testing.assert_array_equal(found, mask & disc)
+    # Away from the mirror image the same disc is no reflection.
+    far = Plane.from_point_normal([0.0, 0.0, 0.5], [0.6, -0.2, -1.0])
+    assert not reflection_mask(mask, backbone, untextured, [gray, gray], rig,
+                               far.mirror(rig.light_positions_m), 4).any()
 
 
 def test_thin_background_ring_in_the_mask_does_not_hide_the_object(rig, monkeypatch):
