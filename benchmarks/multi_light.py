@@ -25,6 +25,11 @@ photometric refinement, which renders the lobes of lights whose highlights come 
 each other and solves objects whose blobs are all merged), with the same ratio to the
 default call told of the first light only.
 
+Fusion: each object the all-lights estimate solves goes through ``fuse`` with the default
+border check, the backbone being OpenCV SGBM on the rig's stereo pair (the fusion
+benchmark's). Its fused masked EPE is set beside SRDE's own over the same objects: fusion
+should hand back only what is not the object, and every pixel of these masks is.
+
 Run: ``python benchmarks/multi_light.py [--scenes 40] [--repeat 3]``; writes
 ``benchmarks/results/multi_light.md`` and ``.json``.
 """
@@ -39,8 +44,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from faceted import Estimated  # fusion of a result already computed (run from this folder)
+from fusion_eval import sgbm_backbone
 from results_files import write_results
 
+from srde_fusion.fusion import fuse
 from srde_fusion.geometry import plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.synthetic import RandomSceneConfig, default_rig, random_scene, render
@@ -55,6 +63,11 @@ WRONG_PLANE_PX = 1.0
 #: several-light and a single-light estimate often end on the same plane to 1e-5 px.
 WORSE_MARGIN_PX = 0.001
 SEED0 = 12000
+#: The backbone of the fused maps: the fusion benchmark's SGBM.
+SGBM = sgbm_backbone()
+#: A fused object counts as worse than SRDE's own when its masked EPE exceeds SRDE's by
+#: more than this, px.
+FUSED_WORSE_PX = 0.01
 
 
 def masked_epe(result, rig, rendering, mask) -> float:
@@ -92,6 +105,18 @@ def timed(fn, repeat: int = 1):
     return out, min(times)
 
 
+def fused_record(result, rig, rendering, mask) -> dict:
+    """The fused map's masked EPE and fusion's decision for an ``ok`` result."""
+    if not result.ok:
+        return {}
+    backbone = SGBM(*(rendering.views[j] for j in rig.stereo_pair))
+    fused = fuse(backbone, rendering.views, rig, [mask], Estimated(result))
+    truth = rendering.disparity_px[mask]
+    return {"fused_status": fused.objects[0].status, "trimmed_px": fused.objects[0].trimmed_px,
+            "srde_map_epe": float(np.mean(np.abs(result.disparity[mask] - truth))),
+            "fused_epe": float(np.mean(np.abs(fused.disparity[mask] - truth)))}
+
+
 def run_scene(rig, seed: int, k: int, repeat: int = 1) -> dict:
     scene = random_scene(seed, rig, config=RandomSceneConfig(n_lights=k))
     rendering = render(scene, rig, physics=Physics.faithful(), supersample=2)
@@ -106,7 +131,8 @@ def run_scene(rig, seed: int, k: int, repeat: int = 1) -> dict:
         epe = masked_epe(result, lit, rendering, mask)
         record.update(status=result.status, epe=epe, wrong=0, first_status=result.status,
                       first_epe=epe, best_single=epe, time_s=t_geo, single_time_s=t_geo,
-                      default_time_s=t_default, single_default_time_s=t_default, merged=0)
+                      default_time_s=t_default, single_default_time_s=t_default, merged=0,
+                      **fused_record(result, lit, rendering, mask))
         return record
     result, t_default = timed(lambda: SRDE(lit).estimate(rendering.views, mask), repeat)
     _, t_multi = timed(lambda: SRDE(lit, refine=False).estimate(rendering.views, mask),
@@ -131,8 +157,33 @@ def run_scene(rig, seed: int, k: int, repeat: int = 1) -> dict:
         best_single=min(finite) if finite else float("nan"), singles=singles,
         time_s=t_multi, single_time_s=t_single, default_time_s=t_default,
         single_default_time_s=t_single_default,
-        merged=0 if result.lights is None else len(result.lights.merged_blobs))
+        merged=0 if result.lights is None else len(result.lights.merged_blobs),
+        **fused_record(result, lit, rendering, mask))
     return record
+
+
+def fused_rows(records: list[dict]) -> tuple[list[str], dict]:
+    """Fusion of the all-lights estimates, per number of lights."""
+    lines = ["| lights | SRDE ok | kept by fusion | sent back | with trimmed px | SRDE EPE "
+             f"(px) | fused EPE (px) | fused worse than SRDE by > {FUSED_WORSE_PX:g} px |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    numbers = {}
+    for k in LIGHT_COUNTS:
+        ok = [r for r in records if r["k"] == k and "fused_status" in r]
+        if not ok:
+            continue
+        kept = [r for r in ok if r["fused_status"] == "srde"]
+        row = {"srde_ok": len(ok), "kept": len(kept), "sent_back": len(ok) - len(kept),
+               "trimmed": int(sum(r["trimmed_px"] > 0 for r in ok)),
+               "srde_epe": float(np.mean([r["srde_map_epe"] for r in ok])),
+               "fused_epe": float(np.mean([r["fused_epe"] for r in ok])),
+               "fused_worse": int(sum(r["fused_epe"] > r["srde_map_epe"] + FUSED_WORSE_PX
+                                      for r in ok))}
+        numbers[str(k)] = row
+        lines.append(f"| {k} | {row['srde_ok']} | {row['kept']} | {row['sent_back']} | "
+                     f"{row['trimmed']} | {row['srde_epe']:.4f} | {row['fused_epe']:.4f} | "
+                     f"{row['fused_worse']} |")
+    return lines, numbers
 
 
 def summary_rows(records: list[dict]) -> tuple[list[str], dict]:
@@ -218,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"wrong {record['wrong']} best single {record['best_single']:.4f} "
                   f"first {record['first_status']} {record['first_epe']:.4f}", flush=True)
     table, numbers = summary_rows(records)
+    fused_table, fused_numbers = fused_rows(records)
     md = ["# SRDE with several known lights", "",
           __doc__.split("\n\n", 1)[1].split("\n\nRun:")[0].replace("\n", " "), "",
           f"{args.scenes} scenes per number of lights (seeds {SEED0} + 100 k + i). Machine: "
@@ -230,9 +282,12 @@ def main(argv: list[str] | None = None) -> int:
           "Solved objects with blobs of merged highlights (no centre measures a light there; "
           "the lobes of all lights fitted together): " + ", ".join(
               f"{row['solved_with_merged_blobs']} with {k} lights" for k, row in numbers.items()
-              if k != "1") + ".", ""]
-    write_results(args.out, NAME, md, {"numbers": numbers, "records": records,
-                                       "repeat": repeat}, default=float)
+              if k != "1") + ".", "",
+          "Fusion of the all-lights estimates (SGBM backbone, default border check; EPE over "
+          "the objects SRDE solved, fused map and SRDE's own map on the mask):", "",
+          *fused_table, ""]
+    write_results(args.out, NAME, md, {"numbers": numbers, "fused": fused_numbers,
+                                       "records": records, "repeat": repeat}, default=float)
     return 0
 
 
