@@ -421,10 +421,11 @@ def reflection_mask(mask: np.ndarray, backbone: np.ndarray, textured: np.ndarray
     disparity is within :data:`_RIM_CONTINUITY` of the virtual light's are the
     reflection. The body's grey is the darkest of the common levels among the mask's
     untextured pixels, on each face of a faceted object (their shading differs): a median
-    follows a large highlight's flanks, and with several lights the highlights may cover
-    most of the object. Known limit: in a mask spilled far over a darker background the
-    body is the background's, and background at about the virtual light's depth next to
-    the object is spared as well (benchmarks/degradation.py, masks dilated by 64 px).
+    would follow a large highlight's flanks, and several lights' highlights may cover so
+    much of the object that the brightest common level is theirs. Known limit: in a mask
+    spilled far over a darker background the body is the background's, and background at
+    about the virtual light's depth next to the object is spared as well
+    (``benchmarks/degradation.py``, masks dilated by 64 px).
 
     Parameters
     ----------
@@ -453,8 +454,8 @@ def reflection_mask(mask: np.ndarray, backbone: np.ndarray, textured: np.ndarray
         return out
     u0, v0 = origin
     gray = grays[rig.reference][v0:v0 + mask.shape[0], u0:u0 + mask.shape[1]]
-    # A highlight brightens the surface smoothly; smoothed, background texture does not
-    # stand out from its own level.
+    # A highlight brightens the surface smoothly: smoothed, image noise and fine texture
+    # do not make lone pixels bright.
     gray = cv2.GaussianBlur(gray, (0, 0), _HIGHLIGHT_SMOOTHING_PX)
     faces = [mask] if face_labels is None else [
         mask & (face_labels == k) for k in np.unique(face_labels[mask]) if k > 0]

@@ -437,6 +437,8 @@ def test_a_highlight_the_backbone_puts_at_its_virtual_light_is_not_trimmed(rig):
     dark = rig.with_light(None)
     unlit = fuse(backbone, views, dark, [mask], FakeSRDE([plane], dark)).objects[0]
     assert unlit.trimmed_px > 0.25 * int(flank.sum()), unlit.reason
+    # A rig given without its light: the estimator's rig has it.
+    assert fuse(backbone, views, dark, [mask], FakeSRDE([plane], rig)).objects[0].trimmed_px == 0
 
 
 @pytest.mark.parametrize("radius_px", [6, 16])
