@@ -3,7 +3,9 @@
 All of them look where the backbone can be trusted: the textured surroundings along the
 object's outline (occlusion order), the mask's inner ring seen by the other views
 (photometric cost), and textured pixels at the mask's edge that are not the object (spill
-trim). :class:`BorderCheck` holds their thresholds.
+trim). The last two leave out the highlights of the known lights, where the backbone
+follows a reflection (:func:`reflection_mask`). :class:`BorderCheck` holds their
+thresholds.
 """
 
 from __future__ import annotations
