@@ -257,7 +257,8 @@ def _decide(k: int, estimate: ObjectEstimate, box_mask: BoxMask,
     grays = context.grays
     trimmed = np.zeros_like(mask)
     reflection = None
-    if check is not None:
+    if check is not None and (check.trim_disagreement > 0 or check.photo_ring_px > 0):
+        # Only the spill trim and the photometric checks (with the rim search) leave it out.
         reflection = reflection_mask(mask, backbone, textured, grays, rig,
                                      _virtual_lights_m(estimate, context.lights_m),
                                      check.width_px, origin, estimate.face_labels(window))

@@ -392,6 +392,13 @@ def test_a_textured_patch_the_backbone_puts_apart_from_the_surroundings_is_kept(
     assert spilled_result.objects[0].trimmed_px > 0
 
 
+def mirror_image(rig, plane):
+    """The rig's light mirrored in ``plane``: ``(1, 3)`` metres, its disparity and pixel."""
+    virtual_m = plane.mirror(rig.light_positions_m)
+    disparity_px = float(rig.depth_to_disparity(virtual_m[0, 2]))
+    return virtual_m, disparity_px, rig.project(virtual_m, rig.reference)[0]
+
+
 def highlight_scene(rig):
     """flat_object_scene with a highlight at the light's mirror image near the mask's edge.
 
@@ -400,9 +407,7 @@ def highlight_scene(rig):
     matchers do.
     """
     views, mask, plane, backbone = flat_object_scene(rig)
-    virtual_m = plane.mirror(rig.light_positions_m)[0]
-    disparity_px = float(rig.depth_to_disparity(virtual_m[2]))
-    u_c, v_c = rig.project(virtual_m[None], rig.reference)[0]
+    _, disparity_px, (u_c, v_c) = mirror_image(rig, plane)
     vv, uu = np.mgrid[0:H, 0:W].astype(np.float64)
 
     def blob(shift_px: float) -> np.ndarray:
@@ -447,11 +452,8 @@ def test_the_reflection_is_the_bright_part_at_the_mirror_image(rig, radius_px):
     # image, where the backbone holds the mirror image's disparity. At 16 px the disc
     # covers most of the object, as the highlights of several lights may: the body is
     # still the darker grey, and the disc the reflection.
-    mask = box(12, 36, 16, 48)
-    plane = Plane.from_point_normal([0.0, 0.0, 0.5], [0.1, -0.2, -1.0])
-    virtual_m = plane.mirror(rig.light_positions_m)
-    disparity_px = float(rig.depth_to_disparity(virtual_m[0, 2]))
-    u_c, v_c = rig.project(virtual_m, rig.reference)[0]
+    _, mask, plane, _ = flat_object_scene(rig)
+    virtual_m, disparity_px, (u_c, v_c) = mirror_image(rig, plane)
     vv, uu = np.mgrid[0:H, 0:W]
     disc = (uu - u_c) ** 2 + (vv - v_c) ** 2 <= radius_px ** 2
     gray = np.where(mask & disc, 0.6, 0.3).astype(np.float32)
