@@ -49,6 +49,7 @@ from .markers import (
     MarkerDetection,
     detect_markers,
 )
+from .photometric import PhotometricLight, photometric_light, with_photometric
 from .plate_highlights import (
     find_plate_highlight_candidates,
     find_plate_highlights,
@@ -69,6 +70,9 @@ __all__ = [
     "write_board",
     "estimate_light",
     "estimate_lights",
+    "PhotometricLight",
+    "photometric_light",
+    "with_photometric",
     "LightsEstimate",
     "LightCalibration",
     "DEFAULT_MATCH_TOLERANCE_PX",

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -36,6 +36,9 @@ from scipy.optimize import least_squares
 from ..errors import LightError
 from ..geometry import CameraRig, project_points, rotation_from_vector, rotation_to_vector
 from .plate_pose import PlatePose
+
+if TYPE_CHECKING:
+    from .photometric import PhotometricLight
 
 __all__ = [
     "DEFAULT_MAX_INCIDENCE_DEG",
@@ -243,6 +246,13 @@ class LightEstimate:
         show.
     uncertainty : str
         How ``position_cov_m2`` was formed, in words.
+    geometric_position_m : numpy.ndarray, (3,), float64, or None
+        When the highlights' images moved the light (:mod:`.photometric`), the light of
+        the ray solve (joint refinement) before that; None otherwise. The residuals and
+        ray distances above are always those of ``position_m``.
+    photometric : PhotometricLight or None
+        The light each capture's highlight images show, and why a capture gave none;
+        None when not asked for.
     """
 
     position_m: np.ndarray
@@ -261,6 +271,8 @@ class LightEstimate:
     plate_poses: tuple[PlatePose, ...]
     position_cov_m2: np.ndarray
     uncertainty: str
+    geometric_position_m: np.ndarray | None = None
+    photometric: PhotometricLight | None = None
 
     @property
     def n_rays(self) -> int:
@@ -302,6 +314,8 @@ class LightEstimate:
         x, y, z = self.position_m
         sx, sy, sz = self.position_std_m * 1000.0
         how = "joint refinement of light and plate poses" if self.refined else "ray intersection"
+        if self.geometric_position_m is not None:
+            how = "the highlights' images, after the " + how
         lines = [
             f"light position: ({x:+.4f}, {y:+.4f}, {z:+.4f}) m, "
             f"± ({sx:.1f}, {sy:.1f}, {sz:.1f}) mm (1 sigma, {how})",
@@ -310,6 +324,13 @@ class LightEstimate:
             f"{self.highlight_residual_px:.2f} px RMS at the highlights, "
             f"{self.n_captures} plate pose(s)",
         ]
+        fit = self.photometric
+        if fit is not None and self.geometric_position_m is not None:
+            moved = np.linalg.norm(self.position_m - self.geometric_position_m) * 1000.0
+            lines.append(f"from the highlights' images of {fit.n_used} of {self.n_captures} "
+                         f"capture(s): {moved:.2f} mm from the ray solve's light")
+        elif fit is not None:
+            lines.append("from the ray solve only: no capture's highlight images gave a light")
         for c, pose in enumerate(self.plate_poses):
             names = len(self.views_used[c])
             lines.append(
@@ -318,6 +339,8 @@ class LightEstimate:
                 f"{pose.reprojection_error_px:.2f} px RMS"
             )
             lines += [f"    skipped {r}" for r in self.view_reasons[c] if r]
+            if fit is not None and fit.reasons[c]:
+                lines.append(f"    images not used: {fit.reasons[c]}")
         return "\n".join(lines)
 
 

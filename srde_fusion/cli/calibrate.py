@@ -106,6 +106,7 @@ def _calibrate_light_command(args) -> int:
         n_lights=args.lights,
         method=args.method,
         refine=not args.no_refine,
+        photometric=not args.no_photometric,
         min_views=args.min_views,
         max_incidence_deg=args.max_incidence_deg,
         max_residual_m=args.max_residual_mm / 1000.0,
@@ -208,6 +209,12 @@ def _register_calibrate_light(subparsers) -> None:
         "--no-refine",
         action="store_true",
         help="keep the ray intersection (the paper's estimate), skip the joint refinement",
+    )
+    p.add_argument(
+        "--no-photometric",
+        action="store_true",
+        help="keep the light of the highlight centres' rays; by default one light moves to "
+        "where its highlights' images put it (each capture read by SRDE's lobe fit)",
     )
     p.add_argument("--dry-run", action="store_true", help="print the light, do not write rig.json")
     p.add_argument("--figure", default=None, metavar="DIR",

@@ -1,0 +1,149 @@
+"""The light from the plate highlights' images, not only from their centres.
+
+A highlight's blob centre is not where the plate mirrors the light: on a glossy plate
+seen at an angle the lobe is skewed, clipped and foreshortened, and its centroid sits
+off the mirror point by a few hundredths of a pixel in a pattern shared by every view
+and capture. The ray solve (:mod:`.light`) takes that pattern for a slightly different
+light, about a millimetre off at a metre, and SRDE's planes, which mirror the light,
+inherit it: on rendered scenes the masked EPE with such a light is about ten times the
+EPE with the true light (``benchmarks/light_calibration.py``).
+
+The plate is a plane whose pose the markers give, so each capture can be read the way
+SRDE reads an object, only backwards. SRDE, told of the ray solve's light, fits the
+plate's free region as a flat glossy object (its highlight centres, then the
+photometric refinement of the lobe over every view); the refined plane and that light
+give the virtual light the images show, ``V = mirror(L, P')``, and mirroring ``V``
+across the plate's pose from the markers, ``P``, gives the light this capture shows,
+``mirror(V, P)``. The captures' lights are averaged. A light a millimetre off hardly
+changes the lobe's shape, so ``V`` does not depend on which light SRDE was told, and
+one pass suffices.
+
+Because the same lobe model reads the objects later, what the model gets wrong about a
+real lobe is partly the same in both and partly cancels: on rendered scenes SRDE with
+the photometric light is as accurate as with the true light.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..geometry import CameraRig
+from ..srde import SRDE
+from .board import Board
+from .light import LightEstimate, _highlight_residuals
+from .plate_highlights import plate_highlight_region
+from .plate_pose import PlatePose
+
+__all__ = ["PhotometricLight", "photometric_light", "with_photometric"]
+
+
+@dataclass(frozen=True, eq=False)
+class PhotometricLight:
+    """The light each capture's highlight images show, and their mean.
+
+    Attributes
+    ----------
+    position_m : numpy.ndarray, (3,) float64, or None
+        Mean of the captures' lights, array frame, metres; None when no capture gave one.
+    capture_positions_m : tuple of (numpy.ndarray (3,) or None)
+        Per capture, the light its images show; None where SRDE could not read the plate.
+    reasons : tuple of str
+        Per capture, why it gave no light (``""`` where it did).
+    spread_cov_m2 : numpy.ndarray, (3, 3) float64
+        Covariance of the mean from the captures' scatter (``cov / m`` over the m captures
+        that gave a light; zeros with fewer than two).
+    """
+
+    position_m: np.ndarray | None
+    capture_positions_m: tuple[np.ndarray | None, ...]
+    reasons: tuple[str, ...]
+    spread_cov_m2: np.ndarray
+
+    @property
+    def n_used(self) -> int:
+        """Captures that gave a light."""
+        return sum(p is not None for p in self.capture_positions_m)
+
+
+def photometric_light(light_m: np.ndarray, captures: Sequence[Sequence[np.ndarray]],
+                      poses: Sequence[PlatePose], rig: CameraRig, board: Board
+                      ) -> PhotometricLight:
+    """Read every capture's highlight with SRDE's lobe fit and mirror it back.
+
+    Parameters
+    ----------
+    light_m : numpy.ndarray, (3,)
+        The ray solve's light, array frame, metres (SRDE is told of it).
+    captures : sequence of sequence of numpy.ndarray
+        Per capture, the validated views in rig order.
+    poses : sequence of PlatePose
+        Per capture, the plate pose from the markers.
+    rig : CameraRig
+        The rig; a single light it lists lends its radius to the fit.
+    board : Board
+
+    Returns
+    -------
+    PhotometricLight
+    """
+    light_m = np.asarray(light_m, dtype=np.float64)
+    if len(rig.lights) == 1:  # keep what the user measured of the lamp (its radius)
+        lit = rig.with_lights([replace(rig.lights[0],
+                                       position_m=tuple(float(v) for v in light_m))])
+    else:
+        lit = rig.with_light(light_m)
+    srde = SRDE(lit)
+    found: list[np.ndarray | None] = []
+    reasons: list[str] = []
+    for views, pose in zip(captures, poses, strict=True):
+        # The plate's free centre (no markers, away from its edge) is the "object".
+        region = plate_highlight_region(rig, board, pose, rig.reference)
+        result = srde.estimate(views, region)
+        refinement = result.refinement
+        if not result.ok:
+            found.append(None)
+            reasons.append(f"SRDE could not read the plate ({result.status}: {result.reason})")
+        elif refinement is None or not refinement.ok:
+            found.append(None)
+            reasons.append("the lobe fit did not confirm the plate's highlight ("
+                           + (refinement.reason if refinement is not None else "not run")
+                           + ")")
+        else:
+            virtual = result.plane.mirror(light_m)
+            found.append(pose.plane.mirror(virtual))
+            reasons.append("")
+    used = np.array([p for p in found if p is not None]).reshape(-1, 3)
+    spread = np.zeros((3, 3))
+    if len(used) >= 2:
+        spread = np.cov(used, rowvar=False) / len(used)
+    return PhotometricLight(used.mean(axis=0) if len(used) else None, tuple(found),
+                            tuple(reasons), spread)
+
+
+def with_photometric(estimate: LightEstimate, fit: PhotometricLight, rig: CameraRig
+                     ) -> LightEstimate:
+    """Move the estimate to the light the highlights' images show (kept if none did).
+
+    The covariance is the ray solve's (its accuracy floor on the centres and its
+    leave-one-capture-out spread) plus the scatter of the captures' image lights about
+    their mean; the residuals and ray distances are recomputed at the new light, so they
+    show how far the centres' rays pass from it.
+    """
+    if fit.position_m is None:
+        return replace(estimate, photometric=fit)
+    position = fit.position_m
+    cov = estimate.position_cov_m2 + fit.spread_cov_m2
+    distances = np.linalg.norm(np.cross(position - estimate.ray_origins_m,
+                                        estimate.ray_directions), axis=1)
+    residuals = _highlight_residuals(position, estimate.plate_poses,
+                                     list(estimate.highlight_centers_px), rig)
+    return replace(
+        estimate, position_m=position, residual_m=float(distances.mean()),
+        highlight_residual_px=float(np.sqrt(np.mean(np.sum(residuals ** 2, axis=1)))),
+        position_std_m=np.sqrt(np.clip(np.diag(cov), 0.0, None)), ray_distances_m=distances,
+        position_cov_m2=cov, geometric_position_m=estimate.position_m, photometric=fit,
+        uncertainty=f"{estimate.uncertainty} + the scatter of {fit.n_used} capture(s)' lights "
+                    "from the highlights' images")
