@@ -313,7 +313,8 @@ def estimate_lights(
     (:func:`light_from_reflections`), with the same residuals and uncertainty, from the
     rays alone: the highlights' images are not read (with the other lamps' lobes beside
     each highlight, the single-light lobe fit on the plate, read on the part nearer its
-    own highlight, moved lights 0.4-0.7 mm off to 0.8-1.9 mm off on rendered captures).
+    own highlight, made 8 of the 10 lights it read worse on 7 rendered layouts of 2-3
+    lamps, up to 1.9 mm off from 0.4-0.8 mm, and read no capture in 3 layouts).
 
     Parameters
     ----------
