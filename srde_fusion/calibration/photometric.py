@@ -25,6 +25,7 @@ the photometric light is as accurate as with the true light.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -38,6 +39,14 @@ from .plate_highlights import plate_highlight_region
 from .plate_pose import PlatePose
 
 __all__ = ["PhotometricLight", "photometric_light", "with_photometric"]
+
+#: Largest angle (degrees) and distance at the plate's centre (metres) between the lobe
+#: fit's plane and the plate's pose from the markers. The fit's plane is the plate moved
+#: by about half the ray solve's light error (0.3-0.6 mm and under 0.01 deg on the default
+#: rendered plate, 3.6-4.5 mm and 0.02-0.04 deg on one four times rougher, whose rays put
+#: the light 7 mm off): a plane farther off is not the plate, or the pose is not its.
+MAX_PLATE_ANGLE_DEG = 0.5
+MAX_PLATE_GAP_M = 0.02
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,6 +121,14 @@ def photometric_light(light_m: np.ndarray, captures: Sequence[Sequence[np.ndarra
                            + (refinement.reason if refinement is not None else "not run")
                            + ")")
         else:
+            angle_deg, gap_m = _plane_gap(result.plane, pose)
+            if angle_deg > MAX_PLATE_ANGLE_DEG or gap_m > MAX_PLATE_GAP_M:
+                found.append(None)
+                reasons.append(f"the lobe fit's plane is {angle_deg:.2f} deg and "
+                               f"{gap_m * 1000:.1f} mm from the plate's pose at its centre "
+                               f"(limits {MAX_PLATE_ANGLE_DEG:g} deg, "
+                               f"{MAX_PLATE_GAP_M * 1000:g} mm): not the plate")
+                continue
             virtual = result.plane.mirror(light_m)
             found.append(pose.plane.mirror(virtual))
             reasons.append("")
@@ -121,6 +138,12 @@ def photometric_light(light_m: np.ndarray, captures: Sequence[Sequence[np.ndarra
         spread = np.cov(used, rowvar=False) / len(used)
     return PhotometricLight(used.mean(axis=0) if len(used) else None, tuple(found),
                             tuple(reasons), spread)
+
+
+def _plane_gap(plane, pose: PlatePose) -> tuple[float, float]:
+    """Angle (degrees) between a plane and the plate, and the plate centre's distance to it."""
+    cos = min(1.0, abs(float(plane.n @ pose.normal)))
+    return math.degrees(math.acos(cos)), abs(float(plane.n @ pose.center_m) - plane.offset_m)
 
 
 def with_photometric(estimate: LightEstimate, fit: PhotometricLight, rig: CameraRig

@@ -330,6 +330,14 @@ def test_a_capture_the_lobe_fit_cannot_read_keeps_the_rays_light(captures, poses
     assert kept.geometric_position_m is None and kept.photometric is fit
     summary = kept.summary()
     assert "from the ray solve only" in summary and "images not used: SRDE could" in summary
+    # A pose 3 cm off its plate (say, from another board's markers): the lobe fit's plane
+    # is the plate's, so the two disagree and the capture is not used.
+    pose = poses[0]
+    shifted = pose.moved(pose.rotation, pose.translation_m + 0.03 * pose.normal, rig3x3)
+    wrong = photometric_light(rays.position_m, [captures[0][0]], [shifted], rig3x3, board)
+    assert wrong.n_used == 0
+    assert "mm from the plate's pose at its centre" in wrong.reasons[0]
+    assert "not the plate" in wrong.reasons[0]
     # One readable capture beside it: only that one moves the light.
     both = photometric_light(rays.position_m, [captures[0][0], flat], poses[:1] * 2,
                              rig3x3, board)
