@@ -5,8 +5,8 @@ seen at an angle the lobe is skewed, clipped and foreshortened, and its centroid
 off the mirror point by a few hundredths of a pixel in a pattern shared by every view
 and capture. The ray solve (:mod:`.light`) takes that pattern for a slightly different
 light, about a millimetre off at a metre, and SRDE's planes, which mirror the light,
-inherit it: on rendered scenes the masked EPE with such a light is about ten times the
-EPE with the true light (``benchmarks/light_calibration.py``).
+inherit it: on rendered scenes the masked EPE with such a light is 10-30 times the EPE
+with the true light (``benchmarks/light_calibration.py``).
 
 The plate is a plane whose pose the markers give, so each capture can be read the way
 SRDE reads an object, only backwards. SRDE, told of the ray solve's light, fits the
@@ -20,7 +20,8 @@ one pass suffices.
 
 Because the same lobe model reads the objects later, what the model gets wrong about a
 real lobe is partly the same in both and partly cancels: on rendered scenes SRDE with
-the photometric light is as accurate as with the true light.
+this light comes within about twice its EPE with the true light (with five plate poses
+rendered faithfully, the same).
 """
 
 from __future__ import annotations
