@@ -210,22 +210,27 @@ def test_uncertainty_covers_noisy_centres(captures, poses, rig3x3):
     assert inside[1] >= 2  # not so conservative that every error is tiny against sigma
 
 
+def _random_captures(rig, board, rng, light, n: int, **render_options) -> list:
+    """``n`` views of the plate at random poses about 1 m away, its highlight near its centre."""
+    views = []
+    for _ in range(n):
+        center = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.08, 0.08),
+                           rng.uniform(0.9, 1.1)])
+        aim = center + [rng.uniform(-0.03, 0.03), rng.uniform(-0.015, 0.015), 0.0]
+        scene = plate_scene(board, rig, light, center_m=center,
+                            normal=highlight_normal(aim, light, rig.reference_center_m),
+                            rotation_rad=rng.uniform(-0.3, 0.3))
+        views.append(render(scene, rig, supersample=2, **render_options).views)
+    return views
+
+
 def test_uncertainty_covers_the_true_light_over_random_plates(board):
     """A handful of seeded rendered calibrations: the true light within 3 sigma."""
     rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, image_size=(640, 480))
     light = np.array([0.2, -0.45, 0.1])
     within, ratios = 0, []
     for seed in COVERAGE_SEEDS:
-        rng = np.random.default_rng(seed)
-        views = []
-        for _ in range(2):
-            center = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.08, 0.08),
-                               rng.uniform(0.9, 1.1)])
-            aim = center + [rng.uniform(-0.03, 0.03), rng.uniform(-0.015, 0.015), 0.0]
-            scene = plate_scene(board, rig, light, center_m=center,
-                                normal=highlight_normal(aim, light, rig.reference_center_m),
-                                rotation_rad=rng.uniform(-0.3, 0.3))
-            views.append(render(scene, rig, supersample=2).views)
+        views = _random_captures(rig, board, np.random.default_rng(seed), light, 2)
         for m in (1, 2):
             est = estimate_light(views[:m], rig, board)
             within += est.sigma_distance(light) <= SIGMA_3D_RADIUS[3]
@@ -273,17 +278,8 @@ def _faithful_captures(rig, board, seed: int, n: int = 2):
     """``n`` plate captures of a light near the array's side, rendered faithfully."""
     rng = np.random.default_rng(seed)
     light = np.array([0.2, -0.45, 0.1]) + rng.uniform(-0.1, 0.1, 3)
-    views = []
-    for _ in range(n):
-        center = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.08, 0.08),
-                           rng.uniform(0.9, 1.1)])
-        aim = center + [rng.uniform(-0.03, 0.03), rng.uniform(-0.015, 0.015), 0.0]
-        scene = plate_scene(board, rig, light, center_m=center,
-                            normal=highlight_normal(aim, light, rig.reference_center_m),
-                            rotation_rad=rng.uniform(-0.3, 0.3))
-        views.append(render(scene, rig, supersample=2, physics=Physics.faithful(),
-                            noise_seed=seed).views)
-    return light, views
+    return light, _random_captures(rig, board, rng, light, n, physics=Physics.faithful(),
+                                   noise_seed=seed)
 
 
 def test_the_highlights_images_move_the_light_nearer_the_truth(rig3x3, board):
