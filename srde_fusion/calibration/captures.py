@@ -294,6 +294,7 @@ def estimate_lights(
     n_lights: int | None = None,
     method: str = "blob",
     refine: bool = True,
+    photometric: bool = True,
     min_views: int = DEFAULT_MIN_VIEWS,
     min_marker_views: int = 1,
     max_incidence_deg: float = DEFAULT_MAX_INCIDENCE_DEG,
@@ -310,11 +311,12 @@ def estimate_lights(
     sets of all captures are assigned to the lights by their reflected rays
     (:func:`match_captures`: each light is one point the rays of its sets must meet).
     Then each light is solved as :func:`estimate_light` solves one
-    (:func:`light_from_reflections`), with the same residuals and uncertainty, from the
-    rays alone: the highlights' images are not read (with the other lamps' lobes beside
-    each highlight, the single-light lobe fit on the plate, read on the part nearer its
-    own highlight, made 8 of the 10 lights it read worse on 7 rendered layouts of 2-3
-    lamps, up to 1.9 mm off from 0.4-0.8 mm, and read no capture in 3 layouts).
+    (:func:`light_from_reflections`), with the same residuals and uncertainty. One light
+    found is then read from its highlights' images as :func:`estimate_light` reads it
+    (``photometric``); several are solved from their rays alone (with the other lamps'
+    lobes beside each highlight, the single-light lobe fit on the plate, read on the part
+    nearer its own highlight, made 8 of the 10 lights it read worse on 7 rendered layouts
+    of 2-3 lamps, up to 1.9 mm off from 0.4-0.8 mm, and read no capture in 3 layouts).
 
     Parameters
     ----------
@@ -327,9 +329,10 @@ def estimate_lights(
         Number of lights; by default counted: then every capture must show the same
         number of highlight sets (lamps whose highlights merge in some captures would
         otherwise count as a phantom light between them).
-    method, refine, min_views, min_marker_views, max_incidence_deg, max_residual_m,
-    max_reprojection_px, **detector_options
-        As for :func:`estimate_light` (``min_views``: per light and capture);
+    method, refine, photometric, min_views, min_marker_views, max_incidence_deg,
+    max_residual_m, max_reprojection_px, **detector_options
+        As for :func:`estimate_light` (``min_views``: per light and capture; ``photometric``:
+        with one light only);
         ``max_residual_m`` also bounds the ray distance of an accepted assignment.
     match_tolerance_px : float
         Largest distance of a highlight from the image of the virtual light it joins.
@@ -355,10 +358,11 @@ def estimate_lights(
     max_incidence_deg = check_positive(max_incidence_deg, "max_incidence_deg")
     max_residual_m = check_positive(max_residual_m, "max_residual_m")
     match_tolerance_px = check_positive(match_tolerance_px, "match_tolerance_px")
-    poses, groupings, notes = [], [], []
+    poses, groupings, notes, captured = [], [], [], []
     for c, capture in enumerate(captures):
         label, views, pose = _capture_pose(c, capture, rig, board, min_marker_views,
                                            max_reprojection_px, max_incidence_deg)
+        captured.append(views)
         candidates, why = find_plate_highlight_candidates(
             views, rig, board, pose, max_per_view=n_lights or MAX_LIGHTS, method=method,
             **detector_options)
@@ -416,6 +420,12 @@ def estimate_lights(
                 max_incidence_deg=max_incidence_deg, max_residual_m=max_residual_m))
         except LightError as exc:
             raise LightError(f"light {light}: {exc}") from None
+    if photometric and k == 1:
+        # One lamp counted or told: its plate highlights are read as estimate_light reads
+        # them (only the captures that show it, which is every capture here).
+        estimates[0] = with_photometric(
+            estimates[0], photometric_light(estimates[0].position_m, captured, poses, rig,
+                                            board), rig)
     # Lights left to right (then top to bottom): an order that does not depend on which
     # capture happened to fix the numbering.
     order = sorted(range(k), key=lambda j: tuple(estimates[j].position_m[:2]))
@@ -506,7 +516,7 @@ def calibrate_light_files(
         ``rig.json`` keep their names and radii.
     **options
         Keyword options of :func:`estimate_light` / :func:`estimate_lights`
-        (``photometric`` applies to one light only: several are solved from their rays).
+        (``photometric`` applies to one light: several are solved from their rays).
 
     Returns
     -------
@@ -527,7 +537,6 @@ def calibrate_light_files(
         lights, found = _calibrated_lights(rig, estimate.position_m[None])
         multi = None
     else:
-        options.pop("photometric", None)
         multi = estimate_lights(list(capture_dirs), rig, board,
                                 n_lights=None if n_lights == "auto" else n_lights, **options)
         lights, take = _calibrated_lights(rig, multi.positions_m)

@@ -207,6 +207,7 @@ def test_every_light_is_recovered_within_its_uncertainty(n_lights, two, three, r
         assert error < DETECTED_TOL_M
         assert e.sigma_distance(truth[k]) < SIGMA3_3D
         assert e.refined and e.n_captures == 3 and e.n_rays >= 10
+        assert e.photometric is None  # several lights: the rays decide
     # The evidence: each capture's sets and the light each one went to (a highlight right
     # beside a brighter one is left out, with a note, so a capture may miss a light).
     complete = 0
@@ -227,11 +228,15 @@ def test_every_light_is_recovered_within_its_uncertainty(n_lights, two, three, r
 def test_one_light_the_multi_light_way_agrees_with_the_single_light_way(rig3x3, board):
     captures = _captures(rig3x3, board, LIGHTS_M[:1])
     views = [v for v, _, _ in captures]
-    # (Several lights are solved from their rays alone.)
-    single = estimate_light(views, rig3x3, board, photometric=False)
+    single = estimate_light(views, rig3x3, board)
     multi = estimate_lights(views, rig3x3, board, n_lights=1)
     assert multi.n_lights == 1
+    # One light is read from its highlights' images either way: the same light.
+    assert multi.lights[0].photometric is not None
     assert np.linalg.norm(multi.positions_m[0] - single.position_m) < 1e-3
+    # and from the rays alone, the same rays' light
+    rays = estimate_lights(views, rig3x3, board, n_lights=1, photometric=False)
+    np.testing.assert_allclose(rays.positions_m[0], single.geometric_position_m)
     assert _nearest(multi.positions_m[0], LIGHTS_M[:1])[1] < DETECTED_TOL_M
 
 
