@@ -344,7 +344,9 @@ def estimate_lights(
     Raises
     ------
     LightError
-        As :func:`estimate_light`; and highlights that cannot be sorted without a guess:
+        As :func:`estimate_light`; when counting finds one light whose highlight no
+        capture's lobe fit confirms (merged highlights of close lamps); and highlights
+        that cannot be sorted without a guess:
         two equally supported highlight sets sharing highlights, more highlight sets than
         lights, no capture showing every light, a capture whose sets fit no assignment
         or two of them, a light seen in one capture only (of two or more), or, when
@@ -422,10 +424,18 @@ def estimate_lights(
             raise LightError(f"light {light}: {exc}") from None
     if photometric and k == 1:
         # One lamp counted or told: its plate highlights are read as estimate_light reads
-        # them (only the captures that show it, which is every capture here).
-        estimates[0] = with_photometric(
-            estimates[0], photometric_light(estimates[0].position_m, captured, poses, rig,
-                                            board), rig)
+        # them (every capture shows it).
+        fit = photometric_light(estimates[0].position_m, captured, poses, rig, board)
+        if n_lights is None and fit.n_used == 0:
+            # One lamp's lobe described every capture of a single rendered lamp (even on
+            # rough plates, under a 12 mm lamp) and none of lamps 4-8 cm apart whose
+            # highlights merge, which counting takes for one lamp between them.
+            raise LightError(
+                f"lights: counted one light, but its highlight fits one lamp's lobe in none "
+                f"of the {len(poses)} captures ({fit.reasons[0]}); lamps close together "
+                f"whose highlights merge into one blob look like this: give the number of "
+                f"lights (with one, the rays' light is kept)")
+        estimates[0] = with_photometric(estimates[0], fit, rig)
     # Lights left to right (then top to bottom): an order that does not depend on which
     # capture happened to fix the numbering.
     order = sorted(range(k), key=lambda j: tuple(estimates[j].position_m[:2]))

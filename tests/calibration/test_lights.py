@@ -240,6 +240,26 @@ def test_one_light_the_multi_light_way_agrees_with_the_single_light_way(rig3x3, 
     assert _nearest(multi.positions_m[0], LIGHTS_M[:1])[1] < DETECTED_TOL_M
 
 
+def test_counting_one_light_that_no_lobe_fit_confirms_is_refused(rig3x3, board):
+    """Two lamps 5 cm apart merge their highlights: counting sees one lamp between them.
+
+    Its blob is no single lamp's lobe, and the lobe fit on the plate says so in every
+    capture; told there is one light, the rays' light is kept with those reasons.
+    """
+    close = np.array([LIGHTS_M[0], LIGHTS_M[0] + [0.05, 0.0, 0.0]])
+    views = [v for v, _, _ in _captures(rig3x3, board, close)]
+    with pytest.raises(LightError, match=r"counted one light, but its highlight fits one "
+                                         r"lamp's lobe in none of the 3 captures .*give the "
+                                         r"number of lights"):
+        estimate_lights(views, rig3x3, board)
+    told = estimate_lights(views, rig3x3, board, n_lights=1)
+    light = told.lights[0]
+    assert light.photometric.n_used == 0 and light.geometric_position_m is None
+    assert all(r.startswith("the lobe fit did not confirm") for r in light.photometric.reasons)
+    # between the lamps, as the rays put it
+    assert np.linalg.norm(light.position_m - close.mean(axis=0)) < 0.02
+
+
 def test_a_capture_with_a_moved_lamp_is_refused(rig3x3, board, two):
     moved = _captures(rig3x3, board, LIGHTS_M[[0, 2]], plates=PLATES[2:])
     views = [v for v, _, _ in two[:2]] + [moved[0][0]]
