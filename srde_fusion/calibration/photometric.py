@@ -111,6 +111,11 @@ def photometric_light(light_m: np.ndarray, captures: Sequence[Sequence[np.ndarra
     for views, pose in zip(captures, poses, strict=True):
         # The plate's free centre (no markers, away from its edge) is the "object".
         region = plate_highlight_region(rig, board, pose, rig.reference)
+        if not region.any():  # the markers of other views found a plate this one misses
+            found.append(None)
+            reasons.append(f"the plate's free centre is not in the reference view "
+                           f"({rig.camera_names[rig.reference]})")
+            continue
         result = srde.estimate(views, region)
         refinement = result.refinement
         if not result.ok:

@@ -334,6 +334,10 @@ def test_a_capture_the_lobe_fit_cannot_read_keeps_the_rays_light(captures, poses
     assert wrong.n_used == 0
     assert "mm from the plate's pose at its centre" in wrong.reasons[0]
     assert "not the plate" in wrong.reasons[0]
+    # A pose whose plate the reference view does not see (other views' markers found it).
+    aside = pose.moved(pose.rotation, pose.translation_m + [1.0, 0.0, 0.0], rig3x3)
+    unseen = photometric_light(rays.position_m, [captures[0][0]], [aside], rig3x3, board)
+    assert unseen.reasons == ("the plate's free centre is not in the reference view (cam4)",)
     # One readable capture beside it: only that one moves the light.
     both = photometric_light(rays.position_m, [captures[0][0], flat], poses[:1] * 2,
                              rig3x3, board)
