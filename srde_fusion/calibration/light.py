@@ -242,8 +242,10 @@ class LightEstimate:
         :data:`HIGHLIGHT_ACCURACY_PX` / :data:`CORNER_ACCURACY_PX`, so an exact-looking
         fit does not claim sub-millimetre certainty), plus, with three captures or more,
         the leave-one-capture-out (jackknife) covariance, which shows captures that
-        disagree. Systematic errors of the board print or the camera model still do not
-        show.
+        disagree; when the highlights' images moved the light, plus the covariance of
+        their mean from the captures' scatter (generous for that light, about three times
+        nearer than the rays'). Systematic errors of the board print or the camera model
+        still do not show.
     uncertainty : str
         How ``position_cov_m2`` was formed, in words.
     geometric_position_m : numpy.ndarray, (3,), float64, or None
