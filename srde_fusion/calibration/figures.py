@@ -304,6 +304,9 @@ def light_figure(estimate: LightEstimate, rig: CameraRig, board: Board, *,
     ax.plot([], [], [], color="0.3", linewidth=0.8, label="reflected rays (plate colour)")
     ax.scatter(*up(estimate.closed_form_position_m), marker="o", s=40, facecolors="none",
                edgecolors="red", label="closed-form intersection")
+    if estimate.geometric_position_m is not None:
+        ax.scatter(*up(estimate.geometric_position_m), marker="x", s=40, color="red",
+                   label="the highlight centres' rays (before the images)")
     ax.scatter(*up(light), marker="*", s=140, color="red", label="estimated light")
     points = np.concatenate(shown)
     lo, hi = points.min(axis=0), points.max(axis=0)
