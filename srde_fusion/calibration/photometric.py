@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..geometry import CameraRig
+from ..geometry import CameraRig, Plane
 from ..srde import SRDE
 from .board import Board
 from .light import LightEstimate, _highlight_residuals
@@ -59,7 +59,7 @@ class PhotometricLight:
     position_m : numpy.ndarray, (3,) float64, or None
         Mean of the captures' lights, array frame, metres; None when no capture gave one.
     capture_positions_m : tuple of (numpy.ndarray (3,) or None)
-        Per capture, the light its images show; None where SRDE could not read the plate.
+        Per capture, the light its images show; None where it gave none (``reasons``).
     reasons : tuple of str
         Per capture, why it gave no light (``""`` where it did).
     spread_cov_m2 : numpy.ndarray, (3, 3) float64
@@ -146,7 +146,7 @@ def photometric_light(light_m: np.ndarray, captures: Sequence[Sequence[np.ndarra
                             tuple(reasons), spread)
 
 
-def _plane_gap(plane, pose: PlatePose) -> tuple[float, float]:
+def _plane_gap(plane: Plane, pose: PlatePose) -> tuple[float, float]:
     """Angle (degrees) between a plane and the plate, and the plate centre's distance to it."""
     cos = min(1.0, abs(float(plane.n @ pose.normal)))
     return math.degrees(math.acos(cos)), abs(float(plane.n @ pose.center_m) - plane.offset_m)
@@ -174,5 +174,6 @@ def with_photometric(estimate: LightEstimate, fit: PhotometricLight, rig: Camera
         highlight_residual_px=float(np.sqrt(np.mean(np.sum(residuals ** 2, axis=1)))),
         position_std_m=np.sqrt(np.clip(np.diag(cov), 0.0, None)), ray_distances_m=distances,
         position_cov_m2=cov, geometric_position_m=estimate.position_m, photometric=fit,
-        uncertainty=f"{estimate.uncertainty} + the scatter of {fit.n_used} capture(s)' lights "
-                    "from the highlights' images")
+        uncertainty=estimate.uncertainty + (
+            f" + the scatter of {fit.n_used} captures' lights from the highlights' images"
+            if fit.n_used >= 2 else "; the light from one capture's highlight images"))
