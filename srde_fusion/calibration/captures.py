@@ -153,31 +153,46 @@ def estimate_light(
     LightError
         Markers in too few views (with the count per view), a plate nearly edge-on,
         too few views with a usable highlight (with the reason per view: none on the
-        plate, under a marker, cut by the edge), or inconsistent rays.
+        plate, under a marker, cut by the edge), or inconsistent rays. With several
+        captures, one that fails these checks is left out instead (its reason in
+        ``LightEstimate.skipped_captures``) and only none usable is an error.
     ImageError, FileFormatError
         Views that do not fit the rig, or unreadable capture folders.
     """
     _check_calibration_inputs(captures, rig, board, min_views)
     max_incidence_deg = check_positive(max_incidence_deg, "max_incidence_deg")
     max_residual_m = check_positive(max_residual_m, "max_residual_m")
-    poses, centers, reasons, captured = [], [], [], []
+    poses, centers, reasons, captured, used, skipped = [], [], [], [], [], []
     for c, capture in enumerate(captures):
-        label, views, pose = _capture_pose(c, capture, rig, board, min_marker_views,
-                                           max_reprojection_px, max_incidence_deg)
-        captured.append(views)
-        found, why = find_plate_highlights(
-            views, rig, board, pose, method=method, **detector_options
-        )
-        n_found = int(np.all(np.isfinite(found), axis=1).sum())
-        if n_found < min_views:
-            details = "; ".join(r for r in why if r)
-            raise LightError(
-                f"{label}: expected a usable highlight on the plate in at least "
-                f"{min_views} views, got {n_found}: {details}"
+        try:
+            label, views, pose = _capture_pose(c, capture, rig, board, min_marker_views,
+                                               max_reprojection_px, max_incidence_deg)
+            found, why = find_plate_highlights(
+                views, rig, board, pose, method=method, **detector_options
             )
+            n_found = int(np.all(np.isfinite(found), axis=1).sum())
+            if n_found < min_views:
+                details = "; ".join(r for r in why if r)
+                raise LightError(
+                    f"{label}: expected a usable highlight on the plate in at least "
+                    f"{min_views} views, got {n_found}: {details}"
+                )
+        except LightError as exc:
+            # One plate pose that shows too little (a highlight under a marker in one of
+            # a stereo pair's views) does not cost the others; the reason is kept.
+            if len(captures) == 1:
+                raise
+            skipped.append(str(exc))
+            continue
+        captured.append(views)
         poses.append(pose)
         centers.append(found)
         reasons.append(why)
+        used.append(c)
+    if not poses:
+        raise LightError(f"captures: expected at least one capture showing the plate and a "
+                         f"usable highlight, got none of {len(captures)}: "
+                         + "; ".join(skipped))
     estimate = light_from_reflections(
         poses,
         centers,
@@ -187,6 +202,7 @@ def estimate_light(
         max_incidence_deg=max_incidence_deg,
         max_residual_m=max_residual_m,
     )
+    estimate = replace(estimate, capture_indices=tuple(used), skipped_captures=tuple(skipped))
     if not photometric:
         return estimate
     # The plate poses from the markers alone: the joint refinement bent them towards the

@@ -202,9 +202,10 @@ def capture_figure(views: Sequence[np.ndarray], estimate: LightEstimate, capture
     ], loc="lower center", ncol=3, fontsize=7, frameon=False)
     rms = np.sqrt(np.nanmean(np.sum(residual ** 2, axis=1))) if np.isfinite(residual).any() \
         else math.nan
-    fig.suptitle(f"capture {capture}: plate {np.linalg.norm(pose.center_m):.3f} m from the "
-                 f"reference camera, markers {pose.reprojection_error_px:.2f} px RMS, "
-                 f"highlights {rms:.2f} px RMS from the estimated light", fontsize=9)
+    fig.suptitle(f"capture {estimate.capture_index(capture)}: plate "
+                 f"{np.linalg.norm(pose.center_m):.3f} m from the reference camera, markers "
+                 f"{pose.reprojection_error_px:.2f} px RMS, highlights {rms:.2f} px RMS from the "
+                 "estimated light", fontsize=9)
     return fig
 
 
@@ -288,7 +289,8 @@ def light_figure(estimate: LightEstimate, rig: CameraRig, board: Board, *,
     for c, pose in enumerate(estimate.plate_poses):
         color = palette[c % len(palette)]
         outline = pose.to_array(np.concatenate([board.outline_m, board.outline_m[:1]]))
-        ax.plot(*up(outline), color=color, linewidth=1.5, label=f"plate, capture {c}")
+        ax.plot(*up(outline), color=color, linewidth=1.5,
+                label=f"plate, capture {estimate.capture_index(c)}")
         tip = pose.center_m + 0.1 * pose.plane.n
         ax.plot(*up(np.stack([pose.center_m, tip])), color=color, linewidth=0.8)
         shown.append(outline)
@@ -335,8 +337,9 @@ def write_calibration_figures(out_dir: str | os.PathLike, captures: Sequence[Any
     out_dir : path
         Created if needed.
     captures : sequence of (sequence of images, or folder path)
-        The captures the estimate was made from, as given to
-        :func:`~srde_fusion.calibration.captures.estimate_light`, in the same order.
+        The captures as given to
+        :func:`~srde_fusion.calibration.captures.estimate_light`, in the same order (or
+        only those it used); files are named by the index in that list.
     estimate : LightEstimate
     rig : CameraRig
     board : Board
@@ -349,14 +352,22 @@ def write_calibration_figures(out_dir: str | os.PathLike, captures: Sequence[Any
     Raises
     ------
     LightError
-        Not as many captures as the estimate has plate poses.
+        Neither as many captures as the estimate has plate poses nor as many as it was
+        given.
     FileFormatError
         The folder cannot be created, or a capture folder cannot be read.
     """
-    if isinstance(captures, (str, os.PathLike)) or len(captures) != estimate.n_captures:
-        got = "a single path" if isinstance(captures, (str, os.PathLike)) else len(captures)
-        raise LightError(f"captures: expected the {estimate.n_captures} captures the estimate "
-                         f"was made from, got {got}")
+    given = None if isinstance(captures, (str, os.PathLike)) else len(captures)
+    # The calibration's own list (some captures may have been left out), or those it used.
+    indices = estimate.capture_indices
+    if indices is not None and given == len(indices) + len(estimate.skipped_captures):
+        captures = [captures[i] for i in indices]
+    elif given != estimate.n_captures:
+        expected = (f"{estimate.n_captures} captures the estimate was made from"
+                    + (f" or the {len(indices) + len(estimate.skipped_captures)} it was given"
+                       if estimate.skipped_captures else ""))
+        raise LightError(f"captures: expected the {expected}, got "
+                         f"{'a single path' if given is None else given}")
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -366,6 +377,6 @@ def write_calibration_figures(out_dir: str | os.PathLike, captures: Sequence[Any
     for c, capture in enumerate(captures):
         views = read_capture(capture, rig) if isinstance(capture, (str, os.PathLike)) else capture
         fig = capture_figure(views, estimate, c, rig, board)
-        files.append(save_figure(fig, out / CAPTURE_FIGURE.format(c=c)))
+        files.append(save_figure(fig, out / CAPTURE_FIGURE.format(c=estimate.capture_index(c))))
     files.append(save_figure(light_figure(estimate, rig, board), out / LIGHT_FIGURE))
     return tuple(files)

@@ -255,6 +255,11 @@ class LightEstimate:
     photometric : PhotometricLight or None
         The light each capture's highlight images show, and why a capture gave none;
         None when not asked for.
+    capture_indices : tuple of int or None
+        Index of each capture above in the list the calibration was given (some may have
+        been left out); None: the captures as given.
+    skipped_captures : tuple of str
+        Why each capture left out was (``"capture 3 (...): ..."``).
     """
 
     position_m: np.ndarray
@@ -275,6 +280,8 @@ class LightEstimate:
     uncertainty: str
     geometric_position_m: np.ndarray | None = None
     photometric: PhotometricLight | None = None
+    capture_indices: tuple[int, ...] | None = None
+    skipped_captures: tuple[str, ...] = ()
 
     @property
     def n_rays(self) -> int:
@@ -285,6 +292,10 @@ class LightEstimate:
     def n_captures(self) -> int:
         """Number of plate poses combined."""
         return len(self.plate_poses)
+
+    def capture_index(self, c: int) -> int:
+        """Index in the list the calibration was given of the estimate's capture ``c``."""
+        return c if self.capture_indices is None else self.capture_indices[c]
 
     @property
     def views_used(self) -> tuple[tuple[int, ...], ...]:
@@ -336,13 +347,14 @@ class LightEstimate:
         for c, pose in enumerate(self.plate_poses):
             names = len(self.views_used[c])
             lines.append(
-                f"  capture {c}: {names} highlight rays, plate at "
+                f"  capture {self.capture_index(c)}: {names} highlight rays, plate at "
                 f"{np.linalg.norm(pose.center_m):.3f} m, marker reprojection "
                 f"{pose.reprojection_error_px:.2f} px RMS"
             )
             lines += [f"    skipped {r}" for r in self.view_reasons[c] if r]
             if fit is not None and fit.reasons[c]:
                 lines.append(f"    images not used: {fit.reasons[c]}")
+        lines += [f"  left out: {why}" for why in self.skipped_captures]
         return "\n".join(lines)
 
 

@@ -24,6 +24,7 @@ from srde_fusion.calibration import (
     read_capture,
     reflect_highlights,
     with_photometric,
+    write_calibration_figures,
 )
 from srde_fusion.cli import main
 from srde_fusion.errors import FileFormatError, LightError
@@ -423,6 +424,37 @@ def test_highlight_hidden_under_a_marker(rig3x3, board):
     )
     assert np.all(np.isnan(centers))
     assert "cam0: highlight under marker 0" in reasons
+
+
+def test_a_capture_that_shows_too_little_is_left_out_of_several(captures, rig3x3, board,
+                                                                 tmp_path):
+    """A plate pose whose highlight hides under a marker, one without markers: the other
+    captures still calibrate, and the two left out say why."""
+    center = np.array([0.03, 0.02, 1.0])
+    pose = PlatePose.from_center_normal(center, highlight_normal(center, LIGHT_M))
+    on_marker = pose.to_array(board.marker_corners_m[0].mean(axis=0))
+    hidden = _render(rig3x3, board, center_m=center, normal=highlight_normal(on_marker, LIGHT_M))
+    blank = [np.zeros((480, 640, 3), np.uint8)] * 9
+    good = [views for views, _, _ in captures[:2]]
+    est = estimate_light([good[0], hidden, good[1], blank], rig3x3, board)
+    alone = estimate_light(good, rig3x3, board)
+    np.testing.assert_array_equal(est.position_m, alone.position_m)
+    assert est.capture_indices == (0, 2) and est.n_captures == 2
+    assert len(est.skipped_captures) == 2
+    assert est.skipped_captures[0].startswith("capture 1: expected a usable highlight")
+    assert est.skipped_captures[1].startswith("capture 3: plate markers")
+    summary = est.summary()
+    assert "  capture 0: " in summary and "  capture 2: " in summary
+    assert "  capture 1: " not in summary and "left out: capture 1: " in summary
+    # The figures take the list as given and keep its numbering.
+    files = write_calibration_figures(tmp_path, [good[0], hidden, good[1], blank], est,
+                                      rig3x3, board)
+    assert [f.name for f in files] == ["capture_0.png", "capture_2.png", "light_3d.png"]
+    # None usable: the error lists every capture's reason.
+    with pytest.raises(LightError, match=r"expected at least one capture showing the plate "
+                                         r"and a usable highlight, got none of 2: capture 0: "
+                                         r".*; capture 1: plate markers"):
+        estimate_light([hidden, blank], rig3x3, board)
 
 
 def test_plate_nearly_edge_on(captures, rig3x3, board):
