@@ -168,7 +168,7 @@ def experiment_rigs(board, trials, sets3x3, log):
                 closed.append(np.linalg.norm(est.closed_form_position_m - LIGHT_M))
                 refined.append(np.linalg.norm(ray_solve.position_m - LIGHT_M))
                 images.append(np.linalg.norm(est.position_m - LIGHT_M))
-                read.append(est.photometric.n_used)
+                read.append((est.photometric.n_used, est.n_captures))
                 rays.append(est.n_rays)
                 honest.append(honesty(est, LIGHT_M))
                 honest_rays.append(honesty(ray_solve, LIGHT_M))
@@ -218,7 +218,7 @@ def experiment_plates(board, trials, log):
                 continue
             rays.append(float(np.linalg.norm(ray_solve.position_m - light)))
             images.append(float(np.linalg.norm(est.position_m - light)))
-            read.append(est.photometric.n_used)
+            read.append((est.photometric.n_used, est.n_captures))
         rows.append(dict(roughness=roughness, radius_m=radius, rays_m=rays, images_m=images,
                          captures_read=read, trials=trials))
         log(f"plate {roughness:g}, light {radius * 1e3:g} mm: rays {mean_std(rays, 1e3, 2)} "
@@ -296,7 +296,8 @@ def to_markdown(noise_rows, rig_rows, srde_cases, plate_rows, distance_m, trials
               "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rig_rows:
         rays = f"{np.mean(r['rays']):.1f}" if r["rays"] else "n/a"
-        read = f"{sum(r['captures_read'])}/{r['captures'] * len(r['captures_read'])}"
+        read = (f"{sum(n for n, _ in r['captures_read'])}/"
+                f"{sum(m for _, m in r['captures_read'])}")
         lines.append(f"| {r['rig']} | {r['views']} | {r['captures']} | {rays} | "
                      f"{mean_std(r['closed_m'], 1e3)} | {mean_std(r['refined_m'], 1e3)} | "
                      f"{mean_std(r['images_m'], 1e3, digits=2)} | {read} | "
@@ -332,7 +333,8 @@ def to_markdown(noise_rows, rig_rows, srde_cases, plate_rows, distance_m, trials
     for r in plate_rows:
         lines.append(f"| {r['roughness']:g} | {r['radius_m'] * 1e3:g} mm | {len(r['rays_m'])} | "
                      f"{mean_std(r['rays_m'], 1e3, 2)} | {mean_std(r['images_m'], 1e3, 2)} | "
-                     f"{sum(r['captures_read'])}/{2 * len(r['captures_read'])} |")
+                     f"{sum(n for n, _ in r['captures_read'])}/"
+                     f"{sum(m for _, m in r['captures_read'])} |")
     lines += ["", "## 5. Is the reported uncertainty honest?", "",
               "Every calibration of experiments 1 (exact centres plus noise) and 2 (detected "
               "highlights; the default light from the images, and the ray solve's alone): "
