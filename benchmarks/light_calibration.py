@@ -83,13 +83,19 @@ def sample_plate(rng: np.random.Generator, light_m: np.ndarray, rig: CameraRig) 
     )
 
 
-def render_captures(board, rig, light_m, seed, n, physics="own model"):
-    """n plate captures: list of (views, exact highlight centres (N, 2))."""
+def render_captures(board, rig, light_m, seed, n, physics="own model", noise_seed=None,
+                    **plate):
+    """n plate captures: list of (views, exact highlight centres (N, 2)).
+
+    ``seed``: a seed or a generator to draw the plate poses from; ``plate``: further
+    options of ``plate_scene`` (its roughness, the light's radius).
+    """
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n):
-        scene = plate_scene(board, rig, light_m, **sample_plate(rng, light_m, rig))
-        r = render(scene, rig, supersample=SUPERSAMPLE, physics=PHYSICS[physics])
+        scene = plate_scene(board, rig, light_m, **sample_plate(rng, light_m, rig), **plate)
+        r = render(scene, rig, supersample=SUPERSAMPLE, physics=PHYSICS[physics],
+                   noise_seed=noise_seed)
         out.append((r.views, r.highlight_uv[0]))
     return out
 
@@ -204,12 +210,9 @@ def experiment_plates(board, trials, log):
         for t in range(trials):
             rng = np.random.default_rng([t, 5])
             light = LIGHT_M + rng.uniform(-0.1, 0.1, 3)
-            views = []
-            for _ in range(2):
-                scene = plate_scene(board, rig, light, **sample_plate(rng, light, rig),
-                                    roughness=roughness, light_radius_m=radius)
-                views.append(render(scene, rig, supersample=SUPERSAMPLE,
-                                    physics=PHYSICS["faithful"], noise_seed=t).views)
+            views = [v for v, _ in render_captures(board, rig, light, rng, 2, "faithful",
+                                                   noise_seed=t, roughness=roughness,
+                                                   light_radius_m=radius)]
             try:
                 ray_solve = estimate_light(views, rig, board, photometric=False)
                 est = estimate_light(views, rig, board)

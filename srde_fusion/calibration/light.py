@@ -378,6 +378,17 @@ def _virtual_light(light_m: np.ndarray, rotation: np.ndarray, center_m: np.ndarr
     return light_m - 2.0 * float((light_m - center_m) @ n) * n
 
 
+def ray_distances_m(light_m, origins_m: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Distance of a point to each ray ``origin + t direction`` (unit directions), metres."""
+    return np.linalg.norm(np.cross(light_m - origins_m, directions), axis=1)
+
+
+def highlight_rms_px(light_m, poses, centers, rig) -> float:
+    """RMS distance of the highlight centres from the light's mirror images, pixels."""
+    residuals = _highlight_residuals(light_m, poses, centers, rig)
+    return float(np.sqrt(np.mean(np.sum(residuals**2, axis=1))))
+
+
 def _highlight_residuals(light_m, poses, centers, rig) -> np.ndarray:
     out = []
     for pose, cc in zip(poses, centers, strict=True):
@@ -482,7 +493,7 @@ def _ray_covariance(position_m, origins_m, directions, rig: CameraRig) -> np.nda
     ``A = sum(I - d d^T)`` and ``s`` the RMS distance per constrained direction, never
     below what :data:`HIGHLIGHT_ACCURACY_PX` turns into at the ray's length.
     """
-    dist = np.linalg.norm(np.cross(position_m - origins_m, directions), axis=1)
+    dist = ray_distances_m(position_m, origins_m, directions)
     a = np.einsum("rij->ij", np.eye(3) - directions[:, :, None] * directions[:, None, :])
     var = float(np.sum(dist**2)) / max(2 * origins_m.shape[0] - 3, 1)
     length = float(np.mean(np.linalg.norm(position_m - origins_m, axis=1)))
@@ -581,7 +592,7 @@ def light_from_reflections(
         how += f" + leave-one-capture-out spread over {len(poses)} captures"
     poses = refined_poses
     o, d, cap, view = _rays(poses, centers_all, rig)
-    dist = np.linalg.norm(np.cross(position - o, d), axis=1)
+    dist = ray_distances_m(position, o, d)
     # The light shines onto the plate's printed side, from where the rays point.
     along = np.einsum("ri,ri->r", position - o, d)
     if np.any(along <= 0):
@@ -600,8 +611,7 @@ def light_from_reflections(
             f"{cap[r]}, {rig.camera_names[view[r]]}, {dist[r] * 1000:.1f} mm); check the "
             "highlight centres and the board description"
         )
-    hl = _highlight_residuals(position, poses, centers_all, rig)
-    hl_rms = float(np.sqrt(np.mean(np.sum(hl**2, axis=1))))
+    hl_rms = highlight_rms_px(position, poses, centers_all, rig)
     if view_reasons is None:
         reasons = tuple(
             tuple("" if np.all(np.isfinite(row)) else "no highlight centre given" for row in cc)

@@ -26,7 +26,6 @@ rendered faithfully, the same).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
@@ -35,7 +34,7 @@ import numpy as np
 from ..geometry import CameraRig, Plane
 from ..srde import SRDE
 from .board import Board
-from .light import LightEstimate, _highlight_residuals
+from .light import LightEstimate, highlight_rms_px, ray_distances_m
 from .plate_highlights import plate_highlight_region
 from .plate_pose import PlatePose
 
@@ -148,8 +147,7 @@ def photometric_light(light_m: np.ndarray, captures: Sequence[Sequence[np.ndarra
 
 def _plane_gap(plane: Plane, pose: PlatePose) -> tuple[float, float]:
     """Angle (degrees) between a plane and the plate, and the plate centre's distance to it."""
-    cos = min(1.0, abs(float(plane.n @ pose.normal)))
-    return math.degrees(math.acos(cos)), abs(float(plane.n @ pose.center_m) - plane.offset_m)
+    return plane.angle_to(pose.plane), abs(float(plane.signed_distance(pose.center_m)))
 
 
 def with_photometric(estimate: LightEstimate, fit: PhotometricLight, rig: CameraRig
@@ -165,13 +163,11 @@ def with_photometric(estimate: LightEstimate, fit: PhotometricLight, rig: Camera
         return replace(estimate, photometric=fit)
     position = fit.position_m
     cov = estimate.position_cov_m2 + fit.spread_cov_m2
-    distances = np.linalg.norm(np.cross(position - estimate.ray_origins_m,
-                                        estimate.ray_directions), axis=1)
-    residuals = _highlight_residuals(position, estimate.plate_poses,
-                                     list(estimate.highlight_centers_px), rig)
+    distances = ray_distances_m(position, estimate.ray_origins_m, estimate.ray_directions)
     return replace(
         estimate, position_m=position, residual_m=float(distances.mean()),
-        highlight_residual_px=float(np.sqrt(np.mean(np.sum(residuals ** 2, axis=1)))),
+        highlight_residual_px=highlight_rms_px(position, estimate.plate_poses,
+                                               list(estimate.highlight_centers_px), rig),
         position_std_m=np.sqrt(np.clip(np.diag(cov), 0.0, None)), ray_distances_m=distances,
         position_cov_m2=cov, geometric_position_m=estimate.position_m, photometric=fit,
         uncertainty=estimate.uncertainty + (

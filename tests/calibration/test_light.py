@@ -412,11 +412,16 @@ def test_no_highlight_on_the_plate(rig3x3, board):
         estimate_light([views], rig3x3, board)
 
 
-def test_highlight_hidden_under_a_marker(rig3x3, board):
+def _highlight_on_marker_0(rig, board):
+    """Views of the plate tilted so that the highlight falls on its marker 0."""
     center = np.array([0.03, 0.02, 1.0])
     pose = PlatePose.from_center_normal(center, highlight_normal(center, LIGHT_M))
     on_marker = pose.to_array(board.marker_corners_m[0].mean(axis=0))
-    views = _render(rig3x3, board, center_m=center, normal=highlight_normal(on_marker, LIGHT_M))
+    return _render(rig, board, center_m=center, normal=highlight_normal(on_marker, LIGHT_M))
+
+
+def test_highlight_hidden_under_a_marker(rig3x3, board):
+    views = _highlight_on_marker_0(rig3x3, board)
     with pytest.raises(LightError, match=r"cam4: highlight (partly )?under marker 0"):
         estimate_light([views], rig3x3, board)
     centers, reasons = find_plate_highlights(
@@ -430,10 +435,7 @@ def test_a_capture_that_shows_too_little_is_left_out_of_several(captures, rig3x3
                                                                  tmp_path):
     """A plate pose whose highlight hides under a marker, one without markers: the other
     captures still calibrate, and the two left out say why."""
-    center = np.array([0.03, 0.02, 1.0])
-    pose = PlatePose.from_center_normal(center, highlight_normal(center, LIGHT_M))
-    on_marker = pose.to_array(board.marker_corners_m[0].mean(axis=0))
-    hidden = _render(rig3x3, board, center_m=center, normal=highlight_normal(on_marker, LIGHT_M))
+    hidden = _highlight_on_marker_0(rig3x3, board)
     blank = [np.zeros((480, 640, 3), np.uint8)] * 9
     good = [views for views, _, _ in captures[:2]]
     est = estimate_light([good[0], hidden, good[1], blank], rig3x3, board)
