@@ -32,8 +32,8 @@ should hand back only what is not the object, and every pixel of these masks is.
 
 Run: ``python benchmarks/multi_light.py [--scenes 40] [--repeat 3]``; writes
 ``benchmarks/results/multi_light.md`` and ``.json``. ``--light-samples N [--lights 2]``
-renders each sphere light with N samples instead of the faithful physics' 64 (a
-render of 2 lights takes about 5x longer at 256) and writes
+renders each sphere light with N samples instead of the faithful physics' 64 (each
+render takes several times longer) and writes
 ``multi_light_samples_N.md``: 64 samples are a fixed pattern of points per scene, which
 moves a larger light's highlight off the disc's, the same way in every noise draw.
 """
@@ -122,9 +122,9 @@ def fused_record(result, rig, rendering, mask) -> dict:
             "fused_epe": float(np.mean(np.abs(fused.disparity[mask] - truth)))}
 
 
-def run_scene(rig, seed: int, k: int, repeat: int = 1, physics: Physics | None = None) -> dict:
+def run_scene(rig, seed: int, k: int, physics: Physics, repeat: int = 1) -> dict:
     scene = random_scene(seed, rig, config=RandomSceneConfig(n_lights=k))
-    rendering = render(scene, rig, physics=physics or Physics.faithful(), supersample=2)
+    rendering = render(scene, rig, physics=physics, supersample=2)
     mask = rendering.object_masks[0]
     lights = rig_lights(scene)
     lit = rig.with_lights(lights)
@@ -277,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
         args.scenes = max(sum(r["k"] == k for r in records) for k in LIGHT_COUNTS)
     for k in args.lights if not args.tables_only else ():
         for i in range(args.scenes):
-            record = run_scene(rig, SEED0 + 100 * k + i, k, args.repeat, physics)
+            record = run_scene(rig, SEED0 + 100 * k + i, k, physics, args.repeat)
             records.append(record)
             print(f"k={k} seed {record['seed']}: {record['status']} epe {record['epe']:.4f} "
                   f"wrong {record['wrong']} best single {record['best_single']:.4f} "
