@@ -51,7 +51,8 @@ class Physics:
     fresnel : {"schlick", "exact"}
     light : {"widened", "sampled"}
     light_samples : int
-        Points on the light's disc per shading point when ``light="sampled"``.
+        Points on the light's disc per shading point when ``light="sampled"``, a multiple
+        of 4 (see :func:`~srde_fusion.synthetic.shading.disc_samples`).
     masking : {"separable", "height_correlated"}
     diffuse_transmittance : bool
     full_well_e : float or None
@@ -77,9 +78,9 @@ class Physics:
                                  f"got {getattr(self, name)!r}")
         n = self.light_samples
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not (
-                1 <= n <= MAX_LIGHT_SAMPLES):
-            raise SceneError(f"physics.light_samples: expected an integer in "
-                             f"[1, {MAX_LIGHT_SAMPLES}], got {n!r}")
+                4 <= n <= MAX_LIGHT_SAMPLES) or n % 4:
+            raise SceneError(f"physics.light_samples: expected a multiple of 4 in "
+                             f"[4, {MAX_LIGHT_SAMPLES}], got {n!r}")
         if not isinstance(self.diffuse_transmittance, bool):
             raise SceneError(f"physics.diffuse_transmittance: expected a bool, got "
                              f"{self.diffuse_transmittance!r}")

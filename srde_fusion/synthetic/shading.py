@@ -111,15 +111,30 @@ def smith_g2_height_correlated(
 
 
 def disc_samples(n: int) -> np.ndarray:
-    """``n`` points spread evenly over the unit disc, ``(n, 2)`` float32.
+    """``n`` points spread evenly over the unit disc, ``(n, 2)`` float32; ``n`` a multiple of 4.
 
-    A golden-angle spiral (equal area per point): the stratified pattern the renderer
-    uses to integrate a spherical light over the disc it presents to a surface point.
+    The renderer's pattern for integrating a spherical light over the disc it presents to
+    a surface point. A golden-angle spiral of ``n / 4`` points (equal area per point),
+    turned by 0, 90, 180 and 270 degrees: the points' mean is the disc's centre and
+    their second moment the disc's, ``I / 4``, exactly. A spiral alone is off in both by
+    up to about 1 % of the radius at 64 points, the same in every pixel of a scene: to a
+    lobe, a lamp moved by that much (on two-light scenes, planes 0.002-0.005 px off that
+    more samples or this pattern put back).
+
+    Raises
+    ------
+    ValueError
+        ``n`` not a positive multiple of 4.
     """
-    i = np.arange(n) + 0.5
-    radius = np.sqrt(i / n)
+    if n < 4 or n % 4:
+        raise ValueError(f"disc_samples: expected a positive multiple of 4, got {n}")
+    m = n // 4
+    i = np.arange(m) + 0.5
+    radius = np.sqrt(i / m)
     angle = i * math.pi * (3.0 - math.sqrt(5.0))
-    return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1).astype(np.float32)
+    u, v = radius * np.cos(angle), radius * np.sin(angle)
+    quarter_turns = [(u, v), (-v, u), (-u, -v), (v, -u)]
+    return np.concatenate([np.stack(p, axis=1) for p in quarter_turns]).astype(np.float32)
 
 
 def blinn_phong_exponent(alpha: np.ndarray | float) -> np.ndarray:

@@ -78,13 +78,29 @@ def test_disc_samples_cover_the_unit_disc_evenly():
     pts = disc_samples(256).astype(np.float64)
     r = np.hypot(pts[:, 0], pts[:, 1])
     assert r.max() < 1.0
-    np.testing.assert_allclose(pts.mean(axis=0), 0.0, atol=0.01)
     # Equal area per point: a quarter of them inside radius 1/2.
     assert np.mean(r < 0.5) == pytest.approx(0.25, abs=0.01)
 
 
+@pytest.mark.parametrize("n", [4, 16, 64, 256, 1024])
+def test_disc_samples_have_the_discs_centre_and_spread_at_every_count(n):
+    # A lamp whose samples' mean sits off its centre renders as a lamp moved there.
+    pts = disc_samples(n).astype(np.float64)
+    assert pts.shape == (n, 2)
+    np.testing.assert_allclose(pts.mean(axis=0), 0.0, atol=1e-7)
+    np.testing.assert_allclose(pts.T @ pts / n, np.eye(2) / 4, atol=1e-6)
+    assert len(np.unique(pts.round(6), axis=0)) == n  # no point used twice
+
+
+@pytest.mark.parametrize("n", [0, 2, 6, 63])
+def test_disc_samples_reject_counts_that_are_not_multiples_of_4(n):
+    with pytest.raises(ValueError, match="multiple of 4"):
+        disc_samples(n)
+
+
 @pytest.mark.parametrize("bad", [{"fresnel": "cook"}, {"light": "area"}, {"masking": "v"},
                                  {"light_samples": 0}, {"light_samples": 2.5},
+                                 {"light_samples": 6},
                                  {"diffuse_transmittance": 1}, {"full_well_e": -1.0},
                                  {"read_noise_e": 3.0}, {"read_noise_e": -1, "full_well_e": 1e4}])
 def test_physics_rejects_bad_settings_naming_them(bad):
