@@ -32,10 +32,10 @@ should hand back only what is not the object, and every pixel of these masks is.
 
 Run: ``python benchmarks/multi_light.py [--scenes 40] [--repeat 3]``; writes
 ``benchmarks/results/multi_light.md`` and ``.json``. ``--light-samples N [--lights 2]``
-renders each sphere light with N samples instead of the faithful physics' 64 (each
-render takes several times longer) and writes
-``multi_light_samples_N.md``: 64 samples are a fixed pattern of points per scene, which
-moves a larger light's highlight off the disc's, the same way in every noise draw.
+renders each sphere light with N samples (a multiple of 4) instead of the faithful
+physics' 64 (each render takes several times longer) and writes
+``multi_light_samples_N.md``: whether the lamps' sampling, the same pattern in every
+pixel and noise draw, decides a comparison.
 """
 
 from __future__ import annotations
