@@ -1940,18 +1940,21 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
 
 
 def _settled_at_start(fit) -> bool:
-    """Whether a refused lobe fit was refused only for not improving on its start.
+    """Whether a refused lobe fit kept a start that could be the answer.
 
     A start on the right plane with clean highlights leaves the fit nothing to improve:
     it ends at or above the start's own best cost and is refused as "does not improve"
-    (its plane, the start's, is kept). That plane is still a contender for the lobes'
-    judge, which scores every contender's plane on every fit's samples, whatever its fit
-    did; dropped, it let another light's plane win unopposed (a face taken alone, 10.9 px
-    off, whose own plane's fit ended 0.05 % above its start; another, 8.6 px off, whose
-    own plane cost 240 times less than that light's, its fit ending 0.5 % above its start).
+    (its plane, the start's, is kept). That plane still contends in the lobes' judge if
+    its lobe explains the images as a refined plane's must (the residual check,
+    ``PlaneRefinement.explains_images``), however far above its start the fit ended;
+    dropped, it let another light's plane win unopposed (faces taken alone, 10.9 and 8.6
+    px off, whose own planes' fits ended 0.05 % and 0.5 % above their starts, the latter's
+    plane 240 times cheaper than the winner's). A start its lobe does not explain cannot
+    be an answer and does not hold the judge open (two faces alone were left ambiguous
+    by another light's start, 5 and 16 px off, whose lobe the residual check refuses).
     """
     return (not fit.ok and math.isfinite(fit.cost_final) and math.isfinite(fit.cost_initial)
-            and fit.cost_initial <= fit.cost_final)
+            and fit.cost_initial <= fit.cost_final and fit.explains_images)
 
 
 def _decisive_fit(srde: SRDE, views, mask: np.ndarray, fits: list

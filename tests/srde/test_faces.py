@@ -717,13 +717,13 @@ def test_a_several_light_plane_the_images_do_not_pin_down_is_refused(rig, seed, 
                                                                      convex, face, monkeypatch):
     if seed == 32019:
         # Its best plane has another light's plane through the same centres: the lobes of
-        # both decide first. They do not settle it (the face's own plane 21x cheaper on
-        # its fit's samples, 1.2x on the other's; with the renderer's lamp samples a
-        # spiral alone they settled on the face's plane): left open, never the other's.
+        # both decide first, and settle on the face's plane (the other light's start,
+        # its fit refused for not improving, does not contend: its lobe leaves an RMS
+        # residual of 0.071, more than the residual check allows).
         result, rendering = _alone(rig, seed, n_faces, convex, face)
-        assert result.status == "ambiguous", (result.status, result.reason)
-        assert "explain the blob centres alike" in result.reason
-        assert "neither explaining the images" in result.reason
+        assert result.ok, (result.status, result.reason)
+        assert any("explain the blob centres alike" in note for note in result.notes)
+        assert _face_epes(result.disparity, rendering, n_faces)[face] <= FACE_EPE_PX
         # Without that plane, the refined plane is the answer, and it is not pinned down.
         _without_same_centres(monkeypatch)
     result, rendering = _alone(rig, seed, n_faces, convex, face)

@@ -11,12 +11,14 @@ from srde_fusion.srde import SRDE, SRDE_STATUSES
 from srde_fusion.srde.config import DetectorConfig
 from srde_fusion.srde.lights import (
     AssignmentContext,
+    _settled_at_start,
     assign_lights,
     candidate_band,
     check_lights,
     find_candidates,
     fit_mirror_plane,
 )
+from srde_fusion.srde.refine import PlaneRefinement
 from srde_fusion.synthetic import RandomSceneConfig, default_rig, random_scene, render
 from srde_fusion.synthetic.scene import rig_lights
 
@@ -713,3 +715,21 @@ def test_lobe_fits_are_judged_pair_by_pair_where_both_planes_have_a_cost():
     judged = three.copy()
     judged[0, 2] = 1e-5
     assert _winner(judged) == 2
+
+
+@pytest.mark.parametrize(("cost_initial", "cost_final", "residual", "contrast", "contends"), [
+    (1.0e-5, 1.0e-5, 0.003, 0.9, True),     # ended on its start, its lobe explains the images
+    (1.0e-5, 1.05e-5, 0.003, 0.9, True),    # ended 5 % above: the start still contends
+    (5.0e-3, 5.0e-3, 0.071, 0.9, False),    # a start its lobe does not explain (RMS 8 %)
+    (1.0e-5, 0.9e-5, 0.003, 0.9, False),    # it improved: refused for another reason
+    (1.0e-5, float("nan"), 0.003, 0.9, False),
+])
+def test_a_fit_refused_for_not_improving_keeps_its_start_in_the_judge_if_it_fits(
+        cost_initial, cost_final, residual, contrast, contends):
+    plane = Plane((0.0, 0.0, -1.0), -1.0)
+    fit = PlaneRefinement(plane, plane, "kept_initial", "fit: cost does not improve",
+                          converged=True, iterations=3, cost_initial=cost_initial,
+                          cost_final=cost_final, residual=residual, params=None, n_samples=400,
+                          lobe="gtr", time_s=0.01, contrast=contrast)
+    assert fit.explains_images == (residual <= 0.05 * contrast)
+    assert _settled_at_start(fit) is contends

@@ -129,6 +129,9 @@ class PlaneRefinement:
         Standard error of the refined plane's disparity (the rig's stereo disparity, px):
         the largest over the corners of the object's box, from the fit's own residuals
         (:func:`disparity_sigma_px`); NaN unless refined.
+    contrast : float
+        The fitted samples' highlight contrast (brightest sample over the background,
+        linear luminance), the scale of the residual check; NaN if no samples were cut.
     """
 
     plane: Plane
@@ -145,11 +148,22 @@ class PlaneRefinement:
     lobe: str
     time_s: float
     disparity_sigma_px: float = math.nan
+    contrast: float = math.nan
 
     @property
     def ok(self) -> bool:
         """True when the refined plane replaced the initial one."""
         return self.status == "refined"
+
+    @property
+    def explains_images(self) -> bool:
+        """Whether the returned plane's fit passes the residual check.
+
+        Its RMS residual is at most :data:`MAX_RELATIVE_RESIDUAL` of the samples'
+        contrast, as a refined plane's must be; False when either is unknown. A plane kept
+        because its fit did not improve on it may still explain the images so.
+        """
+        return bool(self.residual <= MAX_RELATIVE_RESIDUAL * self.contrast)
 
     def __bool__(self) -> bool:
         return self.ok
@@ -342,7 +356,8 @@ def refine_plane(
     fit, model = attempt.fit, attempt.model
     common = dict(converged=fit.converged, iterations=fit.iterations,
                   cost_initial=attempt.cost_initial, cost_final=fit.cost,
-                  n_samples=attempt.samples.n_samples)
+                  n_samples=attempt.samples.n_samples,
+                  contrast=samples_contrast(attempt.samples))
     if attempt.problem:
         return kept(attempt.problem, residual=math.sqrt(attempt.cost_initial),
                     params=attempt.params_initial, **common)
@@ -564,6 +579,11 @@ def _profile_at_start(model: LobeModel, photometry_from: np.ndarray, max_iterati
     return fit.theta, fit.cost
 
 
+def samples_contrast(samples: HighlightSamples) -> float:
+    """Brightest sample over the background near the highlight, linear luminance."""
+    return float(samples.luminance.max() - low_quantile_of(samples.luminance))
+
+
 def _judge(fit: Minimum, cost_initial: float, model: LobeModel, samples: HighlightSamples,
            rig: CameraRig, light: np.ndarray, initial_plane: Plane) -> str:
     """Why a fit's plane must not replace the initial plane ("" if it may)."""
@@ -578,7 +598,7 @@ def _judge(fit: Minimum, cost_initial: float, model: LobeModel, samples: Highlig
     if at_bound:
         return (f"fit: {at_bound} at the bound of its range; the lobe model does not "
                 "describe this highlight")
-    contrast = float(samples.luminance.max() - low_quantile_of(samples.luminance))
+    contrast = samples_contrast(samples)
     if math.sqrt(cost) > MAX_RELATIVE_RESIDUAL * contrast:
         return (f"fit: RMS residual {math.sqrt(cost):.4g} is more than "
                 f"{MAX_RELATIVE_RESIDUAL:.0%} of the highlight's contrast {contrast:.4g}; "
