@@ -117,9 +117,9 @@ def disc_samples(n: int) -> np.ndarray:
     a surface point. A golden-angle spiral of ``n / 4`` points (equal area per point),
     turned by 0, 90, 180 and 270 degrees: the points' mean is the disc's centre and
     their second moment the disc's, ``I / 4``, exactly. A spiral alone is off in both by
-    up to about 1 % of the radius at 64 points, the same in every pixel of a scene: to a
-    lobe, a lamp moved by that much (on two-light scenes, planes 0.002-0.005 px off that
-    more samples or this pattern put back).
+    about 1 % at 64 points (its mean 0.9 % of the radius from the centre), the same in
+    every pixel of a scene: a lamp moved by that much, which moved two-light planes by
+    0.002-0.005 px.
 
     Raises
     ------

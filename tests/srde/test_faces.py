@@ -105,8 +105,8 @@ TURNED_FACES = [(31008, 2, True, 1), (31013, 2, True, 1)]
 # scored in full, and another light's plane through the same centres was kept although
 # its lobe fit failed, 13.0 and 29.1 px off. (seed, faces, convex, face, answer): 61017's
 # lobe fit finds the face's plane 0.08 px off, whose highlights all lie at the outline,
-# and the object is refused as "inconsistent" (it was solved so when the renderer's lamp
-# samples were a spiral alone).
+# and the object is refused as "inconsistent" (with the renderer's lamp samples a spiral
+# alone it was solved, 0.08 px off).
 SAME_CENTRES_FACES = [(61017, 2, True, 1, "inconsistent"), (62011, 2, False, 1, "ok")]
 # Faces alone (seeds first run after the rules above, 71000+) whose centres' best plane
 # gives the face's highlights to the other light, confirmed by that light's lobe fit, 4.9
@@ -121,8 +121,9 @@ UNCONFIRMED_OTHER_LIGHT_FACE = (82011, 2, False, 0)
 # px off the two faces, one light's highlights explained.
 UNCONFIRMED_ONE_PLANE_SEED = 81009
 # Faces alone (seeds 91000+) whose own light's plane, from clean centres, leaves its lobe
-# fit nothing to improve (refused as "does not improve", 0.05-0.5 % above its start's
-# cost): the other light's confirmed plane, 10.9 (8.6) and 1.9 px off, then won unopposed.
+# fit nothing to improve (refused as "does not improve", 0.05 % above its start's cost):
+# the other light's confirmed plane, 10.9 and 1.9 px off, then won unopposed (the first
+# again, 8.6 px off, on later renders where its own fit ended 0.5 % above its start).
 SETTLED_START_FACES = [(92016, 2, False, 1), (93002, 3, True, 1)]
 # A face of three, alone, whose highlights are its own light's (the third of three), once
 # solved 2.4 px off from the fit started from the other two lights' planes only.

@@ -357,7 +357,7 @@ def refine_plane(
     common = dict(converged=fit.converged, iterations=fit.iterations,
                   cost_initial=attempt.cost_initial, cost_final=fit.cost,
                   n_samples=attempt.samples.n_samples,
-                  contrast=samples_contrast(attempt.samples))
+                  contrast=_samples_contrast(attempt.samples))
     if attempt.problem:
         return kept(attempt.problem, residual=math.sqrt(attempt.cost_initial),
                     params=attempt.params_initial, **common)
@@ -579,7 +579,7 @@ def _profile_at_start(model: LobeModel, photometry_from: np.ndarray, max_iterati
     return fit.theta, fit.cost
 
 
-def samples_contrast(samples: HighlightSamples) -> float:
+def _samples_contrast(samples: HighlightSamples) -> float:
     """Brightest sample over the background near the highlight, linear luminance."""
     return float(samples.luminance.max() - low_quantile_of(samples.luminance))
 
@@ -598,7 +598,7 @@ def _judge(fit: Minimum, cost_initial: float, model: LobeModel, samples: Highlig
     if at_bound:
         return (f"fit: {at_bound} at the bound of its range; the lobe model does not "
                 "describe this highlight")
-    contrast = samples_contrast(samples)
+    contrast = _samples_contrast(samples)
     if math.sqrt(cost) > MAX_RELATIVE_RESIDUAL * contrast:
         return (f"fit: RMS residual {math.sqrt(cost):.4g} is more than "
                 f"{MAX_RELATIVE_RESIDUAL:.0%} of the highlight's contrast {contrast:.4g}; "
