@@ -214,12 +214,11 @@ def experiment_plates(board, trials, log):
                                                    noise_seed=t, roughness=roughness,
                                                    light_radius_m=radius)]
             try:
-                ray_solve = estimate_light(views, rig, board, photometric=False)
                 est = estimate_light(views, rig, board)
             except SRDEError as exc:
                 log(f"plate {roughness:g} / {radius * 1e3:g} mm, trial {t}: {exc}")
                 continue
-            rays.append(float(np.linalg.norm(ray_solve.position_m - light)))
+            rays.append(float(np.linalg.norm(est.ray_solve_position_m - light)))
             images.append(float(np.linalg.norm(est.position_m - light)))
             read.append((est.photometric.n_used, est.n_captures))
         rows.append(dict(roughness=roughness, radius_m=radius, rays_m=rays, images_m=images,
@@ -246,15 +245,14 @@ def experiment_srde(board, n_scenes, physics, rig_name, log):
         caps = render_captures(board, rig, light, 2000 + seed, 5, physics)
         lights = {"true light": light}
         for m in (1, 5):
-            views = [v for v, _ in caps[:m]]
-            for how, photometric in (("ray solve", False), ("images", True)):
-                key = f"{how}, {m} pose" + ("s" if m > 1 else "")
-                try:
-                    lights[key] = estimate_light(views, rig, board,
-                                                 photometric=photometric).position_m
-                except SRDEError as exc:
-                    log(f"scene {seed}: calibration ({key}) failed: {exc}")
-                    lights[key] = None
+            poses = f"{m} pose" + ("s" if m > 1 else "")
+            try:
+                est = estimate_light([v for v, _ in caps[:m]], rig, board)
+                solved = est.ray_solve_position_m, est.position_m
+            except SRDEError as exc:
+                log(f"scene {seed}: calibration ({poses}) failed: {exc}")
+                solved = None, None
+            lights[f"ray solve, {poses}"], lights[f"images, {poses}"] = solved
         direction = np.random.default_rng(seed).normal(size=3)
         lights["5 cm off (paper's manual accuracy)"] = (
             light + PAPER_LIGHT_ERROR_M * direction / np.linalg.norm(direction))

@@ -293,6 +293,11 @@ class LightEstimate:
         """Number of plate poses combined."""
         return len(self.plate_poses)
 
+    @property
+    def ray_solve_position_m(self) -> np.ndarray:
+        """The ray solve's light, ``(3,)`` metres: before the images moved it, if they did."""
+        return self.position_m if self.geometric_position_m is None else self.geometric_position_m
+
     def capture_index(self, c: int) -> int:
         """Index in the list the calibration was given of the estimate's capture ``c``."""
         return c if self.capture_indices is None else self.capture_indices[c]

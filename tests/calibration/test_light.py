@@ -299,6 +299,8 @@ def test_the_highlights_images_move_the_light_nearer_the_truth(rig3x3, board):
         assert rays.photometric is None and rays.geometric_position_m is None
         # the ray solve is the same, then moved
         np.testing.assert_allclose(images.geometric_position_m, rays.position_m)
+        assert images.ray_solve_position_m is images.geometric_position_m
+        assert rays.ray_solve_position_m is rays.position_m
         assert images.photometric.n_used == 2 and images.photometric.reasons == ("", "")
         np.testing.assert_allclose(images.position_m,
                                    np.mean(images.photometric.capture_positions_m, axis=0))
@@ -332,9 +334,9 @@ def test_srde_with_the_images_light_is_as_accurate_as_with_the_true_light(rig3x3
         views = _random_captures(rig3x3, board, np.random.default_rng(2000 + seed), light, 2,
                                  physics=Physics.faithful(), noise_seed=seed)
         mask = rendering.instance_mask == 1
-        rays = estimate_light(views, rig3x3, board, photometric=False).position_m
-        images = estimate_light(views, rig3x3, board).position_m
-        for name, light_m in (("true", light), ("rays", rays), ("images", images)):
+        est = estimate_light(views, rig3x3, board)
+        lights = (("true", light), ("rays", est.ray_solve_position_m), ("images", est.position_m))
+        for name, light_m in lights:
             result = SRDE(rig3x3.with_light(light_m)).estimate(rendering.views, mask)
             assert result.ok
             epe[name].append(evaluate(result.disparity, rendering.disparity_px, mask)["epe"])
@@ -357,6 +359,7 @@ def test_a_capture_the_lobe_fit_cannot_read_keeps_the_rays_light(captures, poses
     kept = with_photometric(rays, fit, rig3x3)
     np.testing.assert_array_equal(kept.position_m, rays.position_m)
     assert kept.geometric_position_m is None and kept.photometric is fit
+    assert kept.ray_solve_position_m is kept.position_m
     summary = kept.summary()
     assert "from the ray solve only" in summary and "images not used: SRDE could" in summary
     # A pose 3 cm off its plate (say, from another board's markers): the lobe fit's plane
