@@ -27,12 +27,13 @@ from .config import DetectorConfig
 from .highlight import HighlightDetection, detect_in_view
 from .search import Candidates
 
-__all__ = ["DetectionRequest", "HighlightBackend", "HostFrame", "NumpyBackend", "block_means",
-           "gaussian_ksize", "smooth_at"]
+__all__ = ["DetectionRequest", "HighlightBackend", "HostFrame", "NumpyBackend", "gaussian_ksize",
+           "sample_grid", "smooth_at", "smooth_samples_at"]
 
 
-#: From this smoothing scale on, the brightness search smooths a reduced image: the
-#: kernel is then wide enough that block means lose nothing it would keep.
+#: From this smoothing scale on, the brightness search reads a grid of the pixels
+#: (:func:`sample_grid`): the kernel is then wide enough that the grid loses nothing it
+#: would keep.
 REDUCED_SMOOTHING_SIGMA_PX = 6.0
 
 
@@ -42,16 +43,11 @@ def gaussian_ksize(sigma: float) -> int:
 
 
 def smooth_at(lum: np.ndarray, points_uv: np.ndarray, sigma_px: float) -> np.ndarray:
-    """Gaussian smoothing of an image at the blob's scale, read at some of its pixels.
+    """OpenCV's Gaussian blur of an image (reflected borders), read at some of its pixels.
 
-    Below :data:`REDUCED_SMOOTHING_SIGMA_PX` this is OpenCV's ``GaussianBlur`` (reflected
-    borders) read at the points. Above it the blur's cost would grow with the kernel
-    (``8 sigma + 1`` taps per pixel: a large clipped highlight costs tens of
-    milliseconds per view), so the image is first reduced by a power of two ``f`` to
-    block means, blurred there with what remains of the Gaussian (a block mean has
-    variance ``(f^2 - 1) / 12``), and read bilinearly at the points: a cost of about one
-    read of the image, whatever the blob's size. The two agree to a small part of the
-    smoothed values' spread, and the search only ranks candidates by them.
+    The brightness search's smoothing below :data:`REDUCED_SMOOTHING_SIGMA_PX`; above
+    it the search reads a grid of the pixels instead (:func:`sample_grid`,
+    :func:`smooth_samples_at`).
 
     Parameters
     ----------
@@ -65,76 +61,70 @@ def smooth_at(lum: np.ndarray, points_uv: np.ndarray, sigma_px: float) -> np.nda
     -------
     numpy.ndarray, (n,) float32
     """
-    u, v = points_uv[:, 0], points_uv[:, 1]
-    if sigma_px < REDUCED_SMOOTHING_SIGMA_PX:
-        smooth = cv2.GaussianBlur(lum, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
-        return smooth[v, u]
-    factor = 2 ** int(math.floor(math.log2(sigma_px / 3.0)))
-    h, w = lum.shape
-    rows, cols = -(-h // factor), -(-w // factor)
-    padded = cv2.copyMakeBorder(lum, 0, rows * factor - h, 0, cols * factor - w,
-                                cv2.BORDER_REFLECT)
-    small = block_means(padded, factor)
-    residual = math.sqrt(sigma_px ** 2 - (factor ** 2 - 1) / 12.0) / factor
-    small = cv2.GaussianBlur(small, (0, 0), residual, borderType=cv2.BORDER_REFLECT)
-    # Pixel centre u of the image sits at (u + 0.5) / f - 0.5 on the reduced one.
-    map_u = ((u + 0.5) / factor - 0.5).astype(np.float32)[None, :]
-    map_v = ((v + 0.5) / factor - 0.5).astype(np.float32)[None, :]
-    return cv2.remap(small, map_u, map_v, cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REFLECT)[0]
+    smooth = cv2.GaussianBlur(lum, (0, 0), sigma_px, borderType=cv2.BORDER_REFLECT)
+    return smooth[points_uv[:, 1], points_uv[:, 0]]
 
 
-# numpy sums up to this many contiguous float32 values with 8 running partial sums; longer
-# runs are split in halves first (its pairwise summation), which block_means does not mimic.
-_PAIRWISE_BLOCK = 128
+def sample_grid(box: tuple[int, int, int, int], sigma_px: float
+                ) -> tuple[slice, slice, int] | None:
+    """Return the pixels of a box the brightness search reads to smooth at ``sigma_px``.
 
-
-def block_means(image: np.ndarray, factor: int) -> np.ndarray:
-    """Means of the ``factor x factor`` blocks of an image, ``(h / f, w / f)`` float32.
-
-    The same sums in the same order as
-    ``image.reshape(h // f, f, w // f, f).mean(axis=(1, 3), dtype=np.float32)``: each
-    block row's ``f`` values summed as numpy sums a contiguous run (one after the other
-    below 8, else in 8 running partial sums added as a tree), then the ``f`` row sums
-    one after the other, then divided by ``f * f``. numpy's own reduction over two
-    non-adjacent axes runs a loop per ``f`` values; here each step is one operation on
-    a strided view of the whole image.
+    From :data:`REDUCED_SMOOTHING_SIGMA_PX` on, the search ranks its candidates by the
+    luminance smoothed at the reference blob's scale, and a Gaussian that wide is
+    integrated as well by one pixel in every ``step x step`` block: ``step`` is the
+    power of two at most ``sigma_px / 3``, so at least three samples per sigma. The box
+    (candidates plus three sigmas around them) is then read at ``1 / step^2`` of its
+    pixels: a large clipped highlight costs about what a small one does, instead of a
+    colour conversion and ``8 sigma + 1`` taps per pixel of a crop that grows with it.
 
     Parameters
     ----------
-    image : numpy.ndarray, (h, w) float32
-        ``h`` and ``w`` multiples of ``factor``.
-    factor : int
-        Block side, pixels (a power of two).
+    box : (int, int, int, int)
+        ``(u0, v0, u1, v1)``, inclusive-exclusive, pixels.
+    sigma_px : float
 
     Returns
     -------
-    numpy.ndarray, (h // factor, w // factor) float32
+    (rows, cols, step) or None
+        Slices of the image (every ``step``-th row and column from ``step // 2`` into
+        the box), and the step; None below the reduced scale or when the grid would
+        have fewer than two rows or columns (the search then smooths every pixel).
     """
-    h, w = image.shape
-    rows, cols = h // factor, w // factor
-    if (factor < 2 or factor > _PAIRWISE_BLOCK or factor & (factor - 1)
-            or rows < 2 or cols < 2):  # numpy orders these sums differently: let it
-        return image.reshape(rows, factor, cols, factor).mean(axis=(1, 3), dtype=np.float32)
-    runs = image.reshape(h, cols, factor)
-    if factor < 8:
-        row_sums = runs[..., 0] + runs[..., 1]
-        for i in range(2, factor):
-            row_sums += runs[..., i]
-    else:
-        eights = runs.reshape(h, cols, factor // 8, 8)
-        partial = eights[:, :, 0]                                         # (h, cols, 8)
-        if factor > 8:
-            partial = partial + eights[:, :, 1]
-            for i in range(2, factor // 8):
-                partial += eights[:, :, i]
-        pairs = partial[..., 0::2] + partial[..., 1::2]
-        quads = pairs[..., 0::2] + pairs[..., 1::2]
-        row_sums = quads[..., 0] + quads[..., 1]
-    # A reduction over a middle axis adds the rows one after the other, as numpy's does.
-    total = row_sums.reshape(rows, factor, cols).sum(axis=1, dtype=np.float32)
-    total /= np.float32(factor * factor)
-    return total
+    if sigma_px < REDUCED_SMOOTHING_SIGMA_PX:
+        return None
+    step = 2 ** int(math.floor(math.log2(sigma_px / 3.0)))
+    u0, v0, u1, v1 = box
+    offset = step // 2
+    if min(u1 - u0, v1 - v0) < offset + step + 1:
+        return None
+    return slice(v0 + offset, v1, step), slice(u0 + offset, u1, step), step
+
+
+def smooth_samples_at(samples: np.ndarray, first_uv: tuple[int, int], step: int,
+                      points_uv: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Gaussian smoothing of a grid of pixel samples, read at some pixels of the image.
+
+    Parameters
+    ----------
+    samples : numpy.ndarray, (rows, cols) float32
+        Luminance at pixels ``first_uv + step * (col, row)``.
+    first_uv : (int, int)
+        The first sample's pixel.
+    step : int
+        The grid's spacing, pixels.
+    points_uv : numpy.ndarray, (n, 2) int
+        Image pixels ``(u, v)``, read bilinearly between the samples.
+    sigma_px : float
+        Standard deviation of the Gaussian, image pixels.
+
+    Returns
+    -------
+    numpy.ndarray, (n,) float32
+    """
+    smooth = cv2.GaussianBlur(samples, (0, 0), sigma_px / step, borderType=cv2.BORDER_REFLECT)
+    map_u = ((points_uv[:, 0] - first_uv[0]) / step).astype(np.float32)[None, :]
+    map_v = ((points_uv[:, 1] - first_uv[1]) / step).astype(np.float32)[None, :]
+    return cv2.remap(smooth, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)[0]
 
 
 @dataclass(frozen=True)
@@ -185,8 +175,9 @@ class HostFrame(Views):
 
     ``luminance_crops`` maps a view to ``((u0, v0, u1, v1), lum)``: its linear luminance
     over that box (:func:`~srde_fusion.imaging.luminance`, float32), which the
-    brightness search computes and the detection in the same view then reads instead
-    of converting the pixels again. A frame lives for one estimate.
+    brightness search computes when it smooths every pixel of its crop (not when it
+    reads a grid of them, :func:`sample_grid`) and the detection in the same view then
+    reads instead of converting the pixels again. A frame lives for one estimate.
     """
 
     def __init__(self, views) -> None:
@@ -231,17 +222,27 @@ class NumpyBackend:
     def brightest(self, frame: Views, searches: Sequence[tuple[int, Candidates]]) -> list[int]:
         """Brightest candidate of each view: luminance smoothed at the blob's scale.
 
-        The smoothing is evaluated at the candidates only (:func:`smooth_at`).
+        The smoothing is evaluated at the candidates only: on every pixel of their crop
+        (:func:`smooth_at`, the luminance kept for the frame's detection), or, for a large
+        blob, on a grid of its pixels (:func:`sample_grid`).
         """
         best = []
         known = getattr(frame, "luminance_crops", None)
+        encoding = self.config.encoding
         for j, cand in searches:
             (u0, v0), (u1, v1) = cand.lo, cand.hi
-            lum = luminance(frame[j][v0:v1, u0:u1], self.config.encoding)
-            if known is not None:
-                known[j] = ((u0, v0, u1, v1), lum)
+            points = cand.pix[cand.ok]
+            grid = sample_grid((u0, v0, u1, v1), cand.sigma_px)
             brightness = np.full(cand.w_v.size, -np.inf)
-            brightness[cand.ok] = smooth_at(lum, cand.pix[cand.ok] - np.array([u0, v0]),
-                                            cand.sigma_px)
+            if grid is None:
+                lum = luminance(frame[j][v0:v1, u0:u1], encoding)
+                if known is not None:
+                    known[j] = ((u0, v0, u1, v1), lum)
+                brightness[cand.ok] = smooth_at(lum, points - np.array([u0, v0]), cand.sigma_px)
+            else:
+                rows, cols, step = grid
+                samples = luminance(np.ascontiguousarray(frame[j][rows, cols]), encoding)
+                brightness[cand.ok] = smooth_samples_at(samples, (cols.start, rows.start), step,
+                                                        points, cand.sigma_px)
             best.append(int(np.argmax(brightness)))
         return best

@@ -35,8 +35,7 @@ from .._checks import check_views
 from ..errors import ImageError, SRDEError
 from ..geometry import CameraRig
 from ..imaging import REC709_LUMA, SATURATION_LEVEL_U8, SRGB_TO_LINEAR_U8
-from .backends import REDUCED_SMOOTHING_SIGMA_PX, DetectionRequest
-from .backends import smooth_at as smooth_on_host
+from .backends import DetectionRequest, sample_grid, smooth_samples_at
 from .config import (
     BLOB_LEVEL,
     MIN_CORE_PX,
@@ -246,34 +245,42 @@ class TorchBackend:
         candidates : list of (int, _Candidates)
             One entry per view; all share the reference blob, hence the smoothing.
         """
-        views = [j for j, _ in candidates]
-        boxes = [(*c.lo, *c.hi) for _, c in candidates]
-        crops = self.crops(frame.tensors, views, boxes)
         sigma = candidates[0][1].sigma_px
-        if sigma >= REDUCED_SMOOTHING_SIGMA_PX:
-            # A blob this large is smoothed on a reduced image, a cost of one read of the
-            # crop: on the host, with the numpy backend's own function (same ranking).
-            lum = self.luminance(crops.pixels).cpu().numpy()
-            best = []
-            for crop, (h, w), (_, c) in zip(lum, crops.sizes, candidates, strict=True):
-                brightness = np.full(c.w_v.size, -np.inf)
-                brightness[c.ok] = smooth_on_host(np.ascontiguousarray(crop[:h, :w]),
-                                                  c.pix[c.ok] - np.asarray(c.lo), sigma)
-                best.append(int(np.argmax(brightness)))
-            return best
-        kernel = gaussian_kernel(sigma, self.device)
-        extended = extend_borders(self.luminance(crops.pixels), crops.sizes, kernel.shape[1] // 2,
-                           "symmetric")
-        best = []
-        for ext, (_, c) in zip(extended, candidates, strict=True):
-            brightness = torch.full((c.w_v.size,), -math.inf, dtype=torch.float64,
-                                    device=self.device)
-            local = c.pix[c.ok] - np.asarray(c.lo)
-            values = smooth_at(ext, local, kernel[0])
-            brightness[torch.from_numpy(np.flatnonzero(c.ok)).to(self.device)] = values.double()
-            best.append(brightness)
-        # argmax returns the first of equal maxima, as numpy's does.
-        return [int(i) for i in torch.stack([b.argmax() for b in best]).tolist()]
+        best: dict[int, int] = {}
+        full = []  # the views whose crop is smoothed at every pixel, on the device
+        for i, (j, c) in enumerate(candidates):
+            grid = sample_grid((*c.lo, *c.hi), sigma)
+            if grid is None:
+                full.append(i)
+                continue
+            # A large blob is smoothed from a grid of the crop's pixels: the grid is read
+            # on the device and smoothed on the host with the numpy backend's function.
+            rows, cols, step = grid
+            samples = self.luminance(frame.tensors[j][rows, cols][None])[0].cpu().numpy()
+            brightness = np.full(c.w_v.size, -np.inf)
+            brightness[c.ok] = smooth_samples_at(np.ascontiguousarray(samples),
+                                                 (cols.start, rows.start), step, c.pix[c.ok],
+                                                 sigma)
+            best[i] = int(np.argmax(brightness))
+        if full:
+            searches = [candidates[i] for i in full]
+            crops = self.crops(frame.tensors, [j for j, _ in searches],
+                               [(*c.lo, *c.hi) for _, c in searches])
+            kernel = gaussian_kernel(sigma, self.device)
+            extended = extend_borders(self.luminance(crops.pixels), crops.sizes,
+                                      kernel.shape[1] // 2, "symmetric")
+            values = []
+            for ext, (_, c) in zip(extended, searches, strict=True):
+                brightness = torch.full((c.w_v.size,), -math.inf, dtype=torch.float64,
+                                        device=self.device)
+                local = c.pix[c.ok] - np.asarray(c.lo)
+                smooth = smooth_at(ext, local, kernel[0])
+                brightness[torch.from_numpy(np.flatnonzero(c.ok)).to(self.device)] = smooth.double()
+                values.append(brightness)
+            # argmax returns the first of equal maxima, as numpy's does.
+            argmax = torch.stack([b.argmax() for b in values]).tolist()
+            best.update(zip(full, (int(a) for a in argmax), strict=True))
+        return [best[i] for i in range(len(candidates))]
 
     # ------------------------------------------------------------------ detection
     def detect(self, frame: _DeviceViews, requests: Sequence[DetectionRequest]

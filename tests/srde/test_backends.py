@@ -5,7 +5,12 @@ import numpy as np
 import pytest
 
 from srde_fusion.srde import SRDE
-from srde_fusion.srde.backends import REDUCED_SMOOTHING_SIGMA_PX, smooth_at
+from srde_fusion.srde.backends import (
+    REDUCED_SMOOTHING_SIGMA_PX,
+    sample_grid,
+    smooth_at,
+    smooth_samples_at,
+)
 from srde_fusion.synthetic import RandomSceneConfig, default_rig, random_scene, render
 
 
@@ -30,16 +35,26 @@ def test_below_the_reduced_scale_it_is_opencvs_blur():
 
 
 @pytest.mark.parametrize("sigma", [REDUCED_SMOOTHING_SIGMA_PX, 13.0, 40.0])
-def test_above_it_the_reduced_image_ranks_candidates_like_the_full_blur(sigma):
+def test_above_it_a_grid_of_pixels_ranks_candidates_like_the_full_blur(sigma):
     lum = _clipped_blob(sigma=1.5 * sigma)
     points = _diagonal()
-    want = cv2.GaussianBlur(lum, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
-    want = want[points[:, 1], points[:, 0]]
-    got = smooth_at(lum, points, sigma)
+    u0, v0, u1, v1 = box = (3, 7, 290, 236)  # the search's crop, inside the image
+    want = cv2.GaussianBlur(lum[v0:v1, u0:u1], (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    want = want[points[:, 1] - v0, points[:, 0] - u0]
+    rows, cols, step = sample_grid(box, sigma)
+    assert 3 * step <= sigma < 6 * step
+    got = smooth_samples_at(lum[rows, cols], (cols.start, rows.start), step, points, sigma)
     spread = float(want.max() - want.min())
     assert np.abs(got - want).max() < 0.01 * spread
     # The brightest candidate moves by at most one sample along the line.
     assert abs(int(np.argmax(got)) - int(np.argmax(want))) <= 1
+
+
+def test_small_blobs_and_boxes_too_small_for_a_grid_smooth_every_pixel():
+    assert sample_grid((0, 0, 300, 200), 0.99 * REDUCED_SMOOTHING_SIGMA_PX) is None
+    rows, cols, step = sample_grid((10, 20, 14, 24), REDUCED_SMOOTHING_SIGMA_PX)
+    assert step == 2 and len(range(300)[rows]) == len(range(300)[cols]) == 2
+    assert sample_grid((10, 20, 13, 40), REDUCED_SMOOTHING_SIGMA_PX) is None
 
 
 def test_large_clipped_highlights_are_found_by_both_backends_alike():
