@@ -418,19 +418,23 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
                  ) -> HighlightDetection:
     """Half-maximum blob on linear intensity and its sub-pixel centre, on a crop."""
     smooth = cv2.GaussianBlur(lum, (0, 0), PEAK_SMOOTHING_SIGMA_PX, borderType=cv2.BORDER_REFLECT)
-    inside = lum[region]
-    background = median(inside)
-    peak = float(smooth[region].max())
+    background = median(lum[region])
+    # The region's largest smoothed value: OpenCV's masked search, several times faster
+    # than numpy's gather of the region's pixels.
+    peak = float(cv2.minMaxLoc(smooth, np.ascontiguousarray(region).view(np.uint8))[1])
     contrast = peak - background
     if level is None:
         level = background + BLOB_LEVEL * contrast
-    excess = np.where(region, lum - level, 0.0).astype(np.float32, copy=False)
-    above = excess > 0
+    # The level in the luminance's precision: float32 ``lum - level`` is positive exactly
+    # where ``lum > level``, so the blob's pixels are found without the excess image.
+    level_f32 = np.float32(level)
+    above = (lum > level_f32) & region
     # Components are labelled only over the box of the pixels above the level: outside
     # it there is nothing to label, and inside it raster order is the crop's.
     ax, ay, aw, ah = cv2.boundingRect(above.view(np.uint8))
     ox, oy = ax, ay  # where the labelled box sits in the crop
     above_box = np.ascontiguousarray(above[ay:ay + ah, ax:ax + aw])
+    excess = lum[ay:ay + ah, ax:ax + aw] - level_f32  # read only where above_box is True
     n = 1
     if aw:
         n, labels = cv2.connectedComponents(above_box.view(np.uint8), connectivity=8)
@@ -441,8 +445,7 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
     elif n > 2:
         # Only pixels above the level carry light (the rest weigh 0 in label 0); summing
         # just them, in the same raster order, gives the same float sums.
-        light = np.bincount(labels[above_box],
-                            weights=excess[ay:ay + ah, ax:ax + aw][above_box], minlength=n)
+        light = np.bincount(labels[above_box], weights=excess[above_box], minlength=n)
         label = 1 + int(np.argmax(light[1:]))
         blob_mask = labels == label
     if label:
@@ -454,9 +457,9 @@ def _detect_blob(lum, saturated, region, config: DetectorConfig, level: float | 
     # connectedComponentsWithStats would give the box too, at several times the cost.
     x, y, bw, bh = cv2.boundingRect(blob_mask.view(np.uint8))
     blob = blob_mask[y:y + bh, x:x + bw]
+    weights = np.where(blob, excess[y:y + bh, x:x + bw], 0.0)
     x, y = x + ox, y + oy
     box = (slice(y, y + bh), slice(x, x + bw))
-    weights = np.where(blob, excess[box], 0.0)
     center_uv = weighted_centroid(weights) + np.array([x, y], dtype=np.float64)
     if config.blob_center == "core":
         core = blob & saturated[box]
