@@ -55,12 +55,16 @@ def _disc(s: np.ndarray, radius_m: float):
 
 def test_the_points_cover_the_disc_with_its_moments():
     points, weights = disc_points()
-    assert len(points) == 12 and points[:, 1].min() >= 0.0  # 19 points, 12 above the axis
+    assert len(points) == 19 and np.all(weights == weights[0])
     assert weights.sum() == pytest.approx(1.0, abs=1e-15)
     assert np.all(np.hypot(points[:, 0], points[:, 1]) < 1.0)
-    # mirrored below the axis the pattern is centred and has the disc's mean |xi|^2
-    assert weights @ points[:, 0] == pytest.approx(0.0, abs=1e-15)
+    # centred, with the disc's mean |xi|^2, and symmetric about both axes
+    np.testing.assert_allclose(weights @ points, 0.0, atol=1e-15)
     assert weights @ np.sum(points**2, axis=1) == pytest.approx(0.5, abs=1e-15)
+    for mirror in ([1.0, -1.0], [-1.0, 1.0]):
+        image = points * np.array(mirror)
+        assert np.min(np.hypot(*(image[:, None, :] - points[None, :, :]).transpose(2, 0, 1)),
+                      axis=1).max() < 1e-12
 
 
 @pytest.mark.parametrize(("lobe", "tail"), [("gtr", 0.5), ("gtr", 0.0), ("gtr", -0.2),
@@ -108,6 +112,73 @@ def test_the_disc_lowers_the_peak_and_keeps_the_energy(disc_in_lobe_units, peak_
     half_beta2 = disc_in_lobe_units**2 / 2.0
     assert disc[0] == pytest.approx((1.0 - 1.0 / (1.0 + half_beta2)) / half_beta2,
                                     rel=peak_rtol)
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _oblique_case(theta_d_deg: float, tilt_across: float, offset: float):
+    """Normal, light and eye directions: light and eye 2 theta_d apart, the normal offset
+    from their half vector by ``offset`` (sin), turned ``tilt_across`` (rad) out of the
+    plane of incidence."""
+    half = math.radians(theta_d_deg)
+    light = np.array([math.sin(half), 0.0, math.cos(half)])
+    eye = np.array([-math.sin(half), 0.0, math.cos(half)])
+    h = _unit(light + eye)
+    # tangent directions at h: in the plane of incidence (x) and across it (y)
+    tx, ty = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    t = math.cos(tilt_across) * tx + math.sin(tilt_across) * ty
+    normal = _unit(math.sqrt(1.0 - offset**2) * h + offset * t)
+    return normal, light, eye
+
+
+def _fine_sphere_mean(lobe, normal, light, eye, b, log_width, tail):
+    """Lobe averaged over the light directions of a disc of angular radius 2 b around
+    ``light``, each direction's own half vector with the eye."""
+    radii = 2.0 * b * np.sqrt((np.arange(FINE_RINGS) + 0.5) / FINE_RINGS)
+    angles = 2.0 * np.pi * (np.arange(FINE_ANGLES) + 0.5) / FINE_ANGLES
+    a1 = _unit(np.cross(light, [0.0, 1.0, 0.0]))
+    a2 = np.cross(light, a1)
+    r, a = np.meshgrid(radii, angles, indexing="ij")
+    dirs = (np.cos(r.ravel())[:, None] * light + np.sin(r.ravel())[:, None]
+            * (np.cos(a.ravel())[:, None] * a1 + np.sin(a.ravel())[:, None] * a2))
+    h = _unit(dirs + eye)
+    cos = np.clip(h @ normal, -1.0, 1.0)
+    g = SimpleNamespace(sin2_h=1.0 - cos**2, cos_h=cos)
+    return float(lobe_shape(lobe, g, log_width, tail).mean())
+
+
+@pytest.mark.parametrize("theta_d_deg", [5.0, 30.0, 45.0])
+@pytest.mark.parametrize("tilt_across", [0.0, 0.7, math.pi / 2])
+def test_the_light_seen_from_aside_is_an_ellipse_of_half_vectors(theta_d_deg, tilt_across):
+    # The light's disc moves the half vector by half as much in the plane of incidence
+    # as across it times cos(theta_d): the model's ellipse matches a fine average over
+    # the light's own directions, where the round disc falls short from the side.
+    lobe, width, tail = "gtr", 0.03, 0.5
+    unit = width / math.sqrt(2.0 * (1.0 - width**2))
+    b = 1.0 * unit
+    radius_m = math.sin(2.0 * b) * DISTANCE_M
+    errors = {"ellipse": [], "round": []}
+    fine_values = []
+    for offset in np.linspace(0.0, b + 3.0 * unit, 15):
+        normal, light, eye = _oblique_case(theta_d_deg, tilt_across, offset)
+        fine = _fine_sphere_mean(lobe, normal, light, eye, b, math.log(width), tail)
+        fine_values.append(fine)
+        h = _unit(light + eye)
+        cos_h = np.array([float(h @ normal)])
+        cosines = dict(cos_i=np.array([float(normal @ light)]),
+                       cos_o=np.array([float(normal @ eye)]),
+                       cos_io=np.array([float(light @ eye)]))
+        r = np.array([DISTANCE_M])
+        for name, extra in (("ellipse", cosines), ("round", {})):
+            g = SimpleNamespace(sin2_h=1.0 - cos_h**2, cos_h=cos_h)
+            g.disc = disc_geometry(cos_h, 1.0 - cos_h**2, r, radius_m, **extra)
+            errors[name].append(abs(float(lobe_shape(lobe, g, math.log(width), tail)[0]) - fine))
+    peak = max(fine_values)
+    assert max(errors["ellipse"]) < 1.5 * QUADRATURE_TOL * peak
+    if theta_d_deg >= 30.0:  # the round disc misses the elongation
+        assert max(errors["round"]) > 2.0 * max(errors["ellipse"])
 
 
 # ------------------------------------------------------------------ through refine_plane

@@ -117,7 +117,8 @@ class LobeSlopes(NamedTuple):
 
     The lobe's derivative by the geometry is ``by * d(along)``, ``along`` being
     ``g.sin2_h`` or ``g.cos_h`` (the very array, so ``along is g.sin2_h`` tells which),
-    plus ``by_r * dr`` under a light's disc (``r`` the distance to the light, metres).
+    plus ``by_r * dr`` under a light's disc (``r`` the distance to the light, metres),
+    plus ``by_cosines . d(cos_i, cos_o, cos_io)`` under its ellipse (``(3, P)``).
     """
 
     by: np.ndarray
@@ -125,6 +126,7 @@ class LobeSlopes(NamedTuple):
     by_log_width: np.ndarray
     by_tail: np.ndarray | None  # None unless the lobe is "gtr"
     by_r: np.ndarray | None = None  # None for a point light
+    by_cosines: np.ndarray | None = None  # None for a point light or a round disc
 
 
 def lobe_shape_slopes(lobe: str, g: ShadingGeometry, log_width, tail,
@@ -144,10 +146,14 @@ def lobe_shape_slopes(lobe: str, g: ShadingGeometry, log_width, tail,
     by_sin2 = at_points.by
     if lobe == "blinn_phong":  # d cos = -d sin^2 / (2 cos)
         by_sin2 = by_sin2 * (-0.5 / np.maximum(cos, 1e-300))
+    by_cosines = None
+    if disc.sin2_by_cosines is not None:
+        by_cosines = np.einsum("ckp,kp,k->cp", disc.sin2_by_cosines, by_sin2,
+                               disc.weights[:, 0])
     return LobeSlopes(_disc_mean(disc, by_sin2 * disc.sin2_by_cos_h), g.cos_h,
                       _disc_mean(disc, at_points.by_log_width),
                       None if at_points.by_tail is None else _disc_mean(disc, at_points.by_tail),
-                      _disc_mean(disc, by_sin2 * disc.sin2_by_r))
+                      _disc_mean(disc, by_sin2 * disc.sin2_by_r), by_cosines)
 
 
 def _point_slopes(lobe: str, sin2_h: np.ndarray, cos_h: np.ndarray | None, log_width, tail,

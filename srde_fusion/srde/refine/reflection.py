@@ -201,7 +201,8 @@ class PlaneReflection:
         specular *= self.spec_scale
         disc = None
         if self.light_radius_m is not None:
-            disc = disc_geometry(cos_h, sin2_h, r, self.light_radius_m)
+            disc = disc_geometry(cos_h, sin2_h, r, self.light_radius_m, cos_i=cos_i,
+                                 cos_o=cos_o, cos_io=cos_io)
         return ShadingGeometry(cos_h=cos_h, sin2_h=sin2_h, log_foreshortening=log_foreshortening,
                          diffuse=diffuse, specular=specular, normal=n, t=t, nk=nk, tq_b=tq_b,
                          r=r, cos_i=cos_i, cos_o=cos_o, cos_io=cos_io, half_norm=half_norm,

@@ -43,13 +43,13 @@ def model_slopes(reflection: PlaneReflection, lobe: str, g: ShadingGeometry, the
         Where the derivatives go (returned).
     """
     specular, fore = theta[I_SPEC], theta[I_FORE]
-    by, along, by_log_width, by_tail, by_r = lobe_shape_slopes(lobe, g, theta[I_WIDTH],
-                                                               theta[I_TAIL], shape)
+    by, along, by_log_width, by_tail, by_r, by_cosines = lobe_shape_slopes(
+        lobe, g, theta[I_WIDTH], theta[I_TAIL], shape)
     spec_term = specular * specular_factor  # S's factor in the model
     planes = [(row, index) for row, index in enumerate(free) if index < N_PLANE]
     if planes:
         on_nk, on_cam, on_lh = _plane_slope_terms(reflection, g, fore, theta[I_DIFF], by, along,
-                                                  shape, spec_term, by_r)
+                                                  shape, spec_term, by_r, by_cosines)
         directions = reflection.directions(theta)
     for row, index in planes:
         # slope = (n . L - c)' on_lh + (c - n . C)' on_cam + (n . k)' on_nk
@@ -73,7 +73,8 @@ def model_slopes(reflection: PlaneReflection, lobe: str, g: ShadingGeometry, the
 
 def _plane_slope_terms(reflection: PlaneReflection, g: ShadingGeometry, fore, diffuse,
                        by: np.ndarray, along: np.ndarray, shape: np.ndarray,
-                       spec_term: np.ndarray, by_r: np.ndarray | None = None):
+                       spec_term: np.ndarray, by_r: np.ndarray | None = None,
+                       by_cosines: np.ndarray | None = None):
     """Return the model's derivatives ``(P,)`` by ``n . k``, ``c - n . C``, ``n . L - c``.
 
     Every shading term depends on the plane through these three per-sample scalars
@@ -81,8 +82,9 @@ def _plane_slope_terms(reflection: PlaneReflection, g: ShadingGeometry, fore, di
     first order: collecting the chain rule's coefficients once makes each plane
     parameter's slope three products. ``fore`` and ``diffuse`` are the foreshortening
     exponent and the diffuse intensity; ``by`` and ``along`` the lobe's slope (see
-    :class:`~.lobes.LobeSlopes`), and ``by_r`` its slope by the distance to the light
-    (under a light's disc; None for a point light).
+    :class:`~.lobes.LobeSlopes`), ``by_r`` its slope by the distance to the light
+    (under a light's disc; None for a point light) and ``by_cosines`` its slopes by
+    ``cos_i``, ``cos_o`` and ``cos_io`` (under the disc's ellipse; None otherwise).
     """
     inv_r, inv_half = 1.0 / g.r, 1.0 / g.half_norm
     rho = g.tq_b * inv_r  # dr = rho dt (r^2 = a - 2 t b + t^2 q)
@@ -114,6 +116,9 @@ def _plane_slope_terms(reflection: PlaneReflection, g: ShadingGeometry, fore, di
     on_cos_o = (fore - 1.0) * on_spec
     on_cos_o /= g.cos_o
     on_cos_o += through_h
+    if by_cosines is not None:  # the ellipse's stretch and turn
+        on_cos_i += by_cosines[0] * spec_term
+        on_cos_o += by_cosines[1] * spec_term
     # everything that moves with the ray parameter t directly
     on_t = fresnel_slope * grazing_t
     on_t *= on_spec
@@ -128,6 +133,10 @@ def _plane_slope_terms(reflection: PlaneReflection, g: ShadingGeometry, fore, di
     if by_r is not None:  # the light's disc: its size moves with r, and dr = rho dt
         term = by_r * spec_term
         term *= rho
+        on_t += term
+    if by_cosines is not None:  # and its ellipse with cos_io: d cos_io = kappa dt
+        term = by_cosines[2] * spec_term
+        term *= kappa
         on_t += term
     # cos_i = (n . L - c) / r: d cos_i = (d(n . L - c) - cos_i rho dt) / r
     on_lh = on_cos_i * inv_r
