@@ -94,21 +94,53 @@ class DiscGeometry:
 
     ``sin2`` ``(K, P)`` is ``sin^2`` of the half-vector angle at each point of the
     disc (``K`` points, ``P`` samples) and ``weights`` ``(K, 1)`` their quadrature
-    weights; ``sin2_by_cos_h`` and ``sin2_by_r`` its derivatives by the light centre's
-    ``cos(theta_h)`` and by the distance ``r`` to the light (metres). Under an ellipse
-    (the cosines given), ``sin2_by_cosines`` ``(3, K, P)`` holds its derivatives by
-    ``cos_i``, ``cos_o`` and ``cos_io`` through the ellipse's stretch and turn (each
-    with the others and ``cos_h`` held); None for a round disc. ``shapes`` keeps the
-    last lobe evaluated at the points (its key and ``(K, P)`` values): a step's slopes
-    are taken where the step was evaluated.
+    weights. ``sin^2`` is linear in five functions of the points, ``basis`` ``(K, 5)``
+    (``1, xi_1^2, xi_2^2, xi_2, xi_1``), with per-sample coefficients: ``sin2 = basis @
+    coef``. The coefficients' derivatives ``(5, P)`` by the offset ``s``, the disc's
+    radius ``b``, the ellipse's stretch ``k`` and turn ``T`` (None for a round disc) and
+    the chain factors ``(P,)`` from the model's variables to those give every slope of
+    the averaged lobe from one product of the lobe's point slopes with the basis
+    (:meth:`slopes`). ``shapes`` keeps the last lobe evaluated at the points (its key
+    and ``(K, P)`` values): a step's slopes are taken where the step was evaluated.
     """
 
     sin2: np.ndarray
     weights: np.ndarray
-    sin2_by_cos_h: np.ndarray
-    sin2_by_r: np.ndarray
-    sin2_by_cosines: np.ndarray | None = None
+    basis: np.ndarray
+    coef_by_s: np.ndarray
+    coef_by_b: np.ndarray
+    s_by_cos_h: np.ndarray
+    b_by_r: np.ndarray
+    coef_by_k: np.ndarray | None = None
+    coef_by_t: np.ndarray | None = None
+    k_by_cos_io: np.ndarray | None = None
+    t_by: np.ndarray | None = None  # (4, P): by cos_i, cos_o, cos_io, cos_h
     shapes: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def slopes(self, by_sin2: np.ndarray):
+        """Averaged lobe's slopes from its slopes by ``sin^2`` at the points ``(K, P)``.
+
+        Returns ``(by_cos_h, by_r, by_cosines)``: by the light centre's ``cos(theta_h)``,
+        by the distance ``r`` to the light, and ``(3, P)`` by ``cos_i``, ``cos_o`` and
+        ``cos_io`` through the ellipse (each with the others and ``cos_h`` held; None
+        for a round disc).
+        """
+        # mean_k w_k by_k,p (basis @ c)_k,p = sum_j c_j,p (w basis)^T by_sin2 _j,p
+        moments = (self.basis * self.weights).T @ by_sin2  # (5, P)
+
+        def through(coef_by: np.ndarray) -> np.ndarray:
+            return np.einsum("jp,jp->p", coef_by, moments)
+
+        by_cos_h = through(self.coef_by_s) * self.s_by_cos_h
+        by_r = through(self.coef_by_b) * self.b_by_r
+        if self.coef_by_t is None:
+            return by_cos_h, by_r, None
+        by_t = through(self.coef_by_t)
+        by_k = through(self.coef_by_k)
+        by_cos_h += by_t * self.t_by[3]
+        by_cosines = by_t * self.t_by[:3]
+        by_cosines[2] += by_k * self.k_by_cos_io
+        return by_cos_h, by_r, by_cosines
 
 
 def disc_geometry(cos_h: np.ndarray, sin2_h: np.ndarray, r: np.ndarray, radius_m: float,
@@ -131,7 +163,8 @@ def disc_geometry(cos_h: np.ndarray, sin2_h: np.ndarray, r: np.ndarray, radius_m
         disc stays round.
     """
     points, weights = disc_points(DISC_RINGS)
-    xi_1, xi_2 = points[:, :1], points[:, 1:]  # (K, 1): in and across the plane of incidence
+    xi_1, xi_2 = points[:, 0], points[:, 1]  # in and across the plane of incidence
+    basis = np.stack([np.ones_like(xi_1), xi_1 ** 2, xi_2 ** 2, xi_2, xi_1], axis=1)
     s = np.maximum(np.sqrt(sin2_h), _MIN_SIN_H)
     ratio = np.minimum(radius_m / r, 1.0)
     b = 0.5 * np.arcsin(ratio)
@@ -140,56 +173,48 @@ def disc_geometry(cos_h: np.ndarray, sin2_h: np.ndarray, r: np.ndarray, radius_m
     outside = ratio < 1.0
     b_by_r[outside] = (-0.5 * ratio[outside] / r[outside]
                        / np.sqrt(1.0 - ratio[outside] ** 2))
-    if cos_io is None:
-        z_x, z_y = xi_1, xi_2  # a round disc
-    else:
-        # Stretch across the plane of incidence: 1 / cos(theta_d), with cos(theta_d)^2 =
-        # (1 + l . v) / 2.
-        half_sum = np.maximum(0.5 * (1.0 + cos_io), 1e-300)
-        stretch = 1.0 / np.sqrt(half_sum)
+    # A point b z of the ellipse, z = (xi_2 k sqrt(T) - xi_1 sqrt(1 - T), xi_2 k sqrt(1 - T)
+    # + xi_1 sqrt(T)) (the unit disc stretched by k across the plane of incidence and
+    # turned so that the across axis makes an angle of cosine sqrt(T) with the offset):
+    # sin^2 = (s - b z_x)^2 + (b z_y)^2 = s^2 + b^2 xi_1^2 + b^2 k^2 xi_2^2
+    #         - 2 s b k sqrt(T) xi_2 + 2 s b sqrt(1 - T) xi_1.
+    # A round disc is k = 1, T = 0.
+    stretch = turn = None
+    if cos_io is not None:
+        # k = 1 / cos(theta_d), cos(theta_d)^2 = (1 + l . v) / 2
+        stretch = 1.0 / np.sqrt(np.maximum(0.5 * (1.0 + cos_io), 1e-300))
         capped = stretch > MAX_ELONGATION
         stretch = np.minimum(stretch, MAX_ELONGATION)
-        # Turn: the squared cosine of the angle between the offset's direction and the
-        # across axis is the normal's squared component across the plane of incidence
-        # (the Gram determinant of normal, light and eye over |l x v|^2) over s^2.
+        # T: the normal's squared component across the plane of incidence (the Gram
+        # determinant of normal, light and eye over |l x v|^2), over s^2
         gram = 1.0 + 2.0 * cos_i * cos_o * cos_io - cos_i ** 2 - cos_o ** 2 - cos_io ** 2
-        spread = 1.0 - cos_io ** 2  # |l x v|^2
+        spread = 1.0 - cos_io ** 2
         s2 = s * s
         turn = np.clip(np.maximum(gram, 0.0) / np.maximum(spread * s2, 1e-300), 0.0, 1.0)
-        cos_turn, sin_turn = np.sqrt(turn), np.sqrt(1.0 - turn)
-        # (the pattern's symmetry about both axes makes the turn's signs irrelevant)
-        stretched = xi_2 * stretch
-        z_x = stretched * cos_turn - xi_1 * sin_turn  # (K, P)
-        z_y = stretched * sin_turn + xi_1 * cos_turn
-    along = s - b * z_x  # (K, P)
-    across = b * z_y
-    sin2 = along * along + across * across
-    # ds / d cos_h = -cos_h / s: the pattern is symmetric, so the weighted sum of these
-    # slopes stays finite as s -> 0
-    sin2_by_cos_h = along * (-2.0 * cos_h / s)
-    # d sin^2 / d z = 2 b (-along, across)
-    sin2_by_b = across * z_y
-    sin2_by_b -= along * z_x
-    sin2_by_b *= 2.0
-    by_cosines = None
-    if cos_io is not None:
-        # Through the stretch k and the turn T = cos^2: z_x = xi_2 k sqrt(T) - xi_1
-        # sqrt(1 - T), z_y = xi_2 k sqrt(1 - T) + xi_1 sqrt(T). The 1 / sqrt terms at
-        # T = 0 or 1 cancel over the symmetric pattern; they are kept finite.
-        root_t, root_1t = np.maximum(cos_turn, 1e-6), np.maximum(sin_turn, 1e-6)
-        zx_by_t = xi_2 * (0.5 * stretch / root_t) + xi_1 * (0.5 / root_1t)
-        zy_by_t = xi_1 * (0.5 / root_t) - xi_2 * (0.5 * stretch / root_1t)
-        sin2_by_t = (across * zy_by_t - along * zx_by_t) * (2.0 * b)
-        sin2_by_k = (across * sin_turn - along * cos_turn) * (2.0 * b) * xi_2
-        # T = G / (|l x v|^2 s^2), s^2 = 1 - cos_h^2; k = (2 / (1 + cos_io))^(1/2)
+        k, root_t, root_1t = stretch, np.sqrt(turn), np.sqrt(1.0 - turn)
+    else:
+        k, root_t, root_1t = np.ones_like(s), np.zeros_like(s), np.ones_like(s)
+    b2, sb = b * b, s * b
+    coef = np.stack([s * s, b2, b2 * k * k, -2.0 * sb * k * root_t, 2.0 * sb * root_1t])
+    zeros = np.zeros_like(s)
+    coef_by_s = np.stack([2.0 * s, zeros, zeros, -2.0 * b * k * root_t, 2.0 * b * root_1t])
+    coef_by_b = np.stack([zeros, 2.0 * b, 2.0 * b * k * k, -2.0 * s * k * root_t,
+                          2.0 * s * root_1t])
+    geometry = dict(sin2=basis @ coef, weights=weights[:, None], basis=basis,
+                    coef_by_s=coef_by_s, coef_by_b=coef_by_b,
+                    s_by_cos_h=-cos_h / s, b_by_r=b_by_r)
+    if stretch is not None:
+        # The 1 / sqrt terms at T = 0 or 1 cancel over the symmetric pattern; kept finite.
+        coef_by_k = np.stack([zeros, zeros, 2.0 * b2 * k, -2.0 * sb * root_t, zeros])
+        coef_by_t = np.stack([zeros, zeros, zeros, -sb * k / np.maximum(root_t, 1e-6),
+                              -sb / np.maximum(root_1t, 1e-6)])
+        # T = G / (|l x v|^2 s^2) with s^2 = 1 - cos_h^2; k = (2 / (1 + cos_io))^(1/2)
         defined = (spread > 1e-12) & (s > 1e-6)
         inv = np.where(defined, 1.0 / np.maximum(spread * s2, 1e-300), 0.0)
-        t_by_i = (2.0 * (cos_o * cos_io - cos_i)) * inv
-        t_by_o = (2.0 * (cos_i * cos_io - cos_o)) * inv
-        t_by_io = (2.0 * (cos_i * cos_o - cos_io) + 2.0 * cos_io * turn * s2) * inv
-        t_by_cos_h = np.where(defined, 2.0 * turn * cos_h / np.maximum(s2, 1e-300), 0.0)
-        k_by_io = np.where(capped, 0.0, -0.25 * stretch ** 3)
-        sin2_by_cos_h += sin2_by_t * t_by_cos_h
-        by_cosines = np.stack([sin2_by_t * t_by_i, sin2_by_t * t_by_o,
-                               sin2_by_t * t_by_io + sin2_by_k * k_by_io])
-    return DiscGeometry(sin2, weights[:, None], sin2_by_cos_h, sin2_by_b * b_by_r, by_cosines)
+        t_by = np.stack([2.0 * (cos_o * cos_io - cos_i) * inv,  # by cos_i
+                         2.0 * (cos_i * cos_io - cos_o) * inv,  # by cos_o
+                         2.0 * (cos_i * cos_o - cos_io + cos_io * turn * s2) * inv,  # cos_io
+                         np.where(defined, 2.0 * turn * cos_h / np.maximum(s2, 1e-300), 0.0)])
+        geometry.update(coef_by_k=coef_by_k, coef_by_t=coef_by_t,
+                        k_by_cos_io=np.where(capped, 0.0, -0.25 * stretch ** 3), t_by=t_by)
+    return DiscGeometry(**geometry)

@@ -146,14 +146,10 @@ def lobe_shape_slopes(lobe: str, g: ShadingGeometry, log_width, tail,
     by_sin2 = at_points.by
     if lobe == "blinn_phong":  # d cos = -d sin^2 / (2 cos)
         by_sin2 = by_sin2 * (-0.5 / np.maximum(cos, 1e-300))
-    by_cosines = None
-    if disc.sin2_by_cosines is not None:
-        by_cosines = np.einsum("ckp,kp,k->cp", disc.sin2_by_cosines, by_sin2,
-                               disc.weights[:, 0])
-    return LobeSlopes(_disc_mean(disc, by_sin2 * disc.sin2_by_cos_h), g.cos_h,
-                      _disc_mean(disc, at_points.by_log_width),
+    by_cos_h, by_r, by_cosines = disc.slopes(by_sin2)
+    return LobeSlopes(by_cos_h, g.cos_h, _disc_mean(disc, at_points.by_log_width),
                       None if at_points.by_tail is None else _disc_mean(disc, at_points.by_tail),
-                      _disc_mean(disc, by_sin2 * disc.sin2_by_r), by_cosines)
+                      by_r, by_cosines)
 
 
 def _point_slopes(lobe: str, sin2_h: np.ndarray, cos_h: np.ndarray | None, log_width, tail,
