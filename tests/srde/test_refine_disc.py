@@ -260,3 +260,25 @@ def test_every_rig_light_keeps_its_radius():
         [RigLight((0.3, -0.2, 0.0), radius_m=0.01), (-0.3, -0.2, 0.0)])
     assert SRDE(rig).light_radii_m == (0.01, None)
     assert SRDE(rig, light=[0.3, -0.2, 0.0]).light_radii_m == (None,)
+
+
+@pytest.mark.parametrize(("cos_i", "cos_o", "cos_io"), [
+    (0.9, 0.9, 1.0),      # light along the eye: no plane of incidence
+    (0.1, 0.1, -0.999),   # light and eye nearly opposite: the stretch is capped
+    (0.8, 0.6, 0.5),      # an ordinary case, at s = 0 and beyond
+])
+def test_the_ellipse_stays_finite_where_its_axes_are_undefined(cos_i, cos_o, cos_io):
+    s = np.array([0.0, 1e-12, 1e-4, 0.05])
+    cos_h = np.sqrt(1.0 - s * s)
+    n = len(s)
+    cosines = dict(cos_i=np.full(n, cos_i), cos_o=np.full(n, cos_o), cos_io=np.full(n, cos_io))
+    disc = disc_geometry(cos_h, s * s, np.full(n, DISTANCE_M), 0.01, **cosines)
+    by_sin2 = np.ones_like(disc.sin2)
+    by_cos_h, by_r, by_cosines = disc.slopes(by_sin2)
+    for values in (disc.sin2, by_cos_h, by_r, by_cosines):
+        assert np.all(np.isfinite(values))
+    assert np.all(disc.sin2 >= 0.0)
+    if cos_io == 1.0:  # no elongation: the round disc's values
+        round_disc = disc_geometry(cos_h, s * s, np.full(n, DISTANCE_M), 0.01)
+        np.testing.assert_allclose(np.sort(disc.sin2, axis=0), np.sort(round_disc.sin2, axis=0),
+                                   rtol=1e-9, atol=1e-15)
