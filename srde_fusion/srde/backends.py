@@ -100,18 +100,16 @@ def sample_grid(box: tuple[int, int, int, int], sigma_px: float
     return slice(v0 + offset, v1, step), slice(u0 + offset, u1, step), step
 
 
-def smooth_samples_at(samples: np.ndarray, first_uv: tuple[int, int], step: int,
+def smooth_samples_at(samples: np.ndarray, grid: tuple[slice, slice, int],
                       points_uv: np.ndarray, sigma_px: float) -> np.ndarray:
     """Gaussian smoothing of a grid of pixel samples, read at some pixels of the image.
 
     Parameters
     ----------
     samples : numpy.ndarray, (rows, cols) float32
-        Luminance at pixels ``first_uv + step * (col, row)``.
-    first_uv : (int, int)
-        The first sample's pixel.
-    step : int
-        The grid's spacing, pixels.
+        Luminance at the pixels of ``grid``.
+    grid : (slice, slice, int)
+        The grid's rows, columns and spacing, pixels (:func:`sample_grid`).
     points_uv : numpy.ndarray, (n, 2) int
         Image pixels ``(u, v)``, read bilinearly between the samples.
     sigma_px : float
@@ -121,9 +119,11 @@ def smooth_samples_at(samples: np.ndarray, first_uv: tuple[int, int], step: int,
     -------
     numpy.ndarray, (n,) float32
     """
+    rows, cols, step = grid
     smooth = cv2.GaussianBlur(samples, (0, 0), sigma_px / step, borderType=cv2.BORDER_REFLECT)
-    map_u = ((points_uv[:, 0] - first_uv[0]) / step).astype(np.float32)[None, :]
-    map_v = ((points_uv[:, 1] - first_uv[1]) / step).astype(np.float32)[None, :]
+    # image pixel u sits at (u - first sample's u) / step on the grid
+    map_u = ((points_uv[:, 0] - cols.start) / step).astype(np.float32)[None, :]
+    map_v = ((points_uv[:, 1] - rows.start) / step).astype(np.float32)[None, :]
     return cv2.remap(smooth, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)[0]
 
 
@@ -240,9 +240,8 @@ class NumpyBackend:
                     known[j] = ((u0, v0, u1, v1), lum)
                 brightness[cand.ok] = smooth_at(lum, points - np.array([u0, v0]), cand.sigma_px)
             else:
-                rows, cols, step = grid
+                rows, cols, _ = grid
                 samples = luminance(np.ascontiguousarray(frame[j][rows, cols]), encoding)
-                brightness[cand.ok] = smooth_samples_at(samples, (cols.start, rows.start), step,
-                                                        points, cand.sigma_px)
+                brightness[cand.ok] = smooth_samples_at(samples, grid, points, cand.sigma_px)
             best.append(int(np.argmax(brightness)))
         return best

@@ -255,12 +255,11 @@ class TorchBackend:
                 continue
             # A large blob is smoothed from a grid of the crop's pixels: the grid is read
             # on the device and smoothed on the host with the numpy backend's function.
-            rows, cols, step = grid
+            rows, cols, _ = grid
             samples = self.luminance(frame.tensors[j][rows, cols][None])[0].cpu().numpy()
             brightness = np.full(c.w_v.size, -np.inf)
-            brightness[c.ok] = smooth_samples_at(np.ascontiguousarray(samples),
-                                                 (cols.start, rows.start), step, c.pix[c.ok],
-                                                 sigma)
+            brightness[c.ok] = smooth_samples_at(np.ascontiguousarray(samples), grid,
+                                                 c.pix[c.ok], sigma)
             best[i] = int(np.argmax(brightness))
         if full:
             searches = [candidates[i] for i in full]

@@ -43,7 +43,7 @@ def test_above_it_a_grid_of_pixels_ranks_candidates_like_the_full_blur(sigma):
     want = want[points[:, 1] - v0, points[:, 0] - u0]
     rows, cols, step = sample_grid(box, sigma)
     assert 3 * step <= sigma < 6 * step
-    got = smooth_samples_at(lum[rows, cols], (cols.start, rows.start), step, points, sigma)
+    got = smooth_samples_at(lum[rows, cols], (rows, cols, step), points, sigma)
     spread = float(want.max() - want.min())
     assert np.abs(got - want).max() < 0.01 * spread
     # The brightest candidate moves by at most one sample along the line.

@@ -47,6 +47,7 @@ refinement keeps the point model's own code for a point light.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -89,6 +90,21 @@ def disc_points(rings: int = DISC_RINGS) -> tuple[np.ndarray, np.ndarray]:
 #: Largest stretch of the half-vector ellipse across the plane of incidence (``1 /
 #: cos(theta_d)``; 10 at 84 degrees, past which light and eye are nearly opposite).
 MAX_ELONGATION = 10.0
+
+
+@functools.lru_cache(maxsize=4)
+def _pattern_basis(rings: int) -> tuple[np.ndarray, np.ndarray]:
+    """Return the pattern's five functions ``(K, 5)`` and its weights ``(K, 1)``.
+
+    See :class:`DiscGeometry`. Made once per ring count, read-only: every evaluation of
+    the model reads them.
+    """
+    points, weights = disc_points(rings)
+    xi_1, xi_2 = points[:, 0], points[:, 1]  # in and across the plane of incidence
+    basis = np.stack([np.ones_like(xi_1), xi_1 ** 2, xi_2 ** 2, xi_2, xi_1], axis=1)
+    weights = weights[:, None]
+    basis.flags.writeable = weights.flags.writeable = False
+    return basis, weights
 
 
 @dataclass(frozen=True)
@@ -165,9 +181,7 @@ def disc_geometry(cos_h: np.ndarray, sin2_h: np.ndarray, r: np.ndarray, radius_m
         and turn the half-vector disc into its ellipse (module notes). Without them the
         disc stays round.
     """
-    points, weights = disc_points(DISC_RINGS)
-    xi_1, xi_2 = points[:, 0], points[:, 1]  # in and across the plane of incidence
-    basis = np.stack([np.ones_like(xi_1), xi_1 ** 2, xi_2 ** 2, xi_2, xi_1], axis=1)
+    basis, weights = _pattern_basis(DISC_RINGS)
     s = np.maximum(np.sqrt(sin2_h), _MIN_SIN_H)
     ratio = np.minimum(radius_m / r, 1.0)
     b = 0.5 * np.arcsin(ratio)
@@ -203,7 +217,7 @@ def disc_geometry(cos_h: np.ndarray, sin2_h: np.ndarray, r: np.ndarray, radius_m
     coef_by_s = np.stack([2.0 * s, zeros, zeros, -2.0 * b * k * root_t, 2.0 * b * root_1t])
     coef_by_b = np.stack([zeros, 2.0 * b, 2.0 * b * k * k, -2.0 * s * k * root_t,
                           2.0 * s * root_1t])
-    geometry = dict(sin2=basis @ coef, weights=weights[:, None], basis=basis,
+    geometry = dict(sin2=basis @ coef, weights=weights, basis=basis,
                     coef_by_s=coef_by_s, coef_by_b=coef_by_b,
                     s_by_cos_h=-cos_h / s, b_by_r=b_by_r)
     if stretch is not None:

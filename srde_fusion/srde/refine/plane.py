@@ -357,7 +357,7 @@ def refine_plane(
     common = dict(converged=fit.converged, iterations=fit.iterations,
                   cost_initial=attempt.cost_initial, cost_final=fit.cost,
                   n_samples=attempt.samples.n_samples,
-                  contrast=_samples_contrast(attempt.samples))
+                  contrast=attempt.contrast)
     if attempt.problem:
         return kept(attempt.problem, residual=math.sqrt(attempt.cost_initial),
                     params=attempt.params_initial, **common)
@@ -493,6 +493,7 @@ class _Attempt:
     cost_initial: float  # the initial plane's best cost on the same samples
     params_initial: LobeFit | None
     problem: str  # why the fit's plane must not be used ("" if it may)
+    contrast: float  # the samples' highlight contrast (:func:`_samples_contrast`)
 
 
 def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None = None
@@ -534,8 +535,10 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
         params_ref = reference.lobe_fit(theta_ref)
     else:  # the initial plane cannot even be evaluated on these samples
         cost_ref, params_ref = math.inf, None
-    problem = _judge(fit, cost_ref, model, samples, setup.rig, setup.light, setup.initial_plane)
-    return _Attempt(sample_plane, samples, model, fit, cost_ref, params_ref, problem)
+    contrast = _samples_contrast(samples)
+    problem = _judge(fit, cost_ref, model, samples, contrast, setup.rig, setup.light,
+                     setup.initial_plane)
+    return _Attempt(sample_plane, samples, model, fit, cost_ref, params_ref, problem, contrast)
 
 
 def _resampled(setup: _Setup, attempt: _Attempt, *, keep_photometry: bool) -> _Attempt | None:
@@ -585,8 +588,11 @@ def _samples_contrast(samples: HighlightSamples) -> float:
 
 
 def _judge(fit: Minimum, cost_initial: float, model: LobeModel, samples: HighlightSamples,
-           rig: CameraRig, light: np.ndarray, initial_plane: Plane) -> str:
-    """Why a fit's plane must not replace the initial plane ("" if it may)."""
+           contrast: float, rig: CameraRig, light: np.ndarray, initial_plane: Plane) -> str:
+    """Why a fit's plane must not replace the initial plane ("" if it may).
+
+    ``contrast`` is the samples' highlight contrast (:func:`_samples_contrast`).
+    """
     theta, cost = fit.theta, fit.cost
     if not (np.all(np.isfinite(theta)) and math.isfinite(cost)):
         return "fit: non-finite parameters or cost"
@@ -598,7 +604,6 @@ def _judge(fit: Minimum, cost_initial: float, model: LobeModel, samples: Highlig
     if at_bound:
         return (f"fit: {at_bound} at the bound of its range; the lobe model does not "
                 "describe this highlight")
-    contrast = _samples_contrast(samples)
     if math.sqrt(cost) > MAX_RELATIVE_RESIDUAL * contrast:
         return (f"fit: RMS residual {math.sqrt(cost):.4g} is more than "
                 f"{MAX_RELATIVE_RESIDUAL:.0%} of the highlight's contrast {contrast:.4g}; "
