@@ -15,6 +15,7 @@ from .board import (
     write_board,
 )
 from .captures import (
+    MAX_IMAGE_READ_LIGHTS,
     LightCalibration,
     LightsEstimate,
     calibrate_light_files,
@@ -49,7 +50,12 @@ from .markers import (
     MarkerDetection,
     detect_markers,
 )
-from .photometric import PhotometricLight, photometric_light, with_photometric
+from .photometric import (
+    PhotometricLight,
+    photometric_light,
+    photometric_lights,
+    with_photometric,
+)
 from .plate_highlights import (
     find_plate_highlight_candidates,
     find_plate_highlights,
@@ -72,9 +78,11 @@ __all__ = [
     "estimate_lights",
     "PhotometricLight",
     "photometric_light",
+    "photometric_lights",
     "with_photometric",
     "LightsEstimate",
     "LightCalibration",
+    "MAX_IMAGE_READ_LIGHTS",
     "DEFAULT_MATCH_TOLERANCE_PX",
     "HighlightSet",
     "HighlightGrouping",

@@ -38,7 +38,7 @@ from .light import LightEstimate, highlight_rms_px, ray_distances_m
 from .plate_highlights import plate_highlight_region
 from .plate_pose import PlatePose
 
-__all__ = ["PhotometricLight", "photometric_light", "with_photometric"]
+__all__ = ["PhotometricLight", "photometric_light", "photometric_lights", "with_photometric"]
 
 #: Largest angle (degrees) and distance at the plate's centre (metres) between the lobe
 #: fit's plane and the plate's pose from the markers. The fit's plane is the plate moved
@@ -99,44 +99,91 @@ def photometric_light(light_m: np.ndarray, captures: Sequence[Sequence[np.ndarra
     PhotometricLight
     """
     light_m = np.asarray(light_m, dtype=np.float64)
-    if len(rig.lights) == 1:  # keep what the user measured of the lamp (its radius)
+    return photometric_lights(light_m[None], captures, poses, rig, board,
+                              [(0,)] * len(poses))[0]
+
+
+def photometric_lights(lights_m: np.ndarray, captures: Sequence[Sequence[np.ndarray]],
+                       poses: Sequence[PlatePose], rig: CameraRig, board: Board,
+                       shown: Sequence[Sequence[int]]) -> tuple[PhotometricLight, ...]:
+    """Read every capture's highlights with SRDE's joint lobe fit and mirror them back.
+
+    With several lights SRDE fits one lobe per light on the one plane of the plate
+    (:mod:`~srde_fusion.srde.lights`); the fitted plane ``P'`` gives every light the
+    capture shows its image light ``mirror(mirror(L_k, P'), P)``.
+
+    Parameters
+    ----------
+    lights_m : numpy.ndarray, (K, 3)
+        The ray solves' lights, array frame, metres (SRDE is told of them).
+    captures : sequence of sequence of numpy.ndarray
+        Per capture, the validated views in rig order.
+    poses : sequence of PlatePose
+        Per capture, the plate pose from the markers.
+    rig : CameraRig
+        The rig; with one light to find, a single light it lists lends its radius to the
+        fit (several are fitted as points: which listed lamp is which is not known here).
+    board : Board
+    shown : sequence of sequence of int
+        Per capture, the lights (indices into ``lights_m``) whose highlights it shows;
+        only those are given a light from it.
+
+    Returns
+    -------
+    tuple of PhotometricLight
+        One per light.
+    """
+    lights_m = np.asarray(lights_m, dtype=np.float64).reshape(-1, 3)
+    if len(lights_m) == 1 and len(rig.lights) == 1:
+        # Keep what the user measured of the lamp (its radius).
         lit = rig.with_lights([replace(rig.lights[0],
-                                       position_m=tuple(float(v) for v in light_m))])
+                                       position_m=tuple(float(v) for v in lights_m[0]))])
     else:
-        lit = rig.with_light(light_m)
+        lit = rig.with_lights(lights_m)
     srde = SRDE(lit)
-    found: list[np.ndarray | None] = []
-    reasons: list[str] = []
-    for views, pose in zip(captures, poses, strict=True):
-        # The plate's free centre (no markers, away from its edge) is the "object".
-        region = plate_highlight_region(rig, board, pose, rig.reference)
-        if not region.any():  # the markers of other views found a plate this one misses
-            found.append(None)
-            reasons.append(f"the plate's free centre is not in the reference view "
-                           f"({rig.camera_names[rig.reference]})")
-            continue
-        result = srde.estimate(views, region)
-        refinement = result.refinement
-        if not result.ok:
-            found.append(None)
-            reasons.append(f"SRDE could not read the plate ({result.status}: {result.reason})")
-        elif refinement is None or not refinement.ok:
-            found.append(None)
-            reasons.append("the lobe fit did not confirm the plate's highlight ("
-                           + (refinement.reason if refinement is not None else "not run")
-                           + ")")
-        else:
-            angle_deg, gap_m = _plane_gap(result.plane, pose)
-            if angle_deg > MAX_PLATE_ANGLE_DEG or gap_m > MAX_PLATE_GAP_M:
-                found.append(None)
-                reasons.append(f"the lobe fit's plane is {angle_deg:.2f} deg and "
-                               f"{gap_m * 1000:.1f} mm from the plate's pose at its centre "
-                               f"(limits {MAX_PLATE_ANGLE_DEG:g} deg, "
-                               f"{MAX_PLATE_GAP_M * 1000:g} mm): not the plate")
-                continue
-            virtual = result.plane.mirror(light_m)
-            found.append(pose.plane.mirror(virtual))
-            reasons.append("")
+    found: list[list[np.ndarray | None]] = [[] for _ in lights_m]
+    reasons: list[list[str]] = [[] for _ in lights_m]
+    for views, pose, lights in zip(captures, poses, shown, strict=True):
+        plane, why = _plate_plane(srde, views, pose, rig, board)
+        for k, light_m in enumerate(lights_m):
+            if k not in lights:
+                found[k].append(None)
+                reasons[k].append("the capture shows no highlight of this light")
+            elif plane is None:
+                found[k].append(None)
+                reasons[k].append(why)
+            else:
+                found[k].append(pose.plane.mirror(plane.mirror(light_m)))
+                reasons[k].append("")
+    return tuple(_mean_light(f, r) for f, r in zip(found, reasons, strict=True))
+
+
+def _plate_plane(srde: SRDE, views: Sequence[np.ndarray], pose: PlatePose, rig: CameraRig,
+                 board: Board) -> tuple[Plane | None, str]:
+    """Return the plate's plane the lobe fit finds in one capture, or None and why not."""
+    # The plate's free centre (no markers, away from its edge) is the "object".
+    region = plate_highlight_region(rig, board, pose, rig.reference)
+    if not region.any():  # the markers of other views found a plate this one misses
+        return None, (f"the plate's free centre is not in the reference view "
+                      f"({rig.camera_names[rig.reference]})")
+    result = srde.estimate(views, region)
+    refinement = result.refinement
+    if not result.ok:
+        return None, f"SRDE could not read the plate ({result.status}: {result.reason})"
+    if refinement is None or not refinement.ok:
+        return None, ("the lobe fit did not confirm the plate's highlight ("
+                      + (refinement.reason if refinement is not None else "not run") + ")")
+    angle_deg, gap_m = _plane_gap(result.plane, pose)
+    if angle_deg > MAX_PLATE_ANGLE_DEG or gap_m > MAX_PLATE_GAP_M:
+        return None, (f"the lobe fit's plane is {angle_deg:.2f} deg and "
+                      f"{gap_m * 1000:.1f} mm from the plate's pose at its centre "
+                      f"(limits {MAX_PLATE_ANGLE_DEG:g} deg, "
+                      f"{MAX_PLATE_GAP_M * 1000:g} mm): not the plate")
+    return result.plane, ""
+
+
+def _mean_light(found: list[np.ndarray | None], reasons: list[str]) -> PhotometricLight:
+    """Return one light's image lights from the captures, their mean and its spread."""
     used = np.array([p for p in found if p is not None]).reshape(-1, 3)
     spread = np.zeros((3, 3))
     if len(used) >= 2:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from srde_fusion.calibration import (
+    MAX_IMAGE_READ_LIGHTS,
     Board,
     HighlightSet,
     PlatePose,
@@ -207,7 +208,17 @@ def test_every_light_is_recovered_within_its_uncertainty(n_lights, two, three, r
         assert error < DETECTED_TOL_M
         assert e.sigma_distance(truth[k]) < SIGMA3_3D
         assert e.refined and e.n_captures == 3 and e.n_rays >= 10
-        assert e.photometric is None  # several lights: the rays decide
+        fit = e.photometric
+        if n_lights > MAX_IMAGE_READ_LIGHTS:  # one plate plane cannot tell three lamps apart
+            assert fit is None and e.geometric_position_m is None
+            continue
+        # Each light is read from its highlights' images too, from the captures showing it
+        # (a capture whose lobe fit fails gives none, and says why).
+        assert fit.n_used >= 1 and e.geometric_position_m is not None
+        assert all((p is None) == bool(r) for p, r in zip(fit.capture_positions_m, fit.reasons,
+                                                           strict=True))
+        np.testing.assert_allclose(
+            e.position_m, np.mean([p for p in fit.capture_positions_m if p is not None], axis=0))
     # The evidence: each capture's sets and the light each one went to (a highlight right
     # beside a brighter one is left out, with a note, so a capture may miss a light).
     complete = 0
