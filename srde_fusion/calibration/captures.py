@@ -464,8 +464,8 @@ def estimate_lights(
                 f"of the {len(poses)} captures ({fits[0].reasons[0]}); lamps close together "
                 f"whose highlights merge into one blob look like this: give the number of "
                 f"lights (with one, the rays' light is kept)")
-        estimates = [with_photometric(e, fit, rig) for e, fit in zip(estimates, fits,
-                                                                      strict=True)]
+        estimates = [with_photometric(e, fit, rig, shared_move=k > 1)
+                     for e, fit in zip(estimates, fits, strict=True)]
     # Lights left to right (then top to bottom): an order that does not depend on which
     # capture happened to fix the numbering.
     order = sorted(range(k), key=lambda j: tuple(estimates[j].position_m[:2]))

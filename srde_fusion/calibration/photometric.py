@@ -22,6 +22,12 @@ Because the same lobe model reads the objects later, what the model gets wrong a
 real lobe is partly the same in both and partly cancels: on rendered scenes SRDE with
 this light comes within about twice its EPE with the true light (with five plate poses
 rendered faithfully, the same).
+
+Several lights (:func:`photometric_lights`) are read by SRDE's joint fit, one lobe per
+light on the plate's one plane: the fitted ``P'`` gives each light the capture shows
+``mirror(mirror(L_k, P'), P)``. The two mirrors are one small rigid motion, the same for
+every light, so the images correct what the lights' errors share and cannot move the
+lights apart (``estimate_lights`` uses it for two lamps only).
 """
 
 from __future__ import annotations
@@ -197,19 +203,31 @@ def _plane_gap(plane: Plane, pose: PlatePose) -> tuple[float, float]:
     return plane.angle_to(pose.plane), abs(float(plane.signed_distance(pose.center_m)))
 
 
-def with_photometric(estimate: LightEstimate, fit: PhotometricLight, rig: CameraRig
-                     ) -> LightEstimate:
+def with_photometric(estimate: LightEstimate, fit: PhotometricLight, rig: CameraRig, *,
+                     shared_move: bool = False) -> LightEstimate:
     """Move the estimate to the light the highlights' images show (kept if none did).
 
     The covariance is the ray solve's (its accuracy floor on the centres and its
     leave-one-capture-out spread) plus the scatter of the captures' image lights about
     their mean; the residuals and ray distances are recomputed at the new light, so they
     show how far the centres' rays pass from it.
+
+    ``shared_move``: the images moved several lights by one plane's correction (see
+    :func:`photometric_lights`), which fixes what their errors share but not each light's
+    own, and moved some rendered lamps farther from the truth (while SRDE read objects
+    better with them). The move from the rays' light is then added to the covariance as
+    a bias term ``d d^T``, so that the reported uncertainty spans both lights.
     """
     if fit.position_m is None:
         return replace(estimate, photometric=fit)
     position = fit.position_m
     cov = estimate.position_cov_m2 + fit.spread_cov_m2
+    how = (f" + the scatter of {fit.n_used} captures' lights from the highlights' images"
+           if fit.n_used >= 2 else "; the light from one capture's highlight images")
+    if shared_move:
+        move = position - estimate.position_m
+        cov = cov + np.outer(move, move)
+        how += " + their move from the rays' light (one plate plane moved every light)"
     distances = ray_distances_m(position, estimate.ray_origins_m, estimate.ray_directions)
     return replace(
         estimate, position_m=position, residual_m=float(distances.mean()),
@@ -217,6 +235,4 @@ def with_photometric(estimate: LightEstimate, fit: PhotometricLight, rig: Camera
                                                list(estimate.highlight_centers_px), rig),
         position_std_m=np.sqrt(np.clip(np.diag(cov), 0.0, None)), ray_distances_m=distances,
         position_cov_m2=cov, geometric_position_m=estimate.position_m, photometric=fit,
-        uncertainty=estimate.uncertainty + (
-            f" + the scatter of {fit.n_used} captures' lights from the highlights' images"
-            if fit.n_used >= 2 else "; the light from one capture's highlight images"))
+        uncertainty=estimate.uncertainty + how)

@@ -213,8 +213,9 @@ def _register_calibrate_light(subparsers) -> None:
     p.add_argument(
         "--no-photometric",
         action="store_true",
-        help="keep the light of the highlight centres' rays; by default one light moves to "
-        "where its highlights' images put it (each capture read by SRDE's lobe fit)",
+        help="keep the lights of the highlight centres' rays; by default one or two lights "
+        "move to where their highlights' images put them (each capture read by SRDE's lobe "
+        "fit)",
     )
     p.add_argument("--dry-run", action="store_true", help="print the light, do not write rig.json")
     p.add_argument("--figure", default=None, metavar="DIR",

@@ -219,6 +219,11 @@ def test_every_light_is_recovered_within_its_uncertainty(n_lights, two, three, r
                                                            strict=True))
         np.testing.assert_allclose(
             e.position_m, np.mean([p for p in fit.capture_positions_m if p is not None], axis=0))
+        # One plate plane moved both lights: the move is in the covariance as a bias, so the
+        # rays' light lies within one sigma of the images' along it.
+        move = e.position_m - e.geometric_position_m
+        assert move @ np.linalg.solve(e.position_cov_m2, move) < 1.0
+        assert "their move from the rays' light" in e.uncertainty
     # The evidence: each capture's sets and the light each one went to (a highlight right
     # beside a brighter one is left out, with a note, so a capture may miss a light).
     complete = 0
