@@ -276,6 +276,30 @@ def test_counting_one_light_that_no_lobe_fit_confirms_is_refused(rig3x3, board):
     assert np.linalg.norm(light.position_m - close.mean(axis=0)) < 0.02
 
 
+def test_a_light_never_in_a_view_with_another_is_refused(board):
+    """Two lamps along nearly one direction from the plates merge their highlights.
+
+    The merged blob's centre is the image of a point between the two lamps, as
+    consistent across views and plate poses as a lamp's; told three lamps, it came back as
+    the third light, 0.13 m from both, while the second lamp's own highlight was never
+    found. It never shows in a view where the lamp beside it shows on its own.
+    """
+    rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, fy=600.0, image_size=(640, 480))
+    lamps = np.array([[-0.3798, 0.1566, -0.1827], [-0.3397, 0.2263, -0.4121],
+                      [-0.5487, 0.4009, -0.1793]])
+    plates = [((-0.0548, -0.0503, 1.0825), (-0.0397, -0.0359, 1.0825), 0.0188),
+              ((0.0322, -0.0593, 1.0356), (0.0579, -0.0485, 1.0356), 0.0647),
+              ((0.0109, 0.0266, 1.0335), (-0.0081, 0.0119, 1.0335), 0.0689)]
+    views = [render(plate_scene(board, rig, lamps, center_m=center, rotation_rad=turn,
+                                normal=highlight_normal(aim, lamps.mean(axis=0),
+                                                        rig.reference_center_m)), rig).views
+             for center, aim, turn in plates]
+    with pytest.raises(LightError, match=r"expected every two lights to show in a common view "
+                                         r"of some capture, got two that never do \(capture 0: "
+                                         r".*merged highlight of two lamps"):
+        estimate_lights(views, rig, board, n_lights=3)
+
+
 def test_a_capture_with_a_moved_lamp_is_refused(rig3x3, board, two):
     moved = _captures(rig3x3, board, LIGHTS_M[[0, 2]], plates=PLATES[2:])
     views = [v for v, _, _ in two[:2]] + [moved[0][0]]
