@@ -304,10 +304,11 @@ class LightsEstimate:
 
 #: Most lights read from the highlights' images (``photometric``); with more, the rays'
 #: lights stay. The plate's one fitted plane moves every light by the same two mirrors,
-#: so the images correct what the lights' errors share. On 22 rendered two-lamp layouts
-#: that made SRDE's masked EPE on objects lit by those lamps better in 15 (mean 0.0115 ->
-#: 0.0063 px, 0.0049 px with the true lights); on 20 three-lamp layouts, in 8 (mean
-#: 0.0136 -> 0.0151 px): there the rays decide.
+#: so the images correct what the lights' errors share. On 31 rendered two-lamp layouts
+#: that made SRDE's masked EPE on objects lit by those lamps better in 22 (mean 0.0118 ->
+#: 0.0062 px, 0.0050 px with the true lights); on 21 three-lamp layouts, in 8 (mean
+#: 0.0168 -> 0.0172 px, median 0.0067 -> 0.0100): there the rays decide
+#: (``benchmarks/light_calibration_multi.py``, its downstream table).
 MAX_IMAGE_READ_LIGHTS = 2
 
 

@@ -105,13 +105,13 @@ def photometric_light(light_m: np.ndarray, captures: Sequence[Sequence[np.ndarra
     PhotometricLight
     """
     light_m = np.asarray(light_m, dtype=np.float64)
-    return photometric_lights(light_m[None], captures, poses, rig, board,
-                              [(0,)] * len(poses))[0]
+    return photometric_lights(light_m[None], captures, poses, rig, board)[0]
 
 
 def photometric_lights(lights_m: np.ndarray, captures: Sequence[Sequence[np.ndarray]],
                        poses: Sequence[PlatePose], rig: CameraRig, board: Board,
-                       shown: Sequence[Sequence[int]]) -> tuple[PhotometricLight, ...]:
+                       shown: Sequence[Sequence[int]] | None = None
+                       ) -> tuple[PhotometricLight, ...]:
     """Read every capture's highlights with SRDE's joint lobe fit and mirror them back.
 
     With several lights SRDE fits one lobe per light on the one plane of the plate
@@ -130,9 +130,9 @@ def photometric_lights(lights_m: np.ndarray, captures: Sequence[Sequence[np.ndar
         The rig; with one light to find, a single light it lists lends its radius to the
         fit (several are fitted as points: which listed lamp is which is not known here).
     board : Board
-    shown : sequence of sequence of int
+    shown : sequence of sequence of int, optional
         Per capture, the lights (indices into ``lights_m``) whose highlights it shows;
-        only those are given a light from it.
+        only those are given a light from it. By default every capture shows every light.
 
     Returns
     -------
@@ -140,6 +140,8 @@ def photometric_lights(lights_m: np.ndarray, captures: Sequence[Sequence[np.ndar
         One per light.
     """
     lights_m = np.asarray(lights_m, dtype=np.float64).reshape(-1, 3)
+    if shown is None:
+        shown = [range(len(lights_m))] * len(poses)
     if len(lights_m) == 1 and len(rig.lights) == 1:
         # Keep what the user measured of the lamp (its radius).
         lit = rig.with_lights([replace(rig.lights[0],
