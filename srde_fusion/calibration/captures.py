@@ -591,7 +591,8 @@ def calibrate_light_files(
         ``rig.json`` keep their names and radii.
     **options
         Keyword options of :func:`estimate_light` / :func:`estimate_lights`
-        (``photometric`` applies to one light: several are solved from their rays).
+        (``photometric`` applies to up to :data:`MAX_IMAGE_READ_LIGHTS` lights: more are
+        solved from their rays).
 
     Returns
     -------
