@@ -306,8 +306,8 @@ class LightsEstimate:
 #: lights stay. The plate's one fitted plane moves every light by the same two mirrors,
 #: so the images correct what the lights' errors share. On 31 rendered two-lamp layouts
 #: that made SRDE's masked EPE on objects lit by those lamps better in 22 (mean 0.0118 ->
-#: 0.0062 px, 0.0050 px with the true lights); on 21 three-lamp layouts, in 8 (mean
-#: 0.0168 -> 0.0172 px, median 0.0067 -> 0.0100): there the rays decide
+#: 0.0062 px, 0.0050 px with the true lights); on 21 three-lamp layouts, in 9 (mean
+#: 0.0132 -> 0.0131 px, median 0.0065 -> 0.0098): there the rays decide
 #: (``benchmarks/light_calibration_multi.py``, its downstream table).
 MAX_IMAGE_READ_LIGHTS = 2
 
