@@ -38,12 +38,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from multi_light import masked_epe  # (run from this folder)
 from scipy.stats import chi2
 
 from srde_fusion.calibration import Board, estimate_light, estimate_lights
-from srde_fusion.calibration import captures as lights_module
+from srde_fusion.calibration import captures as calibration_captures
 from srde_fusion.errors import SRDEError
-from srde_fusion.geometry import CameraRig, plane_disparity
+from srde_fusion.geometry import CameraRig
 from srde_fusion.srde import SRDE
 from srde_fusion.synthetic import (
     Physics,
@@ -182,10 +183,8 @@ def downstream(k: int, n_scenes: int) -> list[dict]:
             # Worst light's error: each true light to its nearest estimate.
             gaps = np.linalg.norm(truth[:, None] - positions[None], axis=2).min(axis=1)
             result = SRDE(rig.with_lights(positions)).estimate(rendering.views, mask)
-            epe = (float(np.mean(np.abs(plane_disparity(result.plane, rig)[mask]
-                                        - rendering.disparity_px[mask])))
-                   if result.ok else float("nan"))
-            rec[name] = dict(worst_light_mm=float(gaps.max() * 1e3), epe_px=epe)
+            rec[name] = dict(worst_light_mm=float(gaps.max() * 1e3),
+                             epe_px=masked_epe(result, rig, rendering, mask))
         rec["status"] = ("wrong" if max(rec[n]["worst_light_mm"] for n in ("rays", "images"))
                          > WRONG_M * 1e3 else "ok")
         out.append(rec)
@@ -197,12 +196,12 @@ def downstream(k: int, n_scenes: int) -> list[dict]:
 
 def images_read(views, rig: CameraRig, board: Board, k: int) -> np.ndarray:
     """The lights read from the highlights' images, past the default limit if need be."""
-    limit = lights_module.MAX_IMAGE_READ_LIGHTS
-    lights_module.MAX_IMAGE_READ_LIGHTS = max(limit, k)
+    limit = calibration_captures.MAX_IMAGE_READ_LIGHTS
+    calibration_captures.MAX_IMAGE_READ_LIGHTS = max(limit, k)
     try:
         return estimate_lights(views, rig, board, n_lights=k).positions_m
     finally:
-        lights_module.MAX_IMAGE_READ_LIGHTS = limit
+        calibration_captures.MAX_IMAGE_READ_LIGHTS = limit
 
 
 def downstream_rows(records: list[dict]) -> list[str]:
@@ -222,7 +221,7 @@ def downstream_rows(records: list[dict]) -> list[str]:
         better = sum(r["images"]["epe_px"] < r["rays"]["epe_px"] for r in both)
         off = (f"{np.mean([r['rays']['worst_light_mm'] for r in ok]):.2f} / "
                f"{np.mean([r['images']['worst_light_mm'] for r in ok]):.2f}" if ok else "-")
-        default = "images" if k <= lights_module.MAX_IMAGE_READ_LIGHTS else "rays"
+        default = "images" if k <= calibration_captures.MAX_IMAGE_READ_LIGHTS else "rays"
         lines.append(f"| {k} | {len(recs)} | {sum(r['status'] != 'refused' for r in recs)} | "
                      f"{sum(r['status'] == 'wrong' for r in recs)} | {len(both)} | "
                      f"{stat('true')} | {stat('rays')} | {stat('images')} | "

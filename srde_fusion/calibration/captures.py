@@ -435,7 +435,7 @@ def estimate_lights(
                 f"lights: expected every light in at least 2 of the {len(groupings)} captures "
                 f"(so that its rays are checked across plate poses), got a light seen only in "
                 f"capture {only[0]}; add captures that show it, or check the number of lights")
-    apart = _never_in_one_view(groupings, matches, k)
+    apart = _never_in_one_view(groupings, matches, k, rig.n_cameras)
     if apart is not None:
         # Two lamps whose highlights merge in some views give a blob whose centre is the
         # image of a point between them, consistent across views and plate poses as a
@@ -498,14 +498,15 @@ def estimate_lights(
 
 
 def _never_in_one_view(groupings: Sequence[HighlightGrouping],
-                       matches: Sequence[CaptureMatch], k: int) -> tuple[int, int] | None:
+                       matches: Sequence[CaptureMatch], k: int, n_views: int
+                       ) -> tuple[int, int] | None:
     """Return two lights whose highlights share no view of any capture, or None."""
     together = np.zeros((k, k), dtype=int)
     for grouping, match in zip(groupings, matches, strict=True):
-        views = np.zeros((k, len(grouping.sets[0].candidates) if grouping.sets else 0), bool)
+        seen = np.zeros((k, n_views), dtype=int)
         for highlight_set, light in zip(grouping.sets, match.lights, strict=True):
-            views[light] = highlight_set.candidates >= 0
-        together += views.astype(int) @ views.T.astype(int)
+            seen[light] = highlight_set.candidates >= 0
+        together += seen @ seen.T
     pairs = np.argwhere(np.triu(together == 0, 1))
     return (int(pairs[0][0]), int(pairs[0][1])) if len(pairs) else None
 

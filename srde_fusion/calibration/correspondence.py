@@ -115,7 +115,10 @@ class HighlightGrouping:
 #: virtual light this many times better (RMS): one centre pulled off its highlight (by
 #: a neighbour's flank or a marker's edge) tilts the fit for all of them. Renders fit to a
 #: hundredth of a pixel, real images to a few tenths; a pulled centre a pixel off put one
-#: rendered lamp 7.6 mm off (its set fitting to 0.1-1.2 px, 0.01 px without it).
+#: rendered lamp 7.6 mm off (its set fitting to 0.1-1.2 px, 0.01 px without it). (SRDE's
+#: ``robust_triangulate``, its bound adapted from the least median of pair proposals,
+#: dropped a view from 315 of 1000 sets of centres with 0.3 px noise alone; this rule from
+#: none.)
 PULLED_CENTRE_GAIN = 3.0
 
 
