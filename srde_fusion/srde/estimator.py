@@ -473,7 +473,8 @@ class SRDE:
                           self.method, result.notes, detections)
 
     def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None,
-                light=None, refine=None, modelled_lights=(), modelled_centers=None) -> SRDEResult:
+                light=None, refine=None, modelled_lights=(), modelled_centers=None,
+                window_centers=None) -> SRDEResult:
         """Check the virtual light and the plane, refine it (given views); disparity.
 
         ``light``: the light ``point`` is the virtual light of (one of several); the
@@ -481,6 +482,8 @@ class SRDE:
         ``modelled_lights``: further lights whose highlights the refinement renders beside
         ``light``'s (the other lights' are left out of its windows); ``modelled_centers``
         ``(M, N, 2)``: their highlights, which the refinement's windows go around too.
+        ``window_centers`` ``(N, 2)``: where the refinement's windows go around ``light``'s
+        highlight (NaN: no window in that view); the used ``centers`` by default.
         """
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}
@@ -520,7 +523,9 @@ class SRDE:
             radius_m = next((r for m, r in zip(self.lights_m, self.light_radii_m, strict=True)
                              if np.array_equal(m, light)), None)
             refinement = refine_plane(views, rig, light, mask, plane,
-                                      centers_uv=np.where(used[:, None], centers, np.nan),
+                                      centers_uv=(np.where(used[:, None], centers, np.nan)
+                                                  if window_centers is None
+                                                  else window_centers),
                                       lobe=self.refine_lobe,
                                       other_lights_m=np.array(others) if others else None,
                                       modelled_lights_m=(np.array(modelled_lights)

@@ -132,6 +132,9 @@ class PlaneRefinement:
     contrast : float
         The fitted samples' highlight contrast (brightest sample over the background,
         linear luminance), the scale of the residual check; NaN if no samples were cut.
+    views : tuple of int
+        The views whose windows around the fitted light's highlight were fitted,
+        ascending; empty if no samples were cut.
     """
 
     plane: Plane
@@ -149,6 +152,7 @@ class PlaneRefinement:
     time_s: float
     disparity_sigma_px: float = math.nan
     contrast: float = math.nan
+    views: tuple[int, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -357,7 +361,7 @@ def refine_plane(
     common = dict(converged=fit.converged, iterations=fit.iterations,
                   cost_initial=attempt.cost_initial, cost_final=fit.cost,
                   n_samples=attempt.samples.n_samples,
-                  contrast=attempt.contrast)
+                  contrast=attempt.contrast, views=tuple(sorted(attempt.samples.view_indices)))
     if attempt.problem:
         return kept(attempt.problem, residual=math.sqrt(attempt.cost_initial),
                     params=attempt.params_initial, **common)
