@@ -1055,7 +1055,6 @@ class _Context:
         a highlight cut by the outline, whose centre moved inwards off its light's) is
         that light's, not a stray.
         """
-        maps = references_from_views(self.rig, plane)[self.cand_view]  # (M, 2, 3)
         free = np.ones(len(self.cand_view), dtype=bool)
         light_idx, view_idx = np.nonzero(matched >= 0)
         free[self.cand_start[view_idx] + matched[light_idx, view_idx]] = False
@@ -1063,7 +1062,8 @@ class _Context:
         free[held] = False
         if not free.any():
             return 0
-        maps, uv = maps[free], self.all_cands[free]
+        maps = references_from_views(self.rig, plane)[self.cand_view[free]]  # (M', 2, 3)
+        uv = self.all_cands[free]
         ref_uv = np.einsum("mij,mj->mi", maps[:, :, :2], uv) + maps[:, :, 2]
         u = np.rint(ref_uv[:, 0]).astype(np.intp)
         v = np.rint(ref_uv[:, 1]).astype(np.intp)
@@ -1535,13 +1535,17 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
         np.where(np.isfinite(solution.assignments[k].centers_uv[:, :1]),
                  solution.assignments[k].predicted_uv, np.nan) for k in modelled]
     ) if modelled else None
-    # The lobes need no centre, only where the highlight is: the main light's windows also
-    # go around its highlights that the plane puts on the object but no centre measured
-    # (cut by the outline, or one blob with another light's), though not where the view
-    # is dark there. (On the several-light benchmark's scenes, mean masked EPE with 2 / 3 /
-    # 4 lights 0.0051 / 0.0094 / 0.0086 -> 0.0050 / 0.0090 / 0.0074 px; 19 of 119 scenes
-    # better by over 1e-4 px, 9 worse. One scene's main light had windows in 2 views.)
-    windowed = used | (main.on_object & ~main.missing)
+    # The lobes need no centre, only where the highlight is. When centres measured the
+    # main light in fewer than half the views, its windows also go around its highlights
+    # that the plane puts on the object but no centre measured (one blob with another
+    # light's, or cut by the outline), though not where the view is dark there: the lobe
+    # seen from those views pins the plane down where two or three views did not. (On
+    # 240 several-light scenes, 2-4 lights: 13 scenes better by over 1e-4 px, 1 worse.
+    # With most views measured, the windows added brought as much model error as
+    # information: 13 scenes better, 15 worse.)
+    windowed = used
+    if 2 * int(used.sum()) < rig.n_cameras:
+        windowed = used | (main.on_object & ~main.missing)
     window_centers = np.where(used[:, None], main.centers_uv,
                               np.where(windowed[:, None], main.predicted_uv, np.nan))
     result = srde._finish(mask, point, w, used, main.centers_uv, detections, notes,
