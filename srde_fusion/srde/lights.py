@@ -1539,7 +1539,7 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
     # main light in fewer than half the views, its windows also go around its highlights
     # that the plane puts on the object but no centre measured (one blob with another
     # light's, or cut by the outline), though not where the view is dark there: the lobe
-    # seen from those views pins the plane down where two or three views did not. (On
+    # seen from those views pins the plane down where two to four views did not. (On
     # 240 several-light scenes, 2-4 lights: 13 scenes better by over 1e-4 px, 1 worse.
     # With most views measured, the windows added brought as much model error as
     # information: 13 scenes better, 15 worse.)
