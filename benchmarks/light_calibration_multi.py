@@ -49,6 +49,7 @@ from srde_fusion.srde import SRDE
 from srde_fusion.synthetic import (
     Physics,
     RandomSceneConfig,
+    default_rig,
     highlight_normal,
     plate_scene,
     random_scene,
@@ -114,7 +115,7 @@ def score(estimates, truth) -> dict:
 
 def run(trials: int, plan) -> list[dict]:
     """``plan``: (physics, layout, number of lights) triples to run ``trials`` times each."""
-    rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, fy=600.0, image_size=(640, 480))
+    rig = default_rig()
     board = Board.corner_layout(plate_size_m=PLATE_SIZE_M)
     out = []
     for physics_name, layout, k in plan:
@@ -157,7 +158,7 @@ def run(trials: int, plan) -> list[dict]:
 
 def downstream(k: int, n_scenes: int) -> list[dict]:
     """SRDE's masked EPE on k-light object scenes with true, rays' and images' lights."""
-    rig = CameraRig.grid(3, 3, baseline_m=0.085, fx=600.0, fy=600.0, image_size=(640, 480))
+    rig = default_rig()
     board = Board.corner_layout(plate_size_m=PLATE_SIZE_M)
     physics = Physics.faithful()
     out = []
@@ -297,7 +298,7 @@ def write(rows: list[dict], records: list[dict], args, far: list[dict]) -> None:
                   f"{r['reason']}" for r in refused]
     if far:
         lines += ["", "## What the calibrated lights cost SRDE", "",
-                  f"{len(far) // 2} object scenes per number of lights from the several-light "
+                  f"{args.downstream} object scenes per number of lights from the several-light "
                   "benchmark (`random_scene`, faithful physics, seeds 12000 + 100 k + i); their "
                   f"lamps calibrated from {CAPTURES} plate captures, from the rays alone and "
                   "read from the highlights' images (the default up to "
