@@ -24,11 +24,13 @@ from .captures import (
     read_capture,
 )
 from .correspondence import (
+    CONTRADICTED_SET_PX,
     DEFAULT_MATCH_TOLERANCE_PX,
     CaptureMatch,
     HighlightGrouping,
     HighlightSet,
     group_highlights,
+    leave_out_contradicted_sets,
     match_captures,
 )
 from .figures import (
@@ -89,6 +91,8 @@ __all__ = [
     "CaptureMatch",
     "group_highlights",
     "match_captures",
+    "leave_out_contradicted_sets",
+    "CONTRADICTED_SET_PX",
     "find_plate_highlight_candidates",
     "read_capture",
     "calibrate_light_files",

@@ -36,6 +36,7 @@ from .correspondence import (
     CaptureMatch,
     HighlightGrouping,
     group_highlights,
+    leave_out_contradicted_sets,
     match_captures,
 )
 from .light import (
@@ -268,12 +269,16 @@ class LightsEstimate:
         ``lights``), with the ray distances of that assignment and of the runner-up.
     view_notes : tuple of tuple of tuple of str
         Per capture and view, the highlights found but not used, and why.
+    left_out : tuple of str
+        Highlight sets matched to a light but contradicted by the light's other captures,
+        left out (:func:`~.correspondence.leave_out_contradicted_sets`), and why.
     """
 
     lights: tuple[LightEstimate, ...]
     groupings: tuple[HighlightGrouping, ...]
     matches: tuple[CaptureMatch, ...]
     view_notes: tuple[tuple[tuple[str, ...], ...], ...]
+    left_out: tuple[str, ...] = ()
 
     @property
     def n_lights(self) -> int:
@@ -296,6 +301,7 @@ class LightsEstimate:
                       f"; next best assignment {match.runner_up_distance_m * 1000:.1f} mm")
             lines.append(f"capture {c}: {sets} (rays meet within "
                          f"{match.ray_distance_m * 1000:.1f} mm{runner})")
+        lines += [f"left out: {note}" for note in self.left_out]
         for k, est in enumerate(self.lights):
             lines.append(f"light {k}:")
             lines += ["  " + line for line in est.summary().splitlines()]
@@ -335,7 +341,9 @@ def estimate_lights(
     every view (:func:`find_plate_highlight_candidates`); the highlights sorted into one
     set per light by triangulating their virtual lights (:func:`group_highlights`). The
     sets of all captures are assigned to the lights by their reflected rays
-    (:func:`match_captures`: each light is one point the rays of its sets must meet).
+    (:func:`match_captures`: each light is one point the rays of its sets must meet), and
+    a set its light's other captures contradict is left out
+    (:func:`~.correspondence.leave_out_contradicted_sets`, named in ``left_out``).
     Then each light is solved as :func:`estimate_light` solves one
     (:func:`light_from_reflections`), with the same residuals and uncertainty. Then, with
     ``photometric`` and at most :data:`MAX_IMAGE_READ_LIGHTS` lights, each capture is read
@@ -425,6 +433,8 @@ def estimate_lights(
                                      max_ray_distance_m=max_residual_m)
     if reason:
         raise LightError(reason)
+    groupings, matches, left_out = leave_out_contradicted_sets(
+        groupings, matches, poses, rig, k, refine=refine, max_residual_m=max_residual_m)
     if len(groupings) >= 2:
         # A light seen in one capture only was never checked against another plate pose.
         seen = [sum(light in m.lights for m in matches) for light in range(k)]
@@ -458,13 +468,17 @@ def estimate_lights(
     estimates = []
     for light in range(k):
         centers, reasons = [], []
-        for grouping, match, per_view in zip(groupings, matches, notes, strict=True):
+        for c, (grouping, match, per_view) in enumerate(zip(groupings, matches, notes,
+                                                             strict=True)):
             found = [s for s, j in zip(grouping.sets, match.lights, strict=True) if j == light]
             cc = found[0].centers_px if found else np.full((rig.n_cameras, 2), np.nan)
             centers.append(cc)
+            dropped = {v: note for at, j, views, note in left_out if (at, j) == (c, light)
+                       for v in views}
             reasons.append(tuple(
                 "" if np.all(np.isfinite(cc[v])) else
-                "; ".join((f"{rig.camera_names[v]}: no highlight of this light",) + per_view[v])
+                "; ".join((f"{rig.camera_names[v]}: "
+                           + dropped.get(v, "no highlight of this light"),) + per_view[v])
                 for v in range(rig.n_cameras)))
         try:
             estimates.append(light_from_reflections(
@@ -494,7 +508,9 @@ def estimate_lights(
     new_index = {old: new for new, old in enumerate(order)}
     matches = tuple(replace(m, lights=tuple(new_index[j] for j in m.lights)) for m in matches)
     return LightsEstimate(tuple(estimates[j] for j in order), tuple(groupings), matches,
-                          tuple(notes))
+                          tuple(notes),
+                          tuple(f"capture {c}, light {new_index[j]}: {note}"
+                                for c, j, _, note in left_out))
 
 
 def _never_in_one_view(groupings: Sequence[HighlightGrouping],

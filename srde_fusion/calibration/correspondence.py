@@ -13,7 +13,11 @@ and no highlight may serve two sets.
 *Across captures* each light is one 3-D point: the reflected rays of its highlight sets
 from every plate pose must meet there. Each capture's sets are matched to the lights by
 trying every assignment and keeping the one whose rays meet
-(:func:`match_captures`); two assignments that both fit are an ambiguity.
+(:func:`match_captures`); two assignments that both fit are an ambiguity. A set the
+light's other captures contradict is then left out (:func:`leave_out_contradicted_sets`):
+a few views of another lamp's highlight, displaced by a marker's edge, fit their own
+virtual light as well as a lamp's highlights do, and the mean ray distance of the
+assignment hides them.
 
 Nothing is guessed: two competing sets with the same support, a capture whose sets fit
 two assignments, or more highlight sets than lights are failures with their reasons and
@@ -24,12 +28,18 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..errors import LightError
 from ..geometry import CameraRig, triangulate_rectified
-from .light import closest_point_to_rays, reflect_highlights
+from .light import (
+    closest_point_to_rays,
+    highlight_rms_px,
+    light_from_reflections,
+    reflect_highlights,
+)
 from .plate_pose import PlatePose
 
 __all__ = [
@@ -40,6 +50,8 @@ __all__ = [
     "CaptureMatch",
     "group_highlights",
     "match_captures",
+    "leave_out_contradicted_sets",
+    "CONTRADICTED_SET_PX",
 ]
 
 #: Largest distance (pixels) between a highlight centre and the projection of the virtual
@@ -52,6 +64,17 @@ DEFAULT_MATCH_TOLERANCE_PX = 1.5
 #: A capture's assignment of highlight sets to lights is accepted only if the next best
 #: one has at least this many times its sum of squared ray distances.
 AMBIGUITY_RATIO = 4.0
+
+
+#: A light's highlight set is left out when its highlights lie farther than this (RMS,
+#: pixels) from the light's images as the light's other captures place it (their light,
+#: mirrored across this capture's plate). On 100 rendered two- and three-lamp layouts
+#: (3 plate poses each, faithful physics) every kept set lay within 0.56 px of where the
+#: other captures put it; a set of 2 views of one lamp's highlight, displaced by a
+#: marker's edge and assigned to another lamp, lay 11.1 px off and put that lamp 105 mm
+#: from it. Real centres and plate poses are good to a few tenths of a pixel and about
+#: 0.1 deg (about 1 px here): the bound leaves room for both.
+CONTRADICTED_SET_PX = 3.0
 
 
 # A light cannot be assigned more captures' sets than this many at once (the number of
@@ -423,3 +446,96 @@ def match_captures(
             origins[k].append(rays[c][s][0])
             directions[k].append(rays[c][s][1])
     return tuple(matches[c] for c in range(len(groupings))), ""
+
+
+def leave_out_contradicted_sets(
+    groupings: Sequence[HighlightGrouping],
+    matches: Sequence[CaptureMatch],
+    poses: Sequence[PlatePose],
+    rig: CameraRig,
+    n_lights: int,
+    *,
+    tolerance_px: float = CONTRADICTED_SET_PX,
+    refine: bool = True,
+    max_residual_m: float,
+) -> tuple[tuple[HighlightGrouping, ...], tuple[CaptureMatch, ...],
+           tuple[tuple[int, int, tuple[int, ...], str], ...]]:
+    """Leave out highlight sets that the other captures of their light contradict.
+
+    For a light with sets in three or more captures, each set is checked against the
+    light solved from the others (:func:`~.light.light_from_reflections`): its highlights
+    must lie within ``tolerance_px`` (RMS) of that light mirrored across its capture's
+    plate. The worst set beyond it is left out (its highlights join the capture's
+    unmatched ones), and the check runs again while three captures remain. With two
+    captures neither can be told wrong: both stay, and the assignment's ray distance
+    decides as before.
+
+    A set of one lamp's highlight is internally consistent whatever light it was
+    assigned to; the mean ray distance of the assignment (over all of a light's rays,
+    which their common point follows) can stay within bounds while a few of its rays
+    pull the light far along the bundles' poorly fixed direction.
+
+    Parameters
+    ----------
+    groupings, matches : sequence
+        Per capture, its highlight sets and their lights (:func:`group_highlights`,
+        :func:`match_captures`).
+    poses : sequence of PlatePose
+        Per capture, the plate (from its markers).
+    rig : CameraRig
+    n_lights : int
+    tolerance_px : float
+        Largest RMS distance of a kept set's highlights from the images of its light.
+    refine : bool
+        Solve each light from the other captures with the joint refinement.
+    max_residual_m : float
+        As :func:`~.light.light_from_reflections` (a solve that fails checks nothing).
+
+    Returns
+    -------
+    groupings, matches : tuple
+        Without the sets left out.
+    left_out : tuple of (int, int, tuple of int, str)
+        Per set left out: its capture, its light, its views, and why (the distance and
+        the captures that placed the light).
+    """
+    groupings, matches = list(groupings), list(matches)
+    left_out: list[tuple[int, int, tuple[int, ...], str]] = []
+    for light in range(n_lights):
+        while True:
+            held = [(c, s) for c, m in enumerate(matches)
+                    for s, j in enumerate(m.lights) if j == light]
+            if len(held) < 3:
+                break
+            worst = None  # (distance, capture, set, other captures)
+            for c, s in held:
+                others = [(o, t) for o, t in held if o != c]
+                try:
+                    placed = light_from_reflections(
+                        [poses[o] for o, _ in others],
+                        [groupings[o].sets[t].centers_px for o, t in others], rig,
+                        refine=refine, max_residual_m=max_residual_m)
+                except LightError:  # the others alone fix no light: nothing to check with
+                    continue
+                distance = highlight_rms_px(placed.position_m, [poses[c]],
+                                            [groupings[c].sets[s].centers_px], rig)
+                if worst is None or distance > worst[0]:
+                    worst = (distance, c, s, [o for o, _ in others])
+            if worst is None or not worst[0] > tolerance_px:
+                break
+            distance, c, s, others = worst
+            dropped = groupings[c].sets[s]
+            left_out.append((c, light, dropped.views, (
+                f"its highlight set of views {list(dropped.views)} was left out: the "
+                f"highlights lie {distance:.1f} px (RMS) from the light's images as captures "
+                f"{others} place it (at most {tolerance_px:g} px)")))
+            unmatched = tuple(
+                np.vstack([extra, dropped.centers_px[v][None]])
+                if dropped.candidates[v] >= 0 else extra
+                for v, extra in enumerate(groupings[c].unmatched_px))
+            groupings[c] = replace(groupings[c],
+                                   sets=tuple(x for i, x in enumerate(groupings[c].sets) if i != s),
+                                   unmatched_px=unmatched)
+            matches[c] = replace(matches[c],
+                                 lights=tuple(j for i, j in enumerate(matches[c].lights) if i != s))
+    return tuple(groupings), tuple(matches), tuple(left_out)

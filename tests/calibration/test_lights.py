@@ -10,6 +10,8 @@ import pytest
 from srde_fusion.calibration import (
     MAX_IMAGE_READ_LIGHTS,
     Board,
+    CaptureMatch,
+    HighlightGrouping,
     HighlightSet,
     PlatePose,
     calibrate_light_files,
@@ -17,6 +19,7 @@ from srde_fusion.calibration import (
     estimate_lights,
     find_plate_highlight_candidates,
     group_highlights,
+    leave_out_contradicted_sets,
     match_captures,
 )
 from srde_fusion.errors import LightError
@@ -217,6 +220,37 @@ def test_more_sets_than_lights_or_no_capture_with_all(rig3x3, two):
         sets, poses, rig3x3, 3, max_ray_distance_m=0.01)[1]
 
 
+def test_a_set_its_lights_other_captures_contradict_is_left_out(rig3x3, two):
+    poses = [truth for _, truth, _ in two]
+    sets = _exact_sets(rig3x3, poses, LIGHTS_M[:2])
+    # Capture 2's second set: two views of the first lamp's highlight, 6 px aside.
+    centers = np.full((9, 2), np.nan)
+    centers[[5, 8]] = sets[2][0].centers_px[[5, 8]] + [6.0, 0.0]
+    candidates = np.full(9, -1)
+    candidates[[5, 8]] = 1
+    sets[2][1] = HighlightSet(centers, candidates, sets[2][0].virtual_light_m, 0.0)
+    empty = tuple(np.zeros((0, 2)) for _ in range(9))
+    groupings = [HighlightGrouping(tuple(s), empty) for s in sets]
+    matches = [CaptureMatch((0, 1), 0.0, np.inf) for _ in sets]
+    kept, kept_matches, left_out = leave_out_contradicted_sets(
+        groupings, matches, poses, rig3x3, 2, max_residual_m=0.01)
+    assert [len(g.sets) for g in kept] == [2, 2, 1]
+    assert [m.lights for m in kept_matches] == [(0, 1), (0, 1), (0,)]
+    (capture, light, views, note), = left_out
+    assert (capture, light, views) == (2, 1, (5, 8))
+    assert "captures [0, 1] place it" in note
+    assert [len(u) for u in kept[2].unmatched_px] == [0, 0, 0, 0, 0, 1, 0, 0, 1]
+    # Two captures cannot tell which one is wrong: both stay.
+    both = leave_out_contradicted_sets(groupings[1:], matches[1:], poses[1:], rig3x3, 2,
+                                       max_residual_m=0.01)
+    assert [len(g.sets) for g in both[0]] == [2, 2] and both[2] == ()
+    # Exact sets everywhere: nothing is left out.
+    exact = [HighlightGrouping(tuple(s), empty) for s in _exact_sets(rig3x3, poses,
+                                                                     LIGHTS_M[:2])]
+    assert leave_out_contradicted_sets(exact, matches, poses, rig3x3, 2,
+                                       max_residual_m=0.01)[2] == ()
+
+
 # ---------------------------------------------------------------------- the whole calibration
 @pytest.mark.parametrize("n_lights", [2, 3])
 def test_every_light_is_recovered_within_its_uncertainty(n_lights, two, three, rig3x3, board):
@@ -321,6 +355,41 @@ def test_a_light_never_in_a_view_with_another_is_refused(board):
                                          r"of some capture, got two that never do \(capture 0: "
                                          r".*merged highlight of two lamps"):
         estimate_lights(views, rig, board, n_lights=3)
+
+
+def test_a_set_the_lights_other_captures_contradict_is_left_out(rig3x3, board):
+    """Part of one lamp's highlight, displaced by a marker's edge, posed as another lamp.
+
+    In the second capture three views of the first lamp's highlight (the views where its
+    blob touches a marker) fit one virtual light of their own to 0.01 px; the matching
+    gave them to the lamp the capture did not show, whose other two captures' rays let
+    those three pull it 0.11 m along the bundles (mean ray distance 7.9 mm, within the
+    10 mm bound). Solved from the other two captures, that lamp puts its highlights
+    several pixels from those three.
+    """
+    lamps = np.array([[-0.1113, -0.2058, 0.099], [-0.29, -0.1098, 0.3662],
+                      [-0.2251, -0.2493, -0.0088]])
+    plates = [((-0.0932, 0.0362, 1.0464), (-0.0781, 0.0292, 1.0464), -0.1228),
+              ((0.084, 0.0097, 0.9598), (0.0802, 0.0008, 0.9598), 0.1164),
+              ((-0.0759, 0.0596, 0.9533), (-0.0883, 0.0602, 0.9533), -0.1296)]
+    views = [render(plate_scene(board, rig3x3, lamps, center_m=center, rotation_rad=turn,
+                                light_radius_m=0.003,
+                                normal=highlight_normal(aim, lamps.mean(axis=0),
+                                                        rig3x3.reference_center_m)),
+                    rig3x3).views
+             for center, aim, turn in plates]
+    found = estimate_lights(views, rig3x3, board, n_lights=3, photometric=False)
+    errors = [_nearest(p, lamps)[1] for p in found.positions_m]
+    assert max(errors) < DETECTED_TOL_M
+    assert sorted(_nearest(p, lamps)[0] for p in found.positions_m) == [0, 1, 2]
+    assert len(found.left_out) == 1
+    assert found.left_out[0].startswith("capture 1, light ")
+    assert "was left out" in found.summary()
+    # The light that lost the set keeps its two captures' rays only, and says why.
+    k = int(found.left_out[0].split("light ")[1].split(":")[0])
+    light = found.lights[k]
+    assert light.n_captures == 3 and len(light.views_used[1]) == 0
+    assert any("was left out" in r for r in light.view_reasons[1])
 
 
 def test_a_capture_with_a_moved_lamp_is_refused(rig3x3, board, two):
