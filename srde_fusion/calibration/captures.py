@@ -441,10 +441,13 @@ def estimate_lights(
         lonely = [light for light in range(k) if seen[light] < 2]
         if lonely:
             only = [c for c, m in enumerate(matches) if lonely[0] in m.lights]
+            dropped = [f"; its set in capture {c} was left out: {note}"
+                       for c, j, _, note in left_out if j == lonely[0]]
             raise LightError(
                 f"lights: expected every light in at least 2 of the {len(groupings)} captures "
                 f"(so that its rays are checked across plate poses), got a light seen only in "
-                f"capture {only[0]}; add captures that show it, or check the number of lights")
+                f"capture {only[0]}{''.join(dropped[:1])}; add captures that show it, or check "
+                f"the number of lights")
     apart = _never_in_one_view(groupings, matches, k, rig.n_cameras)
     if apart is not None:
         # Two lamps whose highlights merge in some views give a blob whose centre is the
@@ -478,7 +481,8 @@ def estimate_lights(
             reasons.append(tuple(
                 "" if np.all(np.isfinite(cc[v])) else
                 "; ".join((f"{rig.camera_names[v]}: "
-                           + dropped.get(v, "no highlight of this light"),) + per_view[v])
+                           + (f"set left out: {dropped[v]}" if v in dropped
+                              else "no highlight of this light"),) + per_view[v])
                 for v in range(rig.n_cameras)))
         try:
             estimates.append(light_from_reflections(
@@ -509,7 +513,7 @@ def estimate_lights(
     matches = tuple(replace(m, lights=tuple(new_index[j] for j in m.lights)) for m in matches)
     return LightsEstimate(tuple(estimates[j] for j in order), tuple(groupings), matches,
                           tuple(notes),
-                          tuple(f"capture {c}, light {new_index[j]}: {note}"
+                          tuple(f"capture {c}, light {new_index[j]}: set left out, {note}"
                                 for c, j, _, note in left_out))
 
 

@@ -236,12 +236,20 @@ def test_a_set_its_lights_other_captures_contradict_is_left_out(rig3x3, two):
         groupings, matches, poses, rig3x3, 2, max_residual_m=0.01)
     assert [len(g.sets) for g in kept] == [2, 2, 1]
     assert [m.lights for m in kept_matches] == [(0, 1), (0, 1), (0,)]
-    (capture, light, views, note), = left_out
+    ((capture, light, views, note),) = left_out
     assert (capture, light, views) == (2, 1, (5, 8))
     assert "captures [0, 1] place it" in note
     assert [len(u) for u in kept[2].unmatched_px] == [0, 0, 0, 0, 0, 1, 0, 0, 1]
-    # Two captures cannot tell which one is wrong: both stay.
-    both = leave_out_contradicted_sets(groupings[1:], matches[1:], poses[1:], rig3x3, 2,
+    # With two captures the set of fewer views is checked against the other's light ...
+    two_left = leave_out_contradicted_sets(groupings[1:], matches[1:], poses[1:], rig3x3, 2,
+                                           max_residual_m=0.01)
+    assert [len(g.sets) for g in two_left[0]] == [2, 1]
+    assert [(c, j, v) for c, j, v, _ in two_left[2]] == [(1, 1, (5, 8))]
+    # ... while two sets of as many views both stay: which one is wrong, nothing tells.
+    moved = HighlightSet(sets[0][1].centers_px + [6.0, 0.0], sets[0][1].candidates,
+                         sets[0][1].virtual_light_m, 0.0)
+    apart = [HighlightGrouping((sets[0][0], moved), empty), groupings[1]]
+    both = leave_out_contradicted_sets(apart, matches[:2], poses[:2], rig3x3, 2,
                                        max_residual_m=0.01)
     assert [len(g.sets) for g in both[0]] == [2, 2] and both[2] == ()
     # Exact sets everywhere: nothing is left out.
@@ -384,12 +392,16 @@ def test_a_set_the_lights_other_captures_contradict_is_left_out(rig3x3, board):
     assert sorted(_nearest(p, lamps)[0] for p in found.positions_m) == [0, 1, 2]
     assert len(found.left_out) == 1
     assert found.left_out[0].startswith("capture 1, light ")
-    assert "was left out" in found.summary()
+    assert "set left out" in found.summary()
     # The light that lost the set keeps its two captures' rays only, and says why.
     k = int(found.left_out[0].split("light ")[1].split(":")[0])
     light = found.lights[k]
     assert light.n_captures == 3 and len(light.views_used[1]) == 0
-    assert any("was left out" in r for r in light.view_reasons[1])
+    assert any("set left out" in r for r in light.view_reasons[1])
+    # With the first two captures only, nothing tells which of the two is wrong.
+    with pytest.raises(LightError, match=r"got a light seen only in capture 0; its set in "
+                                         r"capture 1 was left out: its highlights in views"):
+        estimate_lights(views[:2], rig3x3, board, n_lights=3, photometric=False)
 
 
 def test_a_capture_with_a_moved_lamp_is_refused(rig3x3, board, two):
