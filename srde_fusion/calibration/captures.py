@@ -441,12 +441,12 @@ def estimate_lights(
         lonely = [light for light in range(k) if seen[light] < 2]
         if lonely:
             only = [c for c, m in enumerate(matches) if lonely[0] in m.lights]
-            dropped = [f"; its set in capture {c} was left out: {note}"
-                       for c, j, _, note in left_out if j == lonely[0]]
+            why_lonely = [f"; its set in capture {c} was left out: {note}"
+                          for c, j, _, note in left_out if j == lonely[0]]
             raise LightError(
                 f"lights: expected every light in at least 2 of the {len(groupings)} captures "
                 f"(so that its rays are checked across plate poses), got a light seen only in "
-                f"capture {only[0]}{''.join(dropped[:1])}; add captures that show it, or check "
+                f"capture {only[0]}{''.join(why_lonely[:1])}; add captures that show it, or check "
                 f"the number of lights")
     apart = _never_in_one_view(groupings, matches, k, rig.n_cameras)
     if apart is not None:
@@ -476,12 +476,12 @@ def estimate_lights(
             found = [s for s, j in zip(grouping.sets, match.lights, strict=True) if j == light]
             cc = found[0].centers_px if found else np.full((rig.n_cameras, 2), np.nan)
             centers.append(cc)
-            dropped = {v: note for at, j, views, note in left_out if (at, j) == (c, light)
-                       for v in views}
+            set_left_out = {v: note for at, j, views, note in left_out
+                            if (at, j) == (c, light) for v in views}
             reasons.append(tuple(
                 "" if np.all(np.isfinite(cc[v])) else
                 "; ".join((f"{rig.camera_names[v]}: "
-                           + (f"set left out: {dropped[v]}" if v in dropped
+                           + (f"set left out: {set_left_out[v]}" if v in set_left_out
                               else "no highlight of this light"),) + per_view[v])
                 for v in range(rig.n_cameras)))
         try:

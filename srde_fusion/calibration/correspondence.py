@@ -467,11 +467,11 @@ def leave_out_contradicted_sets(
     light solved from the others (:func:`~.light.light_from_reflections`): its highlights
     must lie within ``tolerance_px`` (RMS) of that light mirrored across its capture's
     plate. The worst set beyond it is left out (its highlights join the capture's
-    unmatched ones), and the check runs again while three captures remain. With two
-    captures the set of fewer views is checked against the light the other one places
-    (left out, its light is seen in one capture only, which :func:`estimate_lights`
-    refuses: which of two contradicting captures is wrong, nothing tells); two sets of
-    as many views both stay, and the assignment's ray distance decides as before.
+    unmatched ones), and the check runs again on the rest. With two captures the set of
+    fewer views is checked against the light the other one places (left out, its light
+    is seen in one capture only, which :func:`~.captures.estimate_lights` refuses: which
+    of two contradicting captures is wrong, nothing tells); two sets of as many views
+    both stay, and the assignment's ray distance decides as before.
 
     A set of one lamp's highlight is internally consistent whatever light it was
     assigned to; the mean ray distance of the assignment (over all of a light's rays,
@@ -508,13 +508,14 @@ def leave_out_contradicted_sets(
         while True:
             held = [(c, s) for c, m in enumerate(matches)
                     for s, j in enumerate(m.lights) if j == light]
-            checked = held
-            if len(held) == 2:
-                # Only a set of fewer views is checked by the other capture alone.
-                n_views = [len(groupings[c].sets[s].views) for c, s in held]
-                checked = [held[int(np.argmin(n_views))]] if n_views[0] != n_views[1] else []
-            elif len(held) < 2:
-                checked = []
+            n_views = [len(groupings[c].sets[s].views) for c, s in held]
+            if len(held) >= 3:
+                checked = held
+            elif len(held) == 2 and n_views[0] != n_views[1]:
+                # The other capture alone checks only a set of fewer views than its own.
+                checked = [held[int(np.argmin(n_views))]]
+            else:
+                break
             worst = None  # (distance, capture, set, other captures)
             for c, s in checked:
                 others = [(o, t) for o, t in held if o != c]
