@@ -223,9 +223,9 @@ def test_more_sets_than_lights_or_no_capture_with_all(rig3x3, two):
 def test_a_set_its_lights_other_captures_contradict_is_left_out(rig3x3, two):
     poses = [truth for _, truth, _ in two]
     sets = _exact_sets(rig3x3, poses, LIGHTS_M[:2])
-    # Capture 2's second set: two views of the first lamp's highlight, 6 px aside.
+    # Capture 2's second set: two views of the first lamp's highlight, 10 px aside.
     centers = np.full((9, 2), np.nan)
-    centers[[5, 8]] = sets[2][0].centers_px[[5, 8]] + [6.0, 0.0]
+    centers[[5, 8]] = sets[2][0].centers_px[[5, 8]] + [10.0, 0.0]
     candidates = np.full(9, -1)
     candidates[[5, 8]] = 1
     sets[2][1] = HighlightSet(centers, candidates, sets[2][0].virtual_light_m, 0.0)
@@ -246,12 +246,21 @@ def test_a_set_its_lights_other_captures_contradict_is_left_out(rig3x3, two):
     assert [len(g.sets) for g in two_left[0]] == [2, 1]
     assert [(c, j, v) for c, j, v, _ in two_left[2]] == [(1, 1, (5, 8))]
     # ... while two sets of as many views both stay: which one is wrong, nothing tells.
-    moved = HighlightSet(sets[0][1].centers_px + [6.0, 0.0], sets[0][1].candidates,
+    moved = HighlightSet(sets[0][1].centers_px + [10.0, 0.0], sets[0][1].candidates,
                          sets[0][1].virtual_light_m, 0.0)
     apart = [HighlightGrouping((sets[0][0], moved), empty), groupings[1]]
     both = leave_out_contradicted_sets(apart, matches[:2], poses[:2], rig3x3, 2,
                                        max_residual_m=0.01)
     assert [len(g.sets) for g in both[0]] == [2, 2] and both[2] == ()
+    # The second lamp's own two highlights 4 px aside are within the bound (a plate pose
+    # 0.1 deg off moves sets that far).
+    near = _exact_sets(rig3x3, poses, LIGHTS_M[:2])
+    own = np.full((9, 2), np.nan)
+    own[[5, 8]] = near[2][1].centers_px[[5, 8]] + [4.0, 0.0]
+    near[2][1] = HighlightSet(own, candidates, near[2][1].virtual_light_m, 0.0)
+    near_groupings = [HighlightGrouping(tuple(x), empty) for x in near]
+    assert leave_out_contradicted_sets(near_groupings, matches, poses, rig3x3, 2,
+                                       max_residual_m=0.01)[2] == ()
     # Exact sets everywhere: nothing is left out.
     exact = [HighlightGrouping(tuple(s), empty) for s in _exact_sets(rig3x3, poses,
                                                                      LIGHTS_M[:2])]
