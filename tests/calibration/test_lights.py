@@ -377,12 +377,11 @@ def test_a_light_never_in_a_view_with_another_is_refused(board):
 def test_a_set_the_lights_other_captures_contradict_is_left_out(rig3x3, board):
     """Part of one lamp's highlight, displaced by a marker's edge, posed as another lamp.
 
-    In the second capture three views of the first lamp's highlight (the views where its
-    blob touches a marker) fit one virtual light of their own to 0.01 px; the matching
-    gave them to the lamp the capture did not show, whose other two captures' rays let
-    those three pull it 0.11 m along the bundles (mean ray distance 7.9 mm, within the
-    10 mm bound). Solved from the other two captures, that lamp puts its highlights
-    several pixels from those three.
+    In the second capture two views of the first lamp's highlight (where its blob
+    touches a marker) fit a virtual light of their own; the matching gave them to the
+    lamp the capture did not show, and their rays pulled it 0.11 m along its other two
+    captures' bundles, the mean ray distance staying within its 10 mm bound. Solved from
+    the other two captures, that lamp puts its highlights 11 px from those two.
     """
     lamps = np.array([[-0.1113, -0.2058, 0.099], [-0.29, -0.1098, 0.3662],
                       [-0.2251, -0.2493, -0.0088]])
