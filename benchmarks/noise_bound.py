@@ -25,8 +25,16 @@ SRDE's own standard error of its disparity (``PlaneRefinement.disparity_sigma_px
 the fit's residuals), and every scene compares its errors at the object box's corners
 with it.
 
-Run: ``python benchmarks/noise_bound.py [--draws 8] [--scenes 4]``; writes
-``benchmarks/results/noise_bound.md`` and ``.json``.
+A cell of the accuracy benchmark is one noise draw per scene. ``--cell`` renders every
+scene of the cells named (``RIG:LO-HI:MM``, e.g. ``stereo:0.04-0.08:15``) again with
+``--draws`` draws in all (the benchmark's own first) and gives the cell's mean masked EPE
+per draw, with the light's radius unknown and given: how far one draw's cell mean
+stands from what the cell gives on average.
+
+Run: ``python benchmarks/noise_bound.py [--per-cell 3] [--draws 8] [--scenes 4]``; writes
+``benchmarks/results/noise_bound.md`` and ``.json``. ``python benchmarks/noise_bound.py
+--per-cell 10 --cell stereo:0.04-0.08:15 --cell stereo:0.04-0.08:10 --draws 6`` writes
+``noise_bound_cells.md`` and ``.json`` instead.
 """
 
 from __future__ import annotations
@@ -50,7 +58,7 @@ from mismatched_physics import (
 )
 from results_files import write_results
 
-from srde_fusion.geometry import plane_disparity
+from srde_fusion.geometry import RigLight, plane_disparity
 from srde_fusion.imaging import REC709_LUMA, SRGB_TO_LINEAR_U8, linear_to_srgb
 from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine import plane as refine_internals
@@ -60,6 +68,7 @@ from srde_fusion.synthetic import render
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "noise_bound"
+CELLS_NAME = "noise_bound_cells"
 PHYSICS_NAME = "faithful"
 EVERY_PIXEL = 100_000  # samples per window side: blocks of one pixel
 
@@ -257,6 +266,99 @@ def tables(report: dict) -> list[str]:
     return md
 
 
+def parse_cell(text: str) -> tuple[str, tuple[float, float], float]:
+    """``RIG:LO-HI:MM`` -> (rig name, roughness bin, light radius in metres)."""
+    try:
+        rig_name, bin_text, radius_mm = text.split(":")
+        lo, hi = (float(v) for v in bin_text.split("-"))
+        radius_m = float(radius_mm) / 1000.0
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected RIG:LO-HI:MM (e.g. stereo:0.04-0.08:15), got {text!r}") from None
+    if rig_name not in rigs() or (lo, hi) not in ROUGHNESS_BINS \
+            or not any(math.isclose(radius_m, r) for r in LIGHT_RADII_M):
+        raise argparse.ArgumentTypeError(
+            f"expected a rig of {list(rigs())}, a bin of {list(ROUGHNESS_BINS)} and a radius "
+            f"of {[r * 1000 for r in LIGHT_RADII_M]} mm, got {text!r}")
+    return rig_name, (lo, hi), radius_m
+
+
+def cell_draws(cells, per_cell: int, draws: int) -> list[dict]:
+    """SRDE's masked EPE on every scene of ``cells`` over ``draws`` noise draws.
+
+    Draw 0 is the accuracy benchmark's own render; draw d > 0 is the same scene with
+    sensor noise seed ``1000 + d``. Each draw is read with the light's radius unknown
+    (a point light, the default) and given.
+    """
+    physics, supersample = PHYSICS[PHYSICS_NAME]
+    records = []
+    for rig_name, roughness, radius_m in cells:
+        rig = rigs()[rig_name]
+        for _, seed, config in cell_scenes(per_cell):
+            if tuple(config.roughness) != roughness \
+                    or not math.isclose(max(config.light_radius_m), radius_m):
+                continue
+            scene = scene_for(seed, rig, config)
+            told = {"unknown": rig.with_light(scene.light.position_m),
+                    "given": rig.with_lights([RigLight(scene.light.position_m,
+                                                       radius_m=scene.light.radius_m)])}
+            epe: dict[str, list[float]] = {name: [] for name in told}
+            bounds = {}
+            for draw in range(draws):
+                out = render(scene, rig, physics=physics, supersample=supersample,
+                             noise_seed=None if draw == 0 else 1000 + draw)
+                if draw == 0:  # the bounds on the benchmark's own render, as in run()
+                    for label, side in (("blocks", sample_internals.SAMPLES_PER_SIDE),
+                                        ("pixels", EVERY_PIXEL)):
+                        bound = bound_sigma_px(out.views, told["unknown"], out.object_masks[0],
+                                               scene.objects[0].plane, side,
+                                               physics.full_well_e, physics.read_noise_e)
+                        bounds[f"sigma_{label}"] = math.nan if bound is None else bound[0]
+                for name, lit in told.items():
+                    found = srde_errors(out.views, lit, out.object_masks[0], out.disparity_px,
+                                        scene.objects[0].plane)
+                    epe[name].append(math.nan if found is None else found["epe"])
+            records.append({"rig": rig_name, "roughness_bin": list(roughness),
+                            "light_radius_m": radius_m, "seed": seed, "epe": epe, **bounds})
+            print(f"{rig_name} {seed}: " + "; ".join(
+                f"{name} " + " ".join(f"{e:.4f}" for e in values)
+                for name, values in epe.items()), flush=True)
+    return records
+
+
+def cell_tables(records: list[dict], draws: int) -> list[str]:
+    """Per cell and radius knowledge: the cell's mean EPE per draw, over scenes solved in all."""
+    md = ["| rig | roughness | light radius | radius | scenes | cell mean EPE per draw (px) "
+          "| mean over draws | largest | draws above 0.02 px | mean without the scene of "
+          "largest error | bound, samples / every pixel |",
+          "|---|---|---:|---|---:|---|---:|---:|---:|---:|---|"]
+    to_mean_abs = math.sqrt(2.0 / math.pi)
+    keys = sorted({(r["rig"], tuple(r["roughness_bin"]), r["light_radius_m"]) for r in records})
+    for rig_name, roughness, radius_m in keys:
+        rows = [r for r in records if (r["rig"], tuple(r["roughness_bin"]), r["light_radius_m"])
+                == (rig_name, roughness, radius_m)]
+        for name in ("unknown", "given"):
+            errors = np.array([r["epe"][name] for r in rows], dtype=np.float64)
+            every = np.all(np.isfinite(errors), axis=1)
+            solved = errors[every]
+            bound = [to_mean_abs * np.mean([r[f"sigma_{label}"] for r, ok in zip(rows, every,
+                                                                                 strict=True)
+                                            if ok])
+                     for label in ("blocks", "pixels")]
+            if not len(solved):
+                continue
+            per_draw = solved.mean(axis=0)
+            worst = int(np.argmax(solved.mean(axis=1)))
+            rest = np.delete(solved, worst, axis=0).mean() if len(solved) > 1 else math.nan
+            md.append(f"| {rig_name} | {roughness[0]}-{roughness[1]} | {radius_m * 1000:g} mm | "
+                      f"{name} | {len(solved)} | "
+                      + " / ".join(f"{v:.4f}" for v in per_draw)
+                      + f" | {per_draw.mean():.4f} | {per_draw.max():.4f} | "
+                      f"{int(np.sum(per_draw > 0.02))} of {draws} | {rest:.4f} | "
+                      f"{bound[0]:.4f} / {bound[1]:.4f} |")
+    return md
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--per-cell", type=int, default=3,
@@ -264,9 +366,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenes", type=int, default=4,
                         help="scenes per rig whose noise is drawn again")
     parser.add_argument("--draws", type=int, default=8, help="noise draws per such scene")
+    parser.add_argument("--cell", type=parse_cell, action="append", default=[],
+                        help="RIG:LO-HI:MM: render this cell's scenes with --draws noise draws "
+                        "instead (repeatable)")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
     args = parser.parse_args(argv)
     start = time.perf_counter()
+    if args.cell:
+        records = cell_draws(args.cell, args.per_cell, args.draws)
+        md = ["# One noise draw per scene: how far a cell's mean stands from its average", "",
+              f"Every scene of the cells named (``mismatched_physics.py``'s, {args.per_cell} "
+              f"per cell, physics `{PHYSICS_NAME}`) rendered with {args.draws} sensor noise "
+              "draws (the first is the benchmark's own), each read by SRDE with the light's "
+              "radius unknown (a point light) and given; the cell's mean masked EPE per draw, "
+              "over the scenes solved in every draw; the bound (as above, sqrt(2/pi) sigma, "
+              "on the benchmark's own render) over the same scenes. Machine: "
+              f"{platform.machine()}, {os.cpu_count()} cores, Python "
+              f"{platform.python_version()}; {time.perf_counter() - start:.0f} s.", "",
+              *cell_tables(records, args.draws), ""]
+        write_results(args.out, CELLS_NAME, md, {"records": records})
+        return 0
     report = run(args)
     md = ["# How close SRDE comes to the sensor's noise bound", "",
           __doc__.split("\n\n", 2)[1].replace("\n", " "), "",
