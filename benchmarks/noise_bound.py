@@ -404,7 +404,7 @@ def main(argv: list[str] | None = None) -> int:
               "all draws, and of the scenes whose error averaged over the draws is positive "
               "(a lean that the noise draws do not average out). "
               + (f"The refinement read {args.samples_per_side} block samples per window "
-                 f"side (default {side}; the bound as by default). "
+                 f"side (default {side}), and the bound on samples is on those. "
                  if args.samples_per_side is not None else "")
               + "Machine: "
               f"{platform.machine()}, {os.cpu_count()} cores, Python "
