@@ -71,6 +71,8 @@ NAME = "noise_bound"
 CELLS_NAME = "noise_bound_cells"
 PHYSICS_NAME = "faithful"
 EVERY_PIXEL = 100_000  # samples per window side: blocks of one pixel
+#: A zero-mean Gaussian error of sigma has a mean absolute value of this times sigma.
+TO_MEAN_ABS = math.sqrt(2.0 / math.pi)
 
 
 def sample_variance(luminance: np.ndarray, block_px: int, well_e: float, read_e: float
@@ -124,6 +126,21 @@ def bound_sigma_px(views, rig, mask, truth, samples_per_side: int, well_e: float
     return math.sqrt(float(gradient @ covariance @ gradient)), samples.n_samples, samples.block_px
 
 
+def bounds_on(views, rig, mask, truth, physics) -> dict:
+    """The bound on the samples SRDE fits and on every pixel, for one render.
+
+    ``{"sigma_blocks", "n_blocks", "block_blocks", "sigma_pixels", ...}``: sigma (px), the
+    number of samples and their block size; a label is absent where no samples were cut.
+    """
+    found = {}
+    for label, side in (("blocks", sample_internals.SAMPLES_PER_SIDE), ("pixels", EVERY_PIXEL)):
+        bound = bound_sigma_px(views, rig, mask, truth, side, physics.full_well_e,
+                               physics.read_noise_e)
+        if bound is not None:
+            found[f"sigma_{label}"], found[f"n_{label}"], found[f"block_{label}"] = bound
+    return found
+
+
 def corner_disparity_px(plane, rig, mask) -> np.ndarray:
     """A plane's stereo disparity at the four corners of the mask's box, ``(4,)`` px."""
     x, y, w, h = refine_internals.mask_bbox(mask)
@@ -147,7 +164,6 @@ def srde_errors(views, rig, mask, truth_disparity, truth) -> dict | None:
 
 def run(args) -> dict:
     physics, supersample = PHYSICS[PHYSICS_NAME]
-    well, read = physics.full_well_e, physics.read_noise_e
     report: dict = {"rigs": {}}
     for rig_name, rig in rigs().items():
         records = []
@@ -158,11 +174,7 @@ def run(args) -> dict:
             mask, truth = out.object_masks[0], scene.objects[0].plane
             record = {"seed": seed, "roughness": scene.objects[0].material.roughness,
                       "light_radius_m": scene.light.radius_m}
-            for label, side in (("blocks", sample_internals.SAMPLES_PER_SIDE),
-                                ("pixels", EVERY_PIXEL)):
-                bound = bound_sigma_px(out.views, lit, mask, truth, side, well, read)
-                if bound is not None:
-                    record[f"sigma_{label}"], record[f"n_{label}"], record[f"block_{label}"] = bound
+            record.update(bounds_on(out.views, lit, mask, truth, physics))
             found = srde_errors(out.views, lit, mask, out.disparity_px, truth)
             if found is not None:
                 record.update(found)
@@ -206,7 +218,6 @@ def run(args) -> dict:
 
 
 def tables(report: dict) -> list[str]:
-    to_mean_abs = math.sqrt(2.0 / math.pi)
     md = []
     for rig_name, part in report["rigs"].items():
         records = part["records"]
@@ -225,16 +236,16 @@ def tables(report: dict) -> list[str]:
                     cells.append("-")
                     continue
                 epe = np.mean([r["epe"] for r in chosen])
-                blocks = to_mean_abs * np.mean([r["sigma_blocks"] for r in chosen])
-                pixels = to_mean_abs * np.mean([r.get("sigma_pixels", np.nan) for r in chosen])
+                blocks = TO_MEAN_ABS * np.mean([r["sigma_blocks"] for r in chosen])
+                pixels = TO_MEAN_ABS * np.mean([r.get("sigma_pixels", np.nan) for r in chosen])
                 cells.append(f"{epe:.4f} / {blocks:.4f} / {pixels:.4f}")
             md.append(f"| {radius * 1000:g} mm | " + " | ".join(cells) + " |")
         scored = [r for r in records if "epe" in r and "sigma_blocks" in r]
         with_pixels = [r for r in scored if "sigma_pixels" in r]
         ratio = [r["sigma_pixels"] / r["sigma_blocks"] for r in with_pixels]
         epe = np.mean([r["epe"] for r in scored])
-        blocks = to_mean_abs * np.mean([r["sigma_blocks"] for r in scored])
-        pixels = to_mean_abs * np.mean([r["sigma_pixels"] for r in with_pixels])
+        blocks = TO_MEAN_ABS * np.mean([r["sigma_blocks"] for r in scored])
+        pixels = TO_MEAN_ABS * np.mean([r["sigma_pixels"] for r in with_pixels])
         md += ["", f"- {len(scored)} scenes scored; mean EPE {epe:.4f} px, mean bound "
                f"{blocks:.4f} px (samples), {pixels:.4f} px (pixels); every pixel instead of "
                f"block means: sigma x {np.median(ratio):.2f} (median; "
@@ -304,17 +315,14 @@ def cell_draws(cells, per_cell: int, draws: int) -> list[dict]:
                                                        radius_m=scene.light.radius_m)])}
             epe: dict[str, list[float]] = {name: [] for name in told}
             signed: dict[str, list[float]] = {name: [] for name in told}
-            bounds = {}
             for draw in range(draws):
                 out = render(scene, rig, physics=physics, supersample=supersample,
                              noise_seed=None if draw == 0 else 1000 + draw)
                 if draw == 0:  # the bounds on the benchmark's own render, as in run()
-                    for label, side in (("blocks", sample_internals.SAMPLES_PER_SIDE),
-                                        ("pixels", EVERY_PIXEL)):
-                        bound = bound_sigma_px(out.views, told["unknown"], out.object_masks[0],
-                                               scene.objects[0].plane, side,
-                                               physics.full_well_e, physics.read_noise_e)
-                        bounds[f"sigma_{label}"] = math.nan if bound is None else bound[0]
+                    found = bounds_on(out.views, told["unknown"], out.object_masks[0],
+                                      scene.objects[0].plane, physics)
+                    bounds = {f"sigma_{label}": found.get(f"sigma_{label}", math.nan)
+                              for label in ("blocks", "pixels")}
                 for name, lit in told.items():
                     found = srde_errors(out.views, lit, out.object_masks[0], out.disparity_px,
                                         scene.objects[0].plane)
@@ -336,7 +344,6 @@ def cell_tables(records: list[dict], draws: int) -> list[str]:
           "largest error | bound, samples / every pixel | too near: draw 0 / all draws / "
           "scenes on average |",
           "|---|---|---:|---|---:|---|---:|---:|---:|---:|---|---|"]
-    to_mean_abs = math.sqrt(2.0 / math.pi)
     keys = sorted({(r["rig"], tuple(r["roughness_bin"]), r["light_radius_m"]) for r in records})
     for rig_name, roughness, radius_m in keys:
         rows = [r for r in records if (r["rig"], tuple(r["roughness_bin"]), r["light_radius_m"])
@@ -347,7 +354,7 @@ def cell_tables(records: list[dict], draws: int) -> list[str]:
             solved = errors[every]
             # A positive disparity error puts the plane too near.
             signs = np.array([r["signed"][name] for r in rows], dtype=np.float64)[every]
-            bound = [to_mean_abs * np.mean([r[f"sigma_{label}"] for r, ok in zip(rows, every,
+            bound = [TO_MEAN_ABS * np.mean([r[f"sigma_{label}"] for r, ok in zip(rows, every,
                                                                                  strict=True)
                                             if ok])
                      for label in ("blocks", "pixels")]

@@ -361,7 +361,7 @@ def refine_plane(
     common = dict(converged=fit.converged, iterations=fit.iterations,
                   cost_initial=attempt.cost_initial, cost_final=fit.cost,
                   n_samples=attempt.samples.n_samples,
-                  contrast=attempt.contrast, views=tuple(sorted(attempt.samples.view_indices)))
+                  contrast=attempt.contrast, views=attempt.samples.view_indices)
     if attempt.problem:
         return kept(attempt.problem, residual=math.sqrt(attempt.cost_initial),
                     params=attempt.params_initial, **common)

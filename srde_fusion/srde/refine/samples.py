@@ -79,7 +79,7 @@ class HighlightSamples:
     ray: np.ndarray  # (P, 3) unnormalised ray ((u - cx) / fx, (v - cy) / fy, 1)
     luminance: np.ndarray  # (P,) linear luminance
     saturated: np.ndarray  # (P,) bool: some pixel clipped, the mean is a lower bound
-    view_indices: tuple[int, ...]
+    view_indices: tuple[int, ...]  # the views with samples, ascending
     half_window_px: int
     block_px: int
 
