@@ -13,7 +13,8 @@ sample's block area. Its inverse bounds the variance of the plane's mean dispari
 the mask for any unbiased estimator; the table gives ``sqrt(2 / pi) sigma``, the mean
 absolute error a Gaussian error of that spread has, beside the masked EPE SRDE reaches.
 
-Two bounds: on the samples the refinement fits (block means of 2-7 px), and on every
+Two bounds: on the samples the refinement fits (on the 3x3 array block means of 2-7 px,
+on the pair every pixel), and on every
 pixel of the same windows (blocks of 1 px). A block with a clipped pixel is only a lower
 bound, and neither bound counts what such samples say (their information is left out,
 which makes both bounds a little loose).
@@ -40,6 +41,7 @@ Run: ``python benchmarks/noise_bound.py [--per-cell 3] [--draws 8] [--scenes 4]`
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import platform
@@ -86,17 +88,30 @@ def sample_variance(luminance: np.ndarray, block_px: int, well_e: float, read_e:
     return per_pixel / block_px ** 2
 
 
-def bound_sigma_px(views, rig, mask, truth, samples_per_side: int, well_e: float,
-                   read_e: float) -> tuple[float, int, int] | None:
-    """The bound's sigma of the mean disparity over the mask, the samples and block size."""
-    setup = refinement_setup(views, rig, mask, truth)
-    default_side = sample_internals.SAMPLES_PER_SIDE
-    sample_internals.SAMPLES_PER_SIDE = samples_per_side
+@contextlib.contextmanager
+def block_samples(samples_per_side: int | None):
+    """The refinement reads this many block samples per window side on every rig while
+    inside (None: its own rule, which reads every pixel with few views)."""
+    saved = sample_internals.SAMPLES_PER_SIDE, sample_internals.PIXEL_SAMPLES_MAX_VIEWS
+    if samples_per_side is not None:
+        sample_internals.SAMPLES_PER_SIDE = samples_per_side
+        sample_internals.PIXEL_SAMPLES_MAX_VIEWS = 0
     try:
+        yield
+    finally:
+        sample_internals.SAMPLES_PER_SIDE, sample_internals.PIXEL_SAMPLES_MAX_VIEWS = saved
+
+
+def bound_sigma_px(views, rig, mask, truth, samples_per_side: int | None, well_e: float,
+                   read_e: float) -> tuple[float, int, int] | None:
+    """The bound's sigma of the mean disparity over the mask, the samples and block size.
+
+    ``samples_per_side``: as :func:`block_samples`.
+    """
+    setup = refinement_setup(views, rig, mask, truth)
+    with block_samples(samples_per_side):
         samples = refine_internals.sample_windows(setup.views, rig, mask, truth, setup.centers,
                                                   box=setup.box)
-    finally:
-        sample_internals.SAMPLES_PER_SIDE = default_side
     if isinstance(samples, str):
         return None
     model = setup.model(samples, truth)
@@ -133,7 +148,7 @@ def bounds_on(views, rig, mask, truth, physics) -> dict:
     number of samples and their block size; a label is absent where no samples were cut.
     """
     found = {}
-    for label, side in (("blocks", sample_internals.SAMPLES_PER_SIDE), ("pixels", EVERY_PIXEL)):
+    for label, side in (("blocks", None), ("pixels", EVERY_PIXEL)):
         bound = bound_sigma_px(views, rig, mask, truth, side, physics.full_well_e,
                                physics.read_noise_e)
         if bound is not None:
@@ -385,8 +400,10 @@ def main(argv: list[str] | None = None) -> int:
                         "instead (repeatable)")
     parser.add_argument("--samples-per-side", type=int, default=None,
                         help="--cell only: SRDE's refinement reads this many block samples "
-                        f"per window side (default {sample_internals.SAMPLES_PER_SIDE}; a "
-                        "large number: every pixel)")
+                        f"per window side on every rig (by default "
+                        f"{sample_internals.SAMPLES_PER_SIDE}, and every pixel with "
+                        f"{sample_internals.PIXEL_SAMPLES_MAX_VIEWS} views or fewer; a large "
+                        "number: every pixel)")
     parser.add_argument("--name", default=CELLS_NAME,
                         help="--cell only: results file name (default %(default)s)")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
@@ -394,12 +411,8 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     if args.cell:
         side = sample_internals.SAMPLES_PER_SIDE
-        if args.samples_per_side is not None:
-            sample_internals.SAMPLES_PER_SIDE = args.samples_per_side
-        try:
+        with block_samples(args.samples_per_side):
             records = cell_draws(args.cell, args.per_cell, args.draws)
-        finally:
-            sample_internals.SAMPLES_PER_SIDE = side
         md = ["# One noise draw per scene: how far a cell's mean stands from its average", "",
               f"Every scene of the cells named (``mismatched_physics.py``'s, {args.per_cell} "
               f"per cell, physics `{PHYSICS_NAME}`) rendered with {args.draws} sensor noise "
