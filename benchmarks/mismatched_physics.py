@@ -208,7 +208,7 @@ def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth,
     found = result.refinement.plane
     setup = refinement_setup(views, rig, mask, found, result.refinement.lobe, light_radius_m)
     samples = refine_internals.sample_windows(setup.views, rig, mask, found, setup.centers,
-                                              box=setup.box)
+                                              box=setup.box, settled=True)
     costs = []
     for plane in (found, truth):
         model = setup.model(samples, plane)

@@ -91,15 +91,15 @@ def sample_variance(luminance: np.ndarray, block_px: int, well_e: float, read_e:
 @contextlib.contextmanager
 def block_samples(samples_per_side: int | None):
     """The refinement reads this many block samples per window side on every rig while
-    inside (None: its own rule, which reads every pixel with few views)."""
-    saved = sample_internals.SAMPLES_PER_SIDE, sample_internals.PIXEL_SAMPLES_MAX_VIEWS
+    inside (None: its own rule, which reads every pixel on a rig of few cameras)."""
+    saved = sample_internals.SAMPLES_PER_SIDE, sample_internals.PIXEL_SAMPLES_MAX_CAMERAS
     if samples_per_side is not None:
         sample_internals.SAMPLES_PER_SIDE = samples_per_side
-        sample_internals.PIXEL_SAMPLES_MAX_VIEWS = 0
+        sample_internals.PIXEL_SAMPLES_MAX_CAMERAS = 0
     try:
         yield
     finally:
-        sample_internals.SAMPLES_PER_SIDE, sample_internals.PIXEL_SAMPLES_MAX_VIEWS = saved
+        sample_internals.SAMPLES_PER_SIDE, sample_internals.PIXEL_SAMPLES_MAX_CAMERAS = saved
 
 
 def bound_sigma_px(views, rig, mask, truth, samples_per_side: int | None, well_e: float,
@@ -402,7 +402,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="--cell only: SRDE's refinement reads this many block samples "
                         f"per window side on every rig (by default "
                         f"{sample_internals.SAMPLES_PER_SIDE}, and every pixel with "
-                        f"{sample_internals.PIXEL_SAMPLES_MAX_VIEWS} views or fewer; a large "
+                        f"{sample_internals.PIXEL_SAMPLES_MAX_CAMERAS} cameras or fewer; a large "
                         "number: every pixel)")
     parser.add_argument("--name", default=CELLS_NAME,
                         help="--cell only: results file name (default %(default)s)")

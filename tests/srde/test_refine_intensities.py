@@ -23,7 +23,7 @@ def _scene(clip: float | None):
         y = np.minimum(y, clip)
     order = np.argsort(saturated, kind="stable")  # unsaturated first, as sampled
     samples = HighlightSamples(np.zeros((len(x), 3)), np.ones((len(x), 3)), y[order],
-                               saturated[order], (0,), 8, 1)
+                               saturated[order], (0,), 8, 1, 2)
     return samples, lobe[order], SimpleNamespace(diffuse=diffuse[order])
 
 

@@ -44,3 +44,46 @@ def test_warp_change_is_the_largest_corner_move_by_ray_casting(rig):
     expected = max(np.max(np.abs(seen(after, j) - seen(before, j))) for j in range(9))
     assert expected > 1.0
     assert warp_change_px(rig, before, after, box) == pytest.approx(expected, rel=1e-9)
+
+
+def test_a_pair_is_read_pixel_by_pixel_as_far_from_the_outline_as_blocks(monkeypatch):
+    # Two views: every pixel is a sample (block means would turn the pixels beside the
+    # clipped core into lower bounds), over the same eroded outline the blocks keep.
+    import cv2
+
+    from srde_fusion.srde import SRDE
+    from srde_fusion.srde.refine import samples as sample_module
+    from srde_fusion.synthetic import random_scene, render
+
+    pair = CameraRig.stereo(0.085, fx=300.0, image_size=(320, 240))
+    scene = random_scene(2, pair, roughness=0.05, light_radius_m=0.0)
+    out = render(scene, pair)
+    lit = pair.with_light(scene.light.position_m)
+    mask = out.instance_mask == 1
+    est = SRDE(lit, refine=False).estimate(out.views, mask)
+    assert est.ok, est.reason
+    centers = est.highlight_centers
+
+    def cut(settled=False):
+        return sample_module.sample_windows(out.views, lit, mask, est.plane, centers,
+                                            settled=settled)
+
+    pixels, settled = cut(), cut(settled=True)
+    monkeypatch.setattr(sample_module, "PIXEL_SAMPLES_MAX_CAMERAS", 0)
+    blocks = cut()
+    assert pixels.block_px == 1 < blocks.block_px
+    assert pixels.half_window_px == blocks.half_window_px
+    assert pixels.view_indices == blocks.view_indices == (0, 1)
+    assert pixels.n_samples > 3 * blocks.n_samples
+    # the reference view's pixel samples lie where a block centred on them would fit
+    k = lit.intrinsics
+    reference = np.all(pixels.camera_m == lit.centers_m[lit.reference], axis=1)
+    u = np.rint(pixels.ray[reference, 0] * k.fx + k.cx).astype(int)
+    v = np.rint(pixels.ray[reference, 1] * k.fy + k.cy).astype(int)
+    side = 2 * (sample_module.MASK_MARGIN_PX + blocks.block_px // 2) + 1
+    kept = cv2.erode(mask.astype(np.uint8), np.ones((side, side), np.uint8)) > 0
+    assert reference.any() and kept[v, u].all()
+    # placed for a fitted plane, they come as near the outline as a block's pixels do
+    assert pixels.may_come_nearer and not settled.may_come_nearer
+    assert settled.outline_px == sample_module.MASK_MARGIN_PX < pixels.outline_px
+    assert settled.n_samples > pixels.n_samples

@@ -36,7 +36,8 @@ a fine numerical average, the largest error is below 1 % of the peak while the d
 radius is at most 1.2 lobe half-widths, about 4 % at 2 (the point model: 50 % at 1),
 and below 1.5 % for an ellipse one lobe unit wide seen at ``theta_d`` up to 45 degrees
 (tests). An ellipse whose long axis spans more than about three lobe widths falls
-between the points (a third ring would cover it, at about twice the time).
+between the points. Block means smooth that ripple; samples of one pixel show it, and
+are rendered with :data:`PIXEL_DISC_RINGS` rings (61 points) instead.
 
 The slopes follow ``s`` and ``b`` (the plane's tilt and the distance to the light)
 and the ellipse's stretch and turn (through the three cosines), all analytic.
@@ -53,10 +54,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["DISC_RINGS", "DiscGeometry", "disc_geometry", "disc_points"]
+__all__ = ["DISC_RINGS", "PIXEL_DISC_RINGS", "DiscGeometry", "disc_geometry", "disc_points"]
 
 #: Rings of the hexagonal pattern of points over the light's disc (see the module notes).
 DISC_RINGS = 2
+
+
+#: Rings of the pattern when the samples are single pixels. A block's mean smooths the
+#: pattern's ripple on a disc several lobe widths wide, a pixel shows it: on six stereo
+#: scenes under a 15 mm lamp (1.7-5.4 lobe widths), read pixel by pixel, 2 / 3 / 4 rings
+#: left the plane 0.031 / 0.010 / 0.007 px off on average (``mismatched_physics.py``'s
+#: wide lights; block means with 2 rings 0.020 px).
+PIXEL_DISC_RINGS = 4
 
 
 # s = sin(theta_h) is kept above this: the slopes divide by it (see disc_geometry).
@@ -164,7 +173,7 @@ class DiscGeometry:
 
 def disc_geometry(cos_h: np.ndarray, sin2_h: np.ndarray, r: np.ndarray, radius_m: float,
                   *, cos_i: np.ndarray | None = None, cos_o: np.ndarray | None = None,
-                  cos_io: np.ndarray | None = None) -> DiscGeometry:
+                  cos_io: np.ndarray | None = None, rings: int = DISC_RINGS) -> DiscGeometry:
     """Return the light's geometry for the light centre's half vectors ``(P,)``.
 
     Parameters
@@ -180,8 +189,10 @@ def disc_geometry(cos_h: np.ndarray, sin2_h: np.ndarray, r: np.ndarray, radius_m
         Cosines between normal and light, normal and eye, light and eye: they stretch
         and turn the half-vector disc into its ellipse (module notes). Without them the
         disc stays round.
+    rings : int
+        Rings of the pattern of points over the disc (:func:`disc_points`).
     """
-    basis, weights = _pattern_basis(DISC_RINGS)
+    basis, weights = _pattern_basis(rings)
     s = np.maximum(np.sqrt(sin2_h), _MIN_SIN_H)
     ratio = np.minimum(radius_m / r, 1.0)
     b = 0.5 * np.arcsin(ratio)

@@ -500,16 +500,17 @@ class _Attempt:
     contrast: float  # the samples' highlight contrast (:func:`_samples_contrast`)
 
 
-def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None = None
-             ) -> _Attempt | str:
+def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None = None,
+             *, settled: bool = False) -> _Attempt | str:
     """Sample for ``sample_plane``, fit from it, and judge against the initial plane.
 
     Returns why no fit could run (a string) when the samples or the start fail.
     ``photometry``: parameters whose lobe shape to start from instead of a grid search.
+    ``settled``: ``sample_plane`` is a fitted plane (see ``sample_windows``).
     """
     samples = sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers,
                               box=setup.box, other_lights_m=setup.other_lights,
-                              further_centers=setup.modelled_centers)
+                              further_centers=setup.modelled_centers, settled=settled)
     if isinstance(samples, str):
         return samples
     model = setup.model(samples, sample_plane)
@@ -550,12 +551,16 @@ def _resampled(setup: _Setup, attempt: _Attempt, *, keep_photometry: bool) -> _A
 
     Samples are placed (the object's region in the other views) for the plane a fit
     starts from; a plane that moves by more than the mask margin there leaves some of
-    them off the object. Returns the new attempt if it passes, else None.
+    them off the object. Pixel samples placed for a triangulated plane keep away from
+    the outline (``sample_windows``); placed for the fitted one they come nearer, and
+    are fitted again too. Returns the new attempt if it passes, else None.
     """
     plane = attempt.model.plane(attempt.fit.theta)
-    if not warp_change_px(setup.rig, attempt.sample_plane, plane, setup.box) > MASK_MARGIN_PX:
+    if not (attempt.samples.may_come_nearer or warp_change_px(
+            setup.rig, attempt.sample_plane, plane, setup.box) > MASK_MARGIN_PX):
         return None
-    again = _attempt(setup, plane, photometry=attempt.fit.theta if keep_photometry else None)
+    again = _attempt(setup, plane, photometry=attempt.fit.theta if keep_photometry else None,
+                     settled=True)
     return again if isinstance(again, _Attempt) and not again.problem else None
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...geometry import CameraRig, Plane
 from ...optics import fresnel_dielectric, ior_from_f0
-from .disc import DiscGeometry, disc_geometry
+from .disc import DISC_RINGS, PIXEL_DISC_RINGS, DiscGeometry, disc_geometry
 from .layout import N_PLANE
 from .samples import HighlightSamples
 
@@ -88,6 +88,7 @@ class PlaneReflection:
                  light_radius_m: float | None = None) -> None:
         self.f0 = f0
         self.light_radius_m = light_radius_m if light_radius_m else None
+        self.disc_rings = PIXEL_DISC_RINGS if samples.block_px == 1 else DISC_RINGS
         self.fresnel = fresnel
         self.ior = ior_from_f0(f0)
         self.light = light
@@ -202,7 +203,7 @@ class PlaneReflection:
         disc = None
         if self.light_radius_m is not None:
             disc = disc_geometry(cos_h, sin2_h, r, self.light_radius_m, cos_i=cos_i,
-                                 cos_o=cos_o, cos_io=cos_io)
+                                 cos_o=cos_o, cos_io=cos_io, rings=self.disc_rings)
         return ShadingGeometry(cos_h=cos_h, sin2_h=sin2_h, log_foreshortening=log_foreshortening,
                          diffuse=diffuse, specular=specular, normal=n, t=t, nk=nk, tq_b=tq_b,
                          r=r, cos_i=cos_i, cos_o=cos_o, cos_io=cos_io, half_norm=half_norm,

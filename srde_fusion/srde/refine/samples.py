@@ -40,12 +40,13 @@ WINDOW_PER_BLOB_RADIUS = 3.0
 SAMPLES_PER_SIDE = 30
 
 
-#: With this many views or fewer holding the highlight, every pixel is a sample.
-#: Two views carry little evidence each, and a block around the clipped core turns its
-#: unclipped pixels into one lower bound: on the stereo pair of the mismatched-physics
-#: benchmark, blocks leave the worst cell at 0.028 px masked EPE over noise draws,
-#: every pixel at 0.016 px (at about 6x the time; ``benchmarks/noise_bound.py``).
-PIXEL_SAMPLES_MAX_VIEWS = 2
+#: On a rig of this many cameras or fewer, every pixel is a sample. Two views carry
+#: little evidence each, and a block around the clipped core turns its unclipped pixels
+#: into one lower bound: on the stereo pair of the mismatched-physics benchmark, blocks
+#: leave the worst cell at 0.028 px masked EPE over noise draws, every pixel at 0.016 px
+#: (at about 6x the time; ``benchmarks/noise_bound.py``). (A highlight that only two
+#: views of a larger array hold keeps the blocks: not measured to gain there.)
+PIXEL_SAMPLES_MAX_CAMERAS = 2
 
 
 #: Pixels closer than this to the object's outline are not fitted (mask warping slack).
@@ -90,6 +91,12 @@ class HighlightSamples:
     view_indices: tuple[int, ...]  # the views with samples, ascending
     half_window_px: int
     block_px: int
+    outline_px: int  # how far inside the object's outline the samples' pixels stay
+
+    @property
+    def may_come_nearer(self) -> bool:
+        """Whether samples placed for a fitted plane may come nearer the outline."""
+        return self.outline_px > MASK_MARGIN_PX + self.block_px // 2
 
     @property
     def n_samples(self) -> int:
@@ -98,8 +105,8 @@ class HighlightSamples:
 
 
 def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray,
-                    *, box=None, other_lights_m=None, further_centers=None
-                    ) -> HighlightSamples | str:
+                    *, box=None, other_lights_m=None, further_centers=None,
+                    settled: bool = False) -> HighlightSamples | str:
     """Block samples around each view's highlight on the object, or why there are none.
 
     ``box``: the mask's bounding box, if known. ``other_lights_m`` ``(M, 3)``: further
@@ -108,6 +115,9 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
     ``(L, N, 2)``, pixels: highlights of further modelled lights (NaN where a view has
     none); windows of the same size go around them too, in the views whose own highlight
     has a window, less the blocks an earlier window of the view already holds.
+    ``settled``: ``plane`` is a fitted one, which places the outline in the other views
+    to a fraction of a pixel; pixel samples may then come as near it as blocks' pixels
+    (:data:`MASK_MARGIN_PX`). Otherwise they keep the blocks' own distance.
     """
     box = mask_bbox(mask) if box is None else box
     eroded = _erode(mask, MASK_MARGIN_PX, box)
@@ -148,9 +158,13 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
                 f"{MIN_HIGHLIGHT_CONTRAST:g} (linear) inside the mask")
     half = math.ceil(WINDOW_PER_BLOB_RADIUS * float(np.median(radii))) + 2
     half = min(max(half, MIN_WINDOW_HALF_PX), max_half)
-    block = block_side_px(half, len(usable))
-
-    block_mask = _erode(mask, MASK_MARGIN_PX + block // 2, box)
+    nominal = max(1, math.ceil((2 * half + 1) / SAMPLES_PER_SIDE))
+    block = 1 if rig.n_cameras <= PIXEL_SAMPLES_MAX_CAMERAS else nominal
+    # Pixel samples keep the blocks' distance from the outline until the plane is fitted:
+    # a plane from triangulation can place the outline in the other views a few pixels
+    # off, which brings the background into the windows.
+    outline = MASK_MARGIN_PX + (block if settled else nominal) // 2
+    block_mask = _erode(mask, outline, box)
     others = None
     if other_lights_m is not None and len(other_lights_m):
         others = plane.mirror(np.asarray(other_lights_m, dtype=np.float64).reshape(-1, 3))
@@ -195,14 +209,8 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
     order = np.argsort(saturated_all, kind="stable")
     cameras_m = np.repeat(rig.centers_m[used], counts, axis=0)
     return HighlightSamples(cameras_m[order], rig.rays(np.concatenate(uvs)[order]),
-                    luminance_all[order], saturated_all[order], tuple(used), half, block)
-
-
-def block_side_px(half_window_px: int, n_views: int) -> int:
-    """Side (pixels) of the square each sample averages, for a window and a view count."""
-    if n_views <= PIXEL_SAMPLES_MAX_VIEWS:
-        return 1
-    return max(1, math.ceil((2 * half_window_px + 1) / SAMPLES_PER_SIDE))
+                    luminance_all[order], saturated_all[order], tuple(used), half, block,
+                    outline)
 
 
 def support_points(samples: HighlightSamples, rig: CameraRig, points: int
@@ -239,7 +247,8 @@ def support_points(samples: HighlightSamples, rig: CameraRig, points: int
     n = len(rays)
     expanded = HighlightSamples(np.tile(samples.camera_m, (n, 1)), np.concatenate(rays),
                                 np.tile(samples.luminance, n), np.tile(samples.saturated, n),
-                                samples.view_indices, samples.half_window_px, samples.block_px)
+                                samples.view_indices, samples.half_window_px, samples.block_px,
+                                samples.outline_px)
     return expanded, np.array(group_weights)
 
 
