@@ -153,6 +153,12 @@ class SRDE:
         (which stays the paper's). Only the default method's joint solve is refined.
     refine_lobe : {"gtr", "ggx", "blinn_phong"}
         Lobe model of the refinement (see :data:`~srde_fusion.srde.refine.LOBES`).
+    refine_pixels : bool, optional
+        The refinement fits every pixel near the highlights (True) or the means of small
+        blocks of them (False). By default every pixel on a rig of two cameras (more
+        accurate there, at several times the time: ``refine_pixels=False`` is the fast
+        choice), blocks on larger arrays (see
+        :func:`~srde_fusion.srde.refine_plane`'s ``pixel_samples``).
     backend : {"numpy", "torch"} or HighlightBackend
         Where the pixel work of detection runs: numpy and OpenCV on the host (default),
         or torch, batched over the views, on ``device`` (see
@@ -196,6 +202,7 @@ class SRDE:
                  object_depth_m: tuple[float, float] = (0.2, 10.0),
                  max_incidence_deg: float = 85.0, white_references=None,
                  refine: bool | None = None, refine_lobe: str = DEFAULT_LOBE,
+                 refine_pixels: bool | None = None,
                  backend: str | HighlightBackend = "numpy", device=None,
                  max_faces: int = 1) -> None:
         if not isinstance(rig, CameraRig):
@@ -254,6 +261,9 @@ class SRDE:
             raise SRDEError(f"refine: expected True, False or None, got {refine!r}")
         if refine_lobe not in LOBES:
             raise SRDEError(f"refine_lobe: expected one of {list(LOBES)}, got {refine_lobe!r}")
+        if refine_pixels is not None and not isinstance(refine_pixels, bool):
+            raise SRDEError(f"refine_pixels: expected True, False or None, got "
+                            f"{refine_pixels!r}")
         self.rig = rig
         self.light_m = light_m
         self.lights_m = lights_m
@@ -262,6 +272,7 @@ class SRDE:
         # The paper's method stays the paper's unless asked otherwise.
         self.refine = (method == "default") if refine is None else refine
         self.refine_lobe = refine_lobe
+        self.refine_pixels = refine_pixels
         self.config = config
         self.mask_erosion_px = int(mask_erosion_px)
         self.min_views = int(min_views)
@@ -531,7 +542,8 @@ class SRDE:
                                       modelled_lights_m=(np.array(modelled_lights)
                                                          if len(modelled_lights) else None),
                                       light_radius_m=radius_m,
-                                      modelled_centers_uv=modelled_centers)
+                                      modelled_centers_uv=modelled_centers,
+                                      pixel_samples=self.refine_pixels)
             if refinement.ok:
                 plane = refinement.plane
                 point = plane.mirror(light)

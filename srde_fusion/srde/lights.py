@@ -1713,7 +1713,7 @@ def _lobe_options(srde: SRDE, main: int, modelled: list[int],
               if k != main and k not in modelled and k not in behind]
     return dict(lobe=srde.refine_lobe, other_lights_m=lights[others] if others else None,
                 modelled_lights_m=lights[modelled] if modelled else None,
-                light_radius_m=srde.light_radii_m[main])
+                light_radius_m=srde.light_radii_m[main], pixel_samples=srde.refine_pixels)
 
 
 def lobes_prefer(srde: SRDE, views, mask: np.ndarray, main: int, modelled: list[int],

@@ -87,3 +87,14 @@ def test_a_pair_is_read_pixel_by_pixel_as_far_from_the_outline_as_blocks(monkeyp
     assert pixels.may_come_nearer and not settled.may_come_nearer
     assert settled.outline_px == sample_module.MASK_MARGIN_PX < pixels.outline_px
     assert settled.n_samples > pixels.n_samples
+
+
+@pytest.mark.parametrize("value", [1, "yes", 0.0])
+def test_the_pixel_option_takes_a_bool_or_none(value):
+    from srde_fusion.errors import SRDEError
+    from srde_fusion.srde import SRDE
+
+    pair = CameraRig.stereo(0.085, fx=300.0, image_size=(320, 240),
+                            light_position_m=(0.1, -0.3, 0.0))
+    with pytest.raises(SRDEError, match="refine_pixels: expected True, False or None"):
+        SRDE(pair, refine_pixels=value)

@@ -190,6 +190,7 @@ def refine_plane(
     modelled_lights_m=None,
     light_radius_m: float | None = None,
     modelled_centers_uv=None,
+    pixel_samples: bool | None = None,
 ) -> PlaneRefinement:
     """Refine a plane so that a specular lobe model explains the highlight in every view.
 
@@ -242,6 +243,11 @@ def refine_plane(
         fitting windows then also go around them, in the views where ``light_m``'s
         highlight has a window: every light's highlight measures the same plane. Without
         them the windows follow ``light_m``'s highlight only.
+    pixel_samples : bool, optional
+        Fit every pixel of the windows (True) or the means of small blocks of them
+        (False). By default every pixel on a rig of two cameras, where each view's
+        evidence counts double and the pixels beside a clipped core are the lobe's
+        steepest (several times the time), blocks on larger arrays.
 
     Returns
     -------
@@ -310,6 +316,8 @@ def refine_plane(
         raise LightError(f"light_radius_m: expected None or a radius in "
                          f"[0, {MAX_LIGHT_RADIUS_M:g}] m, got {light_radius_m!r}")
     radius_m = float(light_radius_m) if light_radius_m else None  # 0: a point light
+    if pixel_samples is not None and not isinstance(pixel_samples, bool):
+        raise SRDEError(f"pixel_samples: expected True, False or None, got {pixel_samples!r}")
 
     def kept(reason: str, **fields) -> PlaneRefinement:
         values = dict(converged=False, iterations=0, cost_initial=math.nan, cost_final=math.nan,
@@ -329,7 +337,7 @@ def refine_plane(
     modelled_centers = _check_modelled_centers(modelled_centers_uv, modelled, rig.n_cameras)
     setup = _Setup(views, rig, mask, mask_bbox(mask), light, initial_plane, centers, lobe, f0,
                    fresnel, foreshortening, max_iterations, others, modelled, radius_m,
-                   modelled_centers)
+                   modelled_centers, pixel_samples)
     attempt = _attempt(setup, initial_plane)
     if isinstance(attempt, str):
         return kept(attempt)
@@ -412,8 +420,8 @@ def disparity_sigma_px(model: LobeModel | JointLobeModel, fit: Minimum) -> float
 def compare_planes(views: Sequence[np.ndarray], rig: CameraRig, light_m, mask: np.ndarray,
                    planes: Sequence[Plane], centers_uv, *, lobe: str = DEFAULT_LOBE,
                    f0: float = DEFAULT_F0, other_lights_m=None, modelled_lights_m=None,
-                   light_radius_m: float | None = None, max_iterations: int = 20
-                   ) -> np.ndarray:
+                   light_radius_m: float | None = None, max_iterations: int = 20,
+                   pixel_samples: bool | None = None) -> np.ndarray:
     """Best photometric cost of each plane on one set of samples, ``(len(planes),)``.
 
     The samples are placed for ``planes[0]`` around ``centers_uv`` (as
@@ -429,7 +437,7 @@ def compare_planes(views: Sequence[np.ndarray], rig: CameraRig, light_m, mask: n
                    _check_lights(modelled_lights_m, "modelled_lights_m"),
                    float(light_radius_m) if light_radius_m else None)
     samples = sample_windows(setup.views, rig, mask, planes[0], centers, box=setup.box,
-                              other_lights_m=setup.other_lights)
+                              other_lights_m=setup.other_lights, pixel_samples=pixel_samples)
     costs = np.full(len(planes), math.inf)
     if isinstance(samples, str):
         return costs
@@ -471,6 +479,7 @@ class _Setup:
     modelled_lights: np.ndarray | None = None
     light_radius_m: float | None = None  # None: a point light
     modelled_centers: np.ndarray | None = None  # (M, N, 2) the modelled lights' highlights
+    pixel_samples: bool | None = None  # None: by the rig (``sample_windows``)
 
     def model(self, samples: HighlightSamples, plane: Plane, support: int = SUPPORT_POINTS
               ) -> LobeModel | JointLobeModel:
@@ -510,7 +519,8 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     """
     samples = sample_windows(setup.views, setup.rig, setup.mask, sample_plane, setup.centers,
                               box=setup.box, other_lights_m=setup.other_lights,
-                              further_centers=setup.modelled_centers, settled=settled)
+                              further_centers=setup.modelled_centers, settled=settled,
+                              pixel_samples=setup.pixel_samples)
     if isinstance(samples, str):
         return samples
     model = setup.model(samples, sample_plane)

@@ -106,7 +106,8 @@ class HighlightSamples:
 
 def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, centers: np.ndarray,
                     *, box=None, other_lights_m=None, further_centers=None,
-                    settled: bool = False) -> HighlightSamples | str:
+                    settled: bool = False, pixel_samples: bool | None = None
+                    ) -> HighlightSamples | str:
     """Block samples around each view's highlight on the object, or why there are none.
 
     ``box``: the mask's bounding box, if known. ``other_lights_m`` ``(M, 3)``: further
@@ -118,6 +119,8 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
     ``settled``: ``plane`` is a fitted one, which places the outline in the other views
     to a fraction of a pixel; pixel samples may then come as near it as blocks' pixels
     (:data:`MASK_MARGIN_PX`). Otherwise they keep the blocks' own distance.
+    ``pixel_samples``: every pixel a sample (True) or block means (False); by default
+    every pixel on a rig of :data:`PIXEL_SAMPLES_MAX_CAMERAS` cameras or fewer.
     """
     box = mask_bbox(mask) if box is None else box
     eroded = _erode(mask, MASK_MARGIN_PX, box)
@@ -159,7 +162,9 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
     half = math.ceil(WINDOW_PER_BLOB_RADIUS * float(np.median(radii))) + 2
     half = min(max(half, MIN_WINDOW_HALF_PX), max_half)
     nominal = max(1, math.ceil((2 * half + 1) / SAMPLES_PER_SIDE))
-    block = 1 if rig.n_cameras <= PIXEL_SAMPLES_MAX_CAMERAS else nominal
+    if pixel_samples is None:
+        pixel_samples = rig.n_cameras <= PIXEL_SAMPLES_MAX_CAMERAS
+    block = 1 if pixel_samples else nominal
     # Pixel samples keep the blocks' distance from the outline until the plane is fitted:
     # a plane from triangulation can place the outline in the other views a few pixels
     # off, which brings the background into the windows.
