@@ -44,8 +44,8 @@ SAMPLES_PER_SIDE = 30
 #: little evidence each, and a block around the clipped core turns its unclipped pixels
 #: into one lower bound: on the stereo pair of the mismatched-physics benchmark, blocks
 #: leave the worst cell at 0.028 px masked EPE over noise draws, every pixel at 0.016 px
-#: (at about 6x the time; ``benchmarks/noise_bound.py``). (A highlight that only two
-#: views of a larger array hold keeps the blocks: not measured to gain there.)
+#: (``benchmarks/noise_bound.py``), at 5-17x the refinement's time. (A highlight that
+#: only two views of a larger array hold keeps the blocks: not measured to gain there.)
 PIXEL_SAMPLES_MAX_CAMERAS = 2
 
 
