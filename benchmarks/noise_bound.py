@@ -368,13 +368,12 @@ def cell_tables(records: list[dict], draws: int) -> list[str]:
             every = np.all(np.isfinite(errors), axis=1)
             solved = errors[every]
             # A positive disparity error puts the plane too near.
-            signs = np.array([r["signed"][name] for r in rows], dtype=np.float64)[every]
-            bound = [TO_MEAN_ABS * np.mean([r[f"sigma_{label}"] for r, ok in zip(rows, every,
-                                                                                 strict=True)
-                                            if ok])
-                     for label in ("blocks", "pixels")]
             if not len(solved):
                 continue
+            signs = np.array([r["signed"][name] for r in rows], dtype=np.float64)[every]
+            bound = [TO_MEAN_ABS * np.mean([r[f"sigma_{label}"]
+                                            for r, ok in zip(rows, every, strict=True) if ok])
+                     for label in ("blocks", "pixels")]
             per_draw = solved.mean(axis=0)
             worst = int(np.argmax(solved.mean(axis=1)))
             rest = np.delete(solved, worst, axis=0).mean() if len(solved) > 1 else math.nan

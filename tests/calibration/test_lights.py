@@ -220,7 +220,7 @@ def test_more_sets_than_lights_or_no_capture_with_all(rig3x3, two):
         sets, poses, rig3x3, 3, max_ray_distance_m=0.01)[1]
 
 
-def test_a_set_its_lights_other_captures_contradict_is_left_out(rig3x3, two):
+def test_each_set_is_checked_against_its_lights_other_captures(rig3x3, two):
     poses = [truth for _, truth, _ in two]
     sets = _exact_sets(rig3x3, poses, LIGHTS_M[:2])
     # Capture 2's second set: two views of the first lamp's highlight, 10 px aside.

@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from srde_fusion.errors import SRDEError
 from srde_fusion.geometry import CameraRig, Plane
-from srde_fusion.srde.refine.samples import references_from_views, warp_change_px
+from srde_fusion.srde import SRDE
+from srde_fusion.srde.refine.samples import (
+    MASK_MARGIN_PX,
+    references_from_views,
+    sample_windows,
+    warp_change_px,
+)
+from srde_fusion.synthetic import random_scene, render
 
 
 @pytest.fixture(scope="module")
@@ -46,15 +55,9 @@ def test_warp_change_is_the_largest_corner_move_by_ray_casting(rig):
     assert warp_change_px(rig, before, after, box) == pytest.approx(expected, rel=1e-9)
 
 
-def test_a_pair_is_read_pixel_by_pixel_as_far_from_the_outline_as_blocks(monkeypatch):
+def test_a_pair_is_read_pixel_by_pixel_as_far_from_the_outline_as_blocks():
     # Two views: every pixel is a sample (block means would turn the pixels beside the
     # clipped core into lower bounds), over the same eroded outline the blocks keep.
-    import cv2
-
-    from srde_fusion.srde import SRDE
-    from srde_fusion.srde.refine import samples as sample_module
-    from srde_fusion.synthetic import random_scene, render
-
     pair = CameraRig.stereo(0.085, fx=300.0, image_size=(320, 240))
     scene = random_scene(2, pair, roughness=0.05, light_radius_m=0.0)
     out = render(scene, pair)
@@ -64,13 +67,10 @@ def test_a_pair_is_read_pixel_by_pixel_as_far_from_the_outline_as_blocks(monkeyp
     assert est.ok, est.reason
     centers = est.highlight_centers
 
-    def cut(settled=False):
-        return sample_module.sample_windows(out.views, lit, mask, est.plane, centers,
-                                            settled=settled)
+    def cut(**options):
+        return sample_windows(out.views, lit, mask, est.plane, centers, **options)
 
-    pixels, settled = cut(), cut(settled=True)
-    monkeypatch.setattr(sample_module, "PIXEL_SAMPLES_MAX_CAMERAS", 0)
-    blocks = cut()
+    pixels, settled, blocks = cut(), cut(settled=True), cut(pixel_samples=False)
     assert pixels.block_px == 1 < blocks.block_px
     assert pixels.half_window_px == blocks.half_window_px
     assert pixels.view_indices == blocks.view_indices == (0, 1)
@@ -80,20 +80,17 @@ def test_a_pair_is_read_pixel_by_pixel_as_far_from_the_outline_as_blocks(monkeyp
     reference = np.all(pixels.camera_m == lit.centers_m[lit.reference], axis=1)
     u = np.rint(pixels.ray[reference, 0] * k.fx + k.cx).astype(int)
     v = np.rint(pixels.ray[reference, 1] * k.fy + k.cy).astype(int)
-    side = 2 * (sample_module.MASK_MARGIN_PX + blocks.block_px // 2) + 1
+    side = 2 * (MASK_MARGIN_PX + blocks.block_px // 2) + 1
     kept = cv2.erode(mask.astype(np.uint8), np.ones((side, side), np.uint8)) > 0
     assert reference.any() and kept[v, u].all()
     # placed for a fitted plane, they come as near the outline as a block's pixels do
     assert pixels.may_come_nearer and not settled.may_come_nearer
-    assert settled.outline_px == sample_module.MASK_MARGIN_PX < pixels.outline_px
+    assert settled.outline_px == MASK_MARGIN_PX < pixels.outline_px
     assert settled.n_samples > pixels.n_samples
 
 
 @pytest.mark.parametrize("value", [1, "yes", 0.0])
 def test_the_pixel_option_takes_a_bool_or_none(value):
-    from srde_fusion.errors import SRDEError
-    from srde_fusion.srde import SRDE
-
     pair = CameraRig.stereo(0.085, fx=300.0, image_size=(320, 240),
                             light_position_m=(0.1, -0.3, 0.0))
     with pytest.raises(SRDEError, match="refine_pixels: expected True, False or None"):
