@@ -23,8 +23,12 @@ from srde_fusion.srde.refine import LOBES, refine_plane
 from srde_fusion.srde.refine.disc import (
     DISC_RINGS,
     PIXEL_DISC_RINGS,
+    RINGS_REACH_UNITS,
     disc_geometry,
     disc_points,
+    disc_rings,
+    lobe_unit,
+    max_disc_rings,
 )
 from srde_fusion.srde.refine.lobes import lobe_shape
 from srde_fusion.synthetic import Physics, RandomSceneConfig, random_scene, render
@@ -111,6 +115,33 @@ def test_pixel_samples_read_a_wide_disc_through_the_finer_pattern():
 
     assert len(disc_points(PIXEL_DISC_RINGS)[0]) == 61
     assert error(PIXEL_DISC_RINGS) < QUADRATURE_TOL * fine.max() < error(DISC_RINGS)
+
+
+@pytest.mark.parametrize(("lobe", "tail", "tol"), [("gtr", 0.5, QUADRATURE_TOL),
+                                                   ("gtr", -0.2, 1.5 * QUADRATURE_TOL),
+                                                   ("blinn_phong", 0.0, 1.5 * QUADRATURE_TOL)])
+def test_fewer_rings_read_a_disc_well_inside_the_lobe(lobe, tail, tol):
+    # Each ring count's reach (RINGS_REACH_UNITS) is where its pattern still follows the
+    # fine average; a larger disc takes the next count, up to the samples' most.
+    width = 0.01
+    unit = lobe_unit(lobe, width)
+    for rings, units in enumerate(RINGS_REACH_UNITS, start=1):
+        b = units * unit
+        s = np.linspace(0.0, b + 4.0 * unit, 81)
+        fine = _fine_disc_mean(lobe, s, b, math.log(width), tail)
+        sin2 = s * s
+        g = SimpleNamespace(sin2_h=sin2, cos_h=np.sqrt(1.0 - sin2))
+        g.disc = disc_geometry(g.cos_h, sin2, np.full_like(s, DISTANCE_M),
+                               math.sin(2.0 * b) * DISTANCE_M, rings=rings)
+        assert g.disc.reach == pytest.approx(b, rel=1e-9)
+        assert np.max(np.abs(lobe_shape(lobe, g, math.log(width), tail) - fine)) \
+            < tol * fine.max()
+        assert disc_rings(0.999 * b, lobe, width, block_px=1) == rings
+        assert disc_rings(1.01 * b, lobe, width, block_px=1) == rings + 1
+        assert disc_rings(0.999 * b, lobe, width, block_px=7) == min(rings, DISC_RINGS)
+    assert disc_rings(10.0 * unit, lobe, width, block_px=1) == max_disc_rings(1) \
+        == PIXEL_DISC_RINGS
+    assert disc_rings(10.0 * unit, lobe, width, block_px=5) == max_disc_rings(5) == DISC_RINGS
 
 
 @pytest.mark.parametrize("lobe", LOBES)
@@ -309,3 +340,36 @@ def test_the_ellipse_stays_finite_where_its_axes_are_undefined(cos_i, cos_o, cos
         round_disc = disc_geometry(cos_h, s * s, np.full(n, DISTANCE_M), 0.01)
         np.testing.assert_allclose(np.sort(disc.sin2, axis=0), np.sort(round_disc.sin2, axis=0),
                                    rtol=1e-9, atol=1e-15)
+
+
+@pytest.fixture(scope="module")
+def rough_under_lamp():
+    """A rough clipped lobe under a 15 mm light: the disc is well inside the lobe."""
+    rig = CameraRig.stereo(0.085, fx=300.0, image_size=(320, 240))
+    config = RandomSceneConfig(roughness=0.06, light_radius_m=0.015, clip_ratio=(4.0, 8.0))
+    scene = random_scene(104, rig, config=config)
+    out = render(scene, rig, physics=Physics.faithful(), supersample=2)
+    lit = rig.with_lights([RigLight(scene.light.position_m, radius_m=scene.light.radius_m)])
+    return SimpleNamespace(views=out.views, rig=lit, mask=out.object_masks[0])
+
+
+def test_a_disc_inside_the_lobe_is_read_through_fewer_points(rough_under_lamp, monkeypatch):
+    # The pair reads every pixel; the pattern's 61 points would multiply the cost of each
+    # evaluation, where 7 follow a disc this small as closely (the plane agrees).
+    case = rough_under_lamp
+    chosen = []
+
+    def recording(*args, **kwargs):
+        chosen.append(disc_rings(*args, **kwargs))
+        return chosen[-1]
+
+    monkeypatch.setattr("srde_fusion.srde.refine.plane.disc_rings", recording)
+    lean = SRDE(case.rig).estimate(case.views, case.mask)
+    assert lean.ok and lean.refinement.ok, lean.reason
+    assert chosen and set(chosen) == {1}
+    monkeypatch.setattr("srde_fusion.srde.refine.plane.disc_rings",
+                        lambda reach, lobe, width, block_px: max_disc_rings(block_px))
+    full = SRDE(case.rig).estimate(case.views, case.mask)
+    assert full.ok and full.refinement.ok
+    difference = plane_disparity(lean.plane, case.rig) - plane_disparity(full.plane, case.rig)
+    assert np.max(np.abs(difference[case.mask])) < 1e-3

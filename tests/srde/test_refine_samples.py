@@ -11,8 +11,10 @@ from hypothesis import strategies as st
 from srde_fusion.errors import SRDEError
 from srde_fusion.geometry import CameraRig, Plane
 from srde_fusion.srde import SRDE
+from srde_fusion.srde.refine.model import DEFAULT_F0, SUPPORT_POINTS, LobeModel
 from srde_fusion.srde.refine.samples import (
     MASK_MARGIN_PX,
+    mask_bbox,
     references_from_views,
     sample_windows,
     warp_change_px,
@@ -87,6 +89,14 @@ def test_a_pair_is_read_pixel_by_pixel_as_far_from_the_outline_as_blocks():
     assert pixels.may_come_nearer and not settled.may_come_nearer
     assert settled.outline_px == MASK_MARGIN_PX < pixels.outline_px
     assert settled.n_samples > pixels.n_samples
+    # the model meets a block's mean averaged over the block, a pixel at its centre
+    light = np.asarray(lit.light)
+
+    def support(samples):
+        return LobeModel(samples, lit, mask_bbox(mask), light, est.plane, "gtr", DEFAULT_F0,
+                         None).n_support
+
+    assert support(pixels) == 1 < support(blocks) == SUPPORT_POINTS ** 2
 
 
 @pytest.mark.parametrize("value", [1, "yes", 0.0])

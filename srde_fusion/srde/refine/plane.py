@@ -36,8 +36,9 @@ from ..._checks import check_mask, check_point3, check_views
 from ...errors import ImageError, LightError, SRDEError
 from ...geometry import CameraRig, Plane, plane_from_lights
 from ...geometry.rig import MAX_LIGHT_RADIUS_M
+from .disc import DISC_RINGS, disc_rings
 from .joint import JointLobeModel
-from .layout import I_FORE, I_SPEC, N_PLANE
+from .layout import I_FORE, I_SPEC, I_WIDTH, N_PLANE
 from .lobes import DEFAULT_LOBE, LOBES
 from .model import (
     DEFAULT_F0,
@@ -481,12 +482,15 @@ class _Setup:
     modelled_centers: np.ndarray | None = None  # (M, N, 2) the modelled lights' highlights
     pixel_samples: bool | None = None  # None: by the rig (``sample_windows``)
 
-    def model(self, samples: HighlightSamples, plane: Plane, support: int = SUPPORT_POINTS
-              ) -> LobeModel | JointLobeModel:
-        """Return the lobe model on ``samples`` around ``plane`` (``support``: LobeModel's)."""
+    def model(self, samples: HighlightSamples, plane: Plane, support: int = SUPPORT_POINTS,
+              disc_rings: int | None = None) -> LobeModel | JointLobeModel:
+        """Return the lobe model on ``samples`` around ``plane``.
+
+        ``support`` and ``disc_rings`` (the light's disc, if it has a radius): LobeModel's.
+        """
         main = LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
                          self.foreshortening, support=support, fresnel=self.fresnel,
-                         light_radius_m=self.light_radius_m)
+                         light_radius_m=self.light_radius_m, disc_rings=disc_rings)
         if self.modelled_lights is None:
             return main
         return JointLobeModel([main] + [
@@ -523,15 +527,17 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
                               pixel_samples=setup.pixel_samples)
     if isinstance(samples, str):
         return samples
-    model = setup.model(samples, sample_plane)
+    # The light's disc (if it has a radius) is read through the blocks' pattern until
+    # the lobe's width is known, then through as many points as the two need.
+    model = setup.model(samples, sample_plane, disc_rings=DISC_RINGS)
     if not model.valid:
         return ("initial plane: some fitted samples see it from behind or lie where the "
                 "light is behind it")
     # The grid start and the first stage only have to come near: they run on the model
     # read at block centres, a quarter of the points; the joint stage ends on the model
-    # averaged over the blocks, so the minimum it finds is that model's.
-    near = setup.model(samples, sample_plane, support=1)
-    near = near if near.valid else model
+    # averaged over the blocks, so the minimum it finds is that model's. (A pixel is read
+    # at its centre: the two are one.)
+    near = _near(setup, samples, sample_plane, model, DISC_RINGS)
     if photometry is None:
         theta0 = near.initial_guess()
         if theta0 is None:
@@ -540,11 +546,19 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     else:
         theta0 = photometry.copy()
         theta0[:N_PLANE] = 0.0
+    rings = _disc_rings_for(model, samples, setup.lobe, theta0)
+    if rings is not None and rings != DISC_RINGS:
+        again = setup.model(samples, sample_plane, disc_rings=rings)
+        if again.valid:
+            model = again
+            # the first stage reads no more points than the blocks' pattern
+            near = near if rings > DISC_RINGS else _near(setup, samples, sample_plane,
+                                                         model, rings)
     fit = _fit(model, theta0, setup.max_iterations, near)
     # The fair reference: the initial plane with every photometric parameter fitted,
     # starting from the joint solution's, on the same samples.
     reference = model if sample_plane is setup.initial_plane else setup.model(
-        samples, setup.initial_plane)
+        samples, setup.initial_plane, disc_rings=_main(model).reflection.disc_rings)
     if reference.valid:
         theta_ref, cost_ref = _profile_at_start(reference, fit.theta, setup.max_iterations)
         params_ref = reference.lobe_fit(theta_ref)
@@ -554,6 +568,35 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     problem = _judge(fit, cost_ref, model, samples, contrast, setup.rig, setup.light,
                      setup.initial_plane)
     return _Attempt(sample_plane, samples, model, fit, cost_ref, params_ref, problem, contrast)
+
+
+def _main(model: LobeModel | JointLobeModel) -> LobeModel:
+    """Return the model of the light that placed the samples (the one with a radius)."""
+    return model.parts[0] if isinstance(model, JointLobeModel) else model
+
+
+def _disc_rings_for(model: LobeModel | JointLobeModel, samples: HighlightSamples, lobe: str,
+                    theta: np.ndarray) -> int | None:
+    """Rings of the light's disc that ``model``'s samples need under the lobe of ``theta``.
+
+    A disc well inside the lobe is read as closely by fewer points than a wide light
+    under a sharp lobe needs, and the points multiply the cost of every evaluation
+    (:func:`~.disc.disc_rings`). None for a point light.
+    """
+    reflection = _main(model).reflection
+    start = reflection.at(np.zeros(N_PLANE)) if reflection.light_radius_m else None
+    if start is None or start.disc is None:
+        return None
+    return disc_rings(start.disc.reach, lobe, math.exp(theta[I_WIDTH]), samples.block_px)
+
+
+def _near(setup: _Setup, samples: HighlightSamples, plane: Plane,
+          model: LobeModel | JointLobeModel, rings: int) -> LobeModel | JointLobeModel:
+    """``model`` read at block centres, through ``rings`` rings of the light's disc."""
+    if samples.block_px == 1:
+        return model  # a pixel's sample is read at its centre already
+    near = setup.model(samples, plane, support=1, disc_rings=rings)
+    return near if near.valid else model
 
 
 def _resampled(setup: _Setup, attempt: _Attempt, *, keep_photometry: bool) -> _Attempt | None:
@@ -661,7 +704,7 @@ def _restart_plane(setup: _Setup, samples: HighlightSamples) -> Plane | None:
         if _initial_plane_problem(plane, rig, light):
             continue
         # Starts are ranked, not fitted: the model at block centres serves.
-        candidate = setup.model(samples, plane, support=1)
+        candidate = setup.model(samples, plane, support=1, disc_rings=DISC_RINGS)
         if candidate.valid and candidate.initial_guess() is not None \
                 and candidate.initial_cost < best_cost:
             best_cost, best_plane = candidate.initial_cost, (plane if shift else None)

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...geometry import CameraRig, Plane
 from ...optics import fresnel_dielectric, ior_from_f0
-from .disc import DISC_RINGS, PIXEL_DISC_RINGS, DiscGeometry, disc_geometry
+from .disc import DiscGeometry, disc_geometry, max_disc_rings
 from .layout import N_PLANE
 from .samples import HighlightSamples
 
@@ -75,6 +75,10 @@ class PlaneReflection:
         Radius of the spherical light, metres; None or 0 for a point light. A radius
         gives every geometry the lobe's argument seen through the light's disc
         (:mod:`~.disc`).
+    disc_rings : int or None
+        Rings of the pattern of points over the disc; None: the most the samples need,
+        :data:`~.disc.PIXEL_DISC_RINGS` for samples of one pixel, else
+        :data:`~.disc.DISC_RINGS` (a smaller disc needs fewer, :func:`~.disc.disc_rings`).
 
     Attributes
     ----------
@@ -85,10 +89,10 @@ class PlaneReflection:
 
     def __init__(self, samples: HighlightSamples, rig: CameraRig, box, light: np.ndarray,
                  plane0: Plane, f0: float, fresnel: str = "exact",
-                 light_radius_m: float | None = None) -> None:
+                 light_radius_m: float | None = None, disc_rings: int | None = None) -> None:
         self.f0 = f0
         self.light_radius_m = light_radius_m if light_radius_m else None
-        self.disc_rings = PIXEL_DISC_RINGS if samples.block_px == 1 else DISC_RINGS
+        self.disc_rings = disc_rings or max_disc_rings(samples.block_px)
         self.fresnel = fresnel
         self.ior = ior_from_f0(f0)
         self.light = light
