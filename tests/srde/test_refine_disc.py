@@ -142,6 +142,8 @@ def test_fewer_rings_read_a_disc_well_inside_the_lobe(lobe, tail, tol):
     assert disc_rings(10.0 * unit, lobe, width, block_px=1) == max_disc_rings(1) \
         == PIXEL_DISC_RINGS
     assert disc_rings(10.0 * unit, lobe, width, block_px=5) == max_disc_rings(5) == DISC_RINGS
+    # a lobe at the width's bound (1) is flat: any disc is small against it
+    assert disc_rings(0.5, lobe, 1.0, block_px=1) == 1
 
 
 @pytest.mark.parametrize("lobe", LOBES)

@@ -88,9 +88,11 @@ def max_disc_rings(block_px: int) -> int:
 def lobe_unit(lobe: str, width: float) -> float:
     """``sin(theta_h)`` at which ``lobe`` of width ``w`` falls to ``1/e`` (GTR's Gaussian limit).
 
-    ``w / sqrt(2 (1 - w^2))``; ``w / sqrt(1 - w^2)`` for ``"blinn_phong"``.
+    ``w / sqrt(2 (1 - w^2))``; ``w / sqrt(1 - w^2)`` for ``"blinn_phong"``; infinite at
+    ``w = 1`` (the bound of the fitted width: a lobe flat over every angle).
     """
-    return width / math.sqrt((1.0 if lobe == "blinn_phong" else 2.0) * (1.0 - width * width))
+    spread = (1.0 if lobe == "blinn_phong" else 2.0) * (1.0 - width * width)
+    return width / math.sqrt(spread) if spread > 0.0 else math.inf
 
 
 def disc_rings(reach: float, lobe: str, width: float, block_px: int) -> int:
