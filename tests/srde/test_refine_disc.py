@@ -3,8 +3,9 @@
 A spherical light of known radius turns the refinement's lobe into the lobe averaged over
 the light's disc. These tests check the quadrature against a fine numerical average, the
 point-light limit, the public option's checks, that a radius of 0 or None is exactly the
-point model, and that on a faithful render with a light wider than the lobe the radius
-brings the plane closer than the point model does.
+point model, that on a faithful render with a light wider than the lobe the radius
+brings the plane closer than the point model does, and that a disc well inside the lobe
+is read through fewer points to the same plane.
 """
 
 from __future__ import annotations
