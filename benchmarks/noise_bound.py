@@ -109,9 +109,11 @@ def bound_sigma_px(views, rig, mask, truth, samples_per_side: int | None, well_e
     ``samples_per_side``: as :func:`block_samples`.
     """
     setup = refinement_setup(views, rig, mask, truth)
+    # Placed as the refinement's last fit places them, for a plane already found (the
+    # pair's pixel samples then come nearest the outline).
     with block_samples(samples_per_side):
         samples = refine_internals.sample_windows(setup.views, rig, mask, truth, setup.centers,
-                                                  box=setup.box)
+                                                  box=setup.box, settled=True)
     if isinstance(samples, str):
         return None
     model = setup.model(samples, truth)
