@@ -172,7 +172,8 @@ def score(srde: SRDE, out, mask, lit: CameraRig, truth, timed: bool,
     disparity[mask] = plane_disparity(result.plane, lit)[mask]
     metrics = evaluate(disparity, out.disparity_px, mask)
     signed = float(np.mean(disparity[mask] - out.disparity_px[mask]))
-    run.update(epe=float(metrics["epe"]), bmp01=float(metrics["bmp0.1"]), signed=signed)
+    run.update(epe=float(metrics["epe"]), bmp01=float(metrics["bmp0.1"]), signed=signed,
+               sigma=float(result.disparity_sigma_px))
     if check_cost and result.refinement is not None and result.refinement.ok:
         radius = srde.light_radii_m[0]
         run["below_truth"] = fit_cost_below_truth(out.views, lit, mask, result, truth, radius)
@@ -303,6 +304,33 @@ def cost_lines(records: list[dict]) -> list[str]:
                        f"plane's (same samples, photometry refitted) in {sum(flags)} of "
                        f"{len(flags)} refined scenes")
     return ["Where the refinement's error comes from:", "", *out, ""] if out else []
+
+
+def geometric_lines(records: list[dict]) -> tuple[list[str], dict]:
+    """Scenes whose refined plane is worse than the geometric one, and by how much.
+
+    A difference within twice the refined plane's own standard error
+    (``disparity_sigma_px``) is the images' noise moving both planes; beyond it, the
+    refinement made the plane worse.
+    """
+    out, numbers = [], {}
+    for physics in PHYSICS:
+        pairs = [(r["seed"], r["runs"][physics]["default"], r["runs"][physics]["geometric"])
+                 for r in records if physics in r["runs"]]
+        pairs = [(seed, d, g) for seed, d, g in pairs if "epe" in d and "epe" in g]
+        worse = [(seed, d["epe"] - g["epe"], d.get("sigma", float("nan")))
+                 for seed, d, g in pairs if d["epe"] > g["epe"]]
+        beyond = [w for w in worse if not w[1] <= 2.0 * w[2]]
+        numbers[physics] = {"scenes": len(pairs), "worse": len(worse),
+                            "beyond_2_sigma": len(beyond),
+                            "largest_px": max((w[1] for w in worse), default=0.0)}
+        detail = ", ".join(f"{seed} by {by:.4f} px ({by / sigma:.1f} sigma)"
+                           for seed, by, sigma in sorted(worse, key=lambda w: -w[1])[:4])
+        out.append(f"- {physics}: refined worse than geometric in {len(worse)} of {len(pairs)} "
+                   f"scenes, {len(beyond)} by more than twice the refined plane's own "
+                   f"standard error" + (f"; largest: {detail}" if worse else ""))
+    return (["Against the geometric plane (masked EPE, default SRDE against geometric-only, "
+             "same render):", "", *out, ""], numbers)
 
 
 def accuracy_tables(records: list[dict], rig_name: str) -> tuple[list[str], dict]:
@@ -443,6 +471,7 @@ def main(argv: list[str] | None = None) -> int:
         harsh = [run_scene(rig, 9000 + i, RandomSceneConfig(**HARSH), timed=True)
                  for i in range(args.harsh)]
         table, numbers = accuracy_tables(records, rig_name)
+        against_geometric, against_numbers = geometric_lines(records)
         typical_speed, typical_numbers = speed_lines(records, "typical scenes")
         harsh_speed, harsh_numbers = speed_lines(harsh, "harsh scenes")
         harsh_epe = {p: summarise(harsh, p, "default") for p in ROWS}
@@ -451,7 +480,7 @@ def main(argv: list[str] | None = None) -> int:
         ratios = [r["disc_over_width"] for r in wide]
         md += [f"## {rig_name} ({rig.n_cameras} views)", "", *table, "",
                *target_lines(numbers, rig_name), "",
-               *cost_lines(records),
+               *cost_lines(records), *against_geometric,
                "Harsh scenes (default method): " + "; ".join(
                    f"{p} mean EPE {s['epe']:.4f} px, max {s['epe_max']:.4f} px, n {s['n']}, "
                    f"failed {s['failed']}" for p, s in harsh_epe.items()), "",
@@ -463,6 +492,7 @@ def main(argv: list[str] | None = None) -> int:
                f"{WIDE_LIGHT_SAMPLES} points; time: default SRDE, faithful, best of three):",
                "", *wide_table, ""]
         report["rigs"][rig_name] = {"accuracy": numbers, "harsh_accuracy": harsh_epe,
+                                    "against_geometric": against_numbers,
                                     "wide_accuracy": wide_numbers, "wide_records": wide,
                                     "speed": {"typical": typical_numbers,
                                               "harsh": harsh_numbers},
