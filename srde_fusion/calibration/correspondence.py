@@ -525,7 +525,8 @@ def leave_out_contradicted_sets(
                     placed = light_from_reflections(
                         [poses[o] for o, _ in others],
                         [groupings[o].sets[t].centers_px for o, t in others], rig,
-                        refine=refine, max_residual_m=max_residual_m)
+                        refine=refine, max_residual_m=max_residual_m,
+                        capture_spread=False)  # the position is all the check reads
                 except LightError:  # the others alone fix no light: nothing to check with
                     continue
                 distance = highlight_rms_px(placed.position_m, [poses[c]],

@@ -515,6 +515,7 @@ def light_from_reflections(
     view_reasons: Sequence[Sequence[str]] | None = None,
     max_incidence_deg: float = DEFAULT_MAX_INCIDENCE_DEG,
     max_residual_m: float = DEFAULT_MAX_RESIDUAL_M,
+    capture_spread: bool = True,
 ) -> LightEstimate:
     """Solve for the light from plate poses and highlight centres (one joint solve).
 
@@ -543,6 +544,10 @@ def light_from_reflections(
         Largest angle between plate normal and a camera's line of sight.
     max_residual_m : float
         Largest accepted mean distance of the light to the rays, metres.
+    capture_spread : bool
+        With three captures or more, add the spread of the solves that each leave one
+        capture out to the covariance (one more solve per capture). False keeps the
+        joint fit's covariance alone, for a caller that reads the position only.
 
     Returns
     -------
@@ -568,6 +573,8 @@ def light_from_reflections(
         )
     max_incidence_deg = check_positive(max_incidence_deg, "max_incidence_deg")
     max_residual_m = check_positive(max_residual_m, "max_residual_m")
+    if not isinstance(capture_spread, bool):
+        raise LightError(f"capture_spread: expected True or False, got {capture_spread!r}")
     n_views = rig.n_cameras
     centers_all = []
     for c, (pose, centers) in enumerate(zip(poses, highlight_centers_px, strict=True)):
@@ -591,7 +598,7 @@ def light_from_reflections(
         else f"residual-scaled covariance of the ray intersection (highlight centres >= "
         f"{HIGHLIGHT_ACCURACY_PX:g} px, 1 sigma)"
     )
-    jackknife = _jackknife(poses, centers_all, rig, refine)
+    jackknife = _jackknife(poses, centers_all, rig, refine) if capture_spread else None
     if jackknife is not None:
         cov = cov + jackknife
         how += f" + leave-one-capture-out spread over {len(poses)} captures"

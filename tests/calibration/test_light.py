@@ -260,6 +260,18 @@ def test_estimate_light_from_rendered_captures(captures, rig3x3, board):
         np.testing.assert_allclose(est.position_std_m, np.sqrt(np.diag(est.position_cov_m2)))
     assert "leave-one-capture-out" in combined.uncertainty
     assert "leave-one-capture-out" not in single.uncertainty
+    # without the captures' spread: the same light, the joint fit's covariance alone,
+    # which the spread only adds to
+    poses, centers = combined.plate_poses, combined.highlight_centers_px
+    spread = light_from_reflections(poses, centers, rig3x3)
+    joint = light_from_reflections(poses, centers, rig3x3, capture_spread=False)
+    np.testing.assert_array_equal(joint.position_m, spread.position_m)
+    assert "leave-one-capture-out" in spread.uncertainty
+    assert "leave-one-capture-out" not in joint.uncertainty
+    assert np.all(np.linalg.eigvalsh(spread.position_cov_m2 - joint.position_cov_m2) > -1e-15)
+    assert np.trace(spread.position_cov_m2) > np.trace(joint.position_cov_m2)
+    with pytest.raises(LightError, match="capture_spread: expected True or False, got 1"):
+        light_from_reflections(poses, centers, rig3x3, capture_spread=1)
     # per-view reasons line up with the views used
     for used, reasons in zip(combined.views_used, combined.view_reasons, strict=True):
         assert all((r == "") == (i in used) for i, r in enumerate(reasons))
