@@ -202,7 +202,8 @@ def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth,
     """Whether the refined plane explains the images better than the true plane does.
 
     Both planes get the refinement's best photometric parameters on the same samples
-    (placed for the refined plane), with the light's radius the refinement was given.
+    (placed for the refined plane), with the light's radius the refinement was given,
+    its disc read through the points the refinement chooses there (for both planes).
     True means the fit found the minimum of its own cost and the error lies in the data
     (noise) or the model, not in the optimiser.
     """
@@ -210,10 +211,14 @@ def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth,
     setup = refinement_setup(views, rig, mask, found, result.refinement.lobe, light_radius_m)
     samples = refine_internals.sample_windows(setup.views, rig, mask, found, setup.centers,
                                               box=setup.box, settled=True)
-    costs = []
+    costs, rings = [], None
     for plane in (found, truth):
-        model = setup.model(samples, plane)
+        model = setup.model(samples, plane, disc_rings=rings)
         start = model.initial_guess()
+        if plane is found and start is not None:
+            rings = refine_internals._disc_rings_for(model, samples, setup.lobe, start)
+            if rings is not None:
+                model = setup.model(samples, plane, disc_rings=rings)
         costs.append(refine_internals._profile_at_start(model, start, 40)[1])
     return bool(costs[0] <= costs[1])
 
