@@ -62,14 +62,6 @@ FRESNEL_TERMS = ("exact", "schlick")
 SUPPORT_POINTS = 2
 
 
-#: Points per axis on a sample of one pixel: its centre. A pixel's area is an average
-#: too, but over a lobe many pixels wide it moves the model by a second-order term: on
-#: eight stereo scenes read pixel by pixel (six sharp lobes under a 15 mm lamp, two rough
-#: clipped ones), averaging each pixel over 2 x 2 points moved the plane by at most
-#: 0.001 px, at three to four times the cost.
-PIXEL_SUPPORT_POINTS = 1
-
-
 @dataclass(frozen=True, eq=False)
 class SampleShading:
     """The part of a geometry the intensity solve reads, reduced to the samples, ``(P,)``."""
@@ -161,7 +153,8 @@ class LobeModel:
         The Fresnel term (see :class:`PlaneReflection`).
     support : int
         Points per axis at which the model is averaged over each sample's block (1: at
-        block centres); samples of one pixel take at most :data:`PIXEL_SUPPORT_POINTS`.
+        block centres); a sample of one pixel is read at its centre
+        (:data:`~.samples.PIXEL_SUPPORT_POINTS`).
     light_radius_m : float or None
         Radius of the spherical light, metres: the lobe is seen through the light's disc
         (:mod:`~.disc`). None or 0: a point light.
@@ -175,8 +168,6 @@ class LobeModel:
                  support: int = SUPPORT_POINTS, fresnel: str = "exact",
                  light_radius_m: float | None = None, disc_rings: int | None = None) -> None:
         self.lobe = lobe
-        if samples.block_px == 1:
-            support = min(support, PIXEL_SUPPORT_POINTS)
         points, self.support_weights = support_points(samples, rig, support)
         self.n_support = len(self.support_weights)
         self.reflection = PlaneReflection(points, rig, box, light, plane0, f0, fresnel,

@@ -593,8 +593,8 @@ def _disc_rings_for(model: LobeModel | JointLobeModel, samples: HighlightSamples
 def _near(setup: _Setup, samples: HighlightSamples, plane: Plane,
           model: LobeModel | JointLobeModel, rings: int) -> LobeModel | JointLobeModel:
     """``model`` read at block centres, through ``rings`` rings of the light's disc."""
-    if samples.block_px == 1:
-        return model  # a pixel's sample is read at its centre already
+    if _main(model).n_support == 1:
+        return model  # read at the samples' centres already (pixels)
     near = setup.model(samples, plane, support=1, disc_rings=rings)
     return near if near.valid else model
 

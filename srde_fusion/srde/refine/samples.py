@@ -8,7 +8,8 @@ pixel ray, camera centre, luminance and clipping flag.
 A sample is a mean over its block's area, not a value at its centre: on a lobe's steep
 flank the two differ, and the difference shifts the fitted highlight. The model is
 therefore averaged over the same square (:func:`support_points`: Gauss-Legendre points
-across the block, which integrate it exactly up to third order along each axis).
+across the block, which integrate it exactly up to third order along each axis). A
+sample of one pixel is read at its centre (:data:`PIXEL_SUPPORT_POINTS`).
 """
 
 from __future__ import annotations
@@ -44,9 +45,17 @@ SAMPLES_PER_SIDE = 30
 #: little evidence each, and a block around the clipped core turns its unclipped pixels
 #: into one lower bound: on the stereo pair of the mismatched-physics benchmark, blocks
 #: leave the worst cell at 0.028 px masked EPE over noise draws, every pixel at 0.016 px
-#: (``benchmarks/noise_bound.py``), at 5-17x the refinement's time. (A highlight that
+#: (``benchmarks/noise_bound.py``), at 3-8x the default call's time. (A highlight that
 #: only two views of a larger array hold keeps the blocks: not measured to gain there.)
 PIXEL_SAMPLES_MAX_CAMERAS = 2
+
+
+#: Points per axis on a sample of one pixel: its centre. A pixel's area is an average
+#: too, but over a lobe many pixels wide it moves the model by a second-order term: on
+#: eight stereo scenes read pixel by pixel (six sharp lobes under a 15 mm lamp, two rough
+#: clipped ones), averaging each pixel over 2 x 2 points moved the plane by at most
+#: 0.001 px, at three to four times the cost.
+PIXEL_SUPPORT_POINTS = 1
 
 
 #: Pixels closer than this to the object's outline are not fitted (mask warping slack).
@@ -225,11 +234,11 @@ def support_points(samples: HighlightSamples, rig: CameraRig, points: int
     Parameters
     ----------
     samples : HighlightSamples
-        ``P`` samples, each the mean of a ``block_px`` square (a pixel's own area when
-        ``block_px`` is 1: the image integrates over it too).
+        ``P`` samples, each the mean of a ``block_px`` square.
     rig : CameraRig
     points : int
         Gauss-Legendre points per axis; 1 evaluates the model at block centres only.
+        Samples of one pixel take at most :data:`PIXEL_SUPPORT_POINTS`.
 
     Returns
     -------
@@ -239,6 +248,8 @@ def support_points(samples: HighlightSamples, rig: CameraRig, points: int
     numpy.ndarray, (S,)
         The quadrature weight of each group (they sum to 1).
     """
+    if samples.block_px == 1:
+        points = min(points, PIXEL_SUPPORT_POINTS)
     if points == 1:
         return samples, np.ones(1)
     nodes, weights = np.polynomial.legendre.leggauss(points)
