@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import MaskError
 
-__all__ = ["BoxMask", "eroded", "eroded_crop"]
+__all__ = ["BoxMask", "dilated", "eroded", "eroded_crop"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,4 +169,32 @@ def eroded(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
         return out
     crop, (u0, v0) = eroded_crop(mask, kernel, (x, y, x + bw, y + bh))
     out[v0:v0 + crop.shape[0], u0:u0 + crop.shape[1]] = crop
+    return out
+
+
+def dilated(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``cv2.dilate`` of a bool mask as an ``(H, W)`` array, computed near the mask only.
+
+    Dilation reaches at most the kernel's half-size beyond the box of the mask's
+    pixels, and reads nothing from outside the image: the box grown by that much (and
+    clipped to the image) gives the same pixels as dilating the whole frame, at the
+    cost of the object's neighbourhood instead of the frame's (a kernel of tens of
+    pixels over a 640 x 480 frame costs milliseconds). An empty mask stays empty.
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, (H, W) bool
+    kernel : numpy.ndarray, (kh, kw) uint8
+        Structuring element, centred.
+    """
+    out = np.zeros(mask.shape, dtype=bool)
+    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
+    if bw == 0:
+        return out
+    reach = max(kernel.shape) // 2
+    h, w = mask.shape
+    u0, v0 = max(x - reach, 0), max(y - reach, 0)
+    u1, v1 = min(x + bw + reach, w), min(y + bh + reach, h)
+    pixels = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
+    out[v0:v1, u0:u1] = cv2.dilate(pixels, kernel).view(bool)
     return out

@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from .._json import json_safe
+from ..boxes import dilated
 from ..geometry import Plane, plane_depth, plane_disparity
 from .highlight import HighlightDetection, search_box
 from .lights import (
@@ -778,8 +779,8 @@ def unexplained_plane(context: AssignmentContext, pool: list[PlaneScore],
     # A highlight whose mirror point lies just off the outline still shows its blob's
     # near half on the object: predictions within a blob radius of the mask count.
     side = 2 * int(math.ceil(context.blob_radius_px)) + 1
-    near_mask = cv2.dilate(context.mask.view(np.uint8), cv2.getStructuringElement(
-        cv2.MORPH_ELLIPSE, (side, side))).view(bool)
+    near_mask = dilated(context.mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE,
+                                                                (side, side)))
     covered: set[tuple[int, int]] = set()
     for plane in planes:
         score = context.score(plane)

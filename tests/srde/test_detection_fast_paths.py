@@ -2,13 +2,13 @@
 
 Each primitive is compared, bit for bit, with the computation it replaces: block means
 against numpy's reshape-mean, the one-partition median against ``np.median``, the mask
-eroded on its box against the whole mask eroded, regions computed inside the moved search
-box against regions computed over the whole disc, the candidates of all views at once
-against one view at a time, the box-corner grazing test against the per-pixel angles,
-the plane's disparity in one pass against the gather-and-scatter, a detection that
-reads the brightness search's luminance against one that converts the pixels itself, a
-region held over its box against the whole array, and the several-lights dip test of all
-peak pairs at once against one pair at a time.
+eroded or dilated on its box against the whole mask eroded or dilated, regions computed
+inside the moved search box against regions computed over the whole disc, the candidates
+of all views at once against one view at a time, the box-corner grazing test against the
+per-pixel angles, the plane's disparity in one pass against the gather-and-scatter, a
+detection that reads the brightness search's luminance against one that converts the
+pixels itself, a region held over its box against the whole array, and the several-lights
+dip test of all peak pairs at once against one pair at a time.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from srde_fusion.boxes import eroded
+from srde_fusion.boxes import dilated, eroded
 from srde_fusion.geometry import CameraRig, Plane, incidence_angle_deg, plane_disparity
 from srde_fusion.imaging import luminance
 from srde_fusion.srde import SRDE
@@ -99,6 +99,18 @@ def test_mask_eroded_on_its_box_is_the_whole_mask_eroded(seed, radius):
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
         want = cv2.erode(mask.view(np.uint8), kernel).view(bool)
     np.testing.assert_array_equal(srde._erode(mask), want)
+
+
+@given(st.integers(0, 2 ** 31), st.integers(0, 3), st.integers(1, 25), st.booleans())
+def test_mask_dilated_near_its_box_is_the_whole_mask_dilated(seed, n_blobs, side, ellipse):
+    rng = np.random.default_rng(seed)
+    mask = _blobs(rng, (48, 64), n_blobs)
+    if rng.random() < 0.3:  # pixels on the image's border
+        mask[int(rng.integers(0, 48)), 0] = mask[0, int(rng.integers(0, 64))] = True
+    shape = cv2.MORPH_ELLIPSE if ellipse else cv2.MORPH_RECT
+    kernel = cv2.getStructuringElement(shape, (side, side))
+    want = cv2.dilate(mask.view(np.uint8), kernel).view(bool)
+    np.testing.assert_array_equal(dilated(mask, kernel), want)
 
 
 def test_weighted_centroid_is_the_index_grid_formula():
