@@ -7,7 +7,10 @@ about 0.5 m beside and above the array, the others 12-20 cm from it and from eac
 mostly side by side (so that their highlights share the plate's free centre). Each
 calibration runs the full pipeline (``estimate_lights``: markers, every highlight,
 sorting by geometry, one solve per light), once told the number of lights and once
-counting them, with the renderer's own model and with ``Physics.faithful()`` (exact
+counting them; lamps 4-8 cm apart ('close', whose highlights merge on the plate) also
+each from the same plate poses lit by it alone, the others switched off
+(``estimate_light``, as ``calibrate_light_files(light=K)`` runs it); all with the
+renderer's own model and with ``Physics.faithful()`` (exact
 Fresnel, the light integrated over its 3 mm radius, height-correlated masking, diffuse
 transmittance, photon and read noise).
 
@@ -83,20 +86,30 @@ def draw_lights(rng: np.random.Generator, k: int, spacing_m=LAYOUTS["spread"]) -
     return np.array(lights)
 
 
-def captures(rng, rig, board, lights_m, physics):
+def captures(rng, rig, board, lights_m, physics, alone: bool = False):
+    """Render ``CAPTURES`` random plate poses lit by every lamp.
+
+    ``alone``: also render each pose lit by each lamp alone (the others switched off),
+    and return ``(views, alone_views)`` with ``alone_views[k]`` lamp k's captures.
+    """
     views = []
+    alone_views: list[list] = [[] for _ in lights_m]
     for _ in range(CAPTURES):
         center = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.06, 0.06),
                            rng.uniform(0.9, 1.1)])
         aim = center + [rng.uniform(-0.03, 0.03), rng.uniform(-0.015, 0.015), 0.0]
-        scene = plate_scene(board, rig, lights_m, center_m=center,
-                            normal=highlight_normal(aim, lights_m.mean(axis=0),
-                                                    rig.reference_center_m),
-                            rotation_rad=rng.uniform(-0.15, 0.15),
-                            light_radius_m=LIGHT_RADIUS_M)
-        views.append(render(scene, rig, supersample=SUPERSAMPLE, physics=physics,
-                            noise_seed=int(rng.integers(1 << 30))).views)
-    return views
+        pose = dict(center_m=center, normal=highlight_normal(aim, lights_m.mean(axis=0),
+                                                             rig.reference_center_m),
+                    rotation_rad=rng.uniform(-0.15, 0.15), light_radius_m=LIGHT_RADIUS_M)
+        noise_seed = int(rng.integers(1 << 30))
+        views.append(render(plate_scene(board, rig, lights_m, **pose), rig,
+                            supersample=SUPERSAMPLE, physics=physics,
+                            noise_seed=noise_seed).views)
+        for k in range(len(lights_m) if alone else 0):
+            alone_views[k].append(render(plate_scene(board, rig, lights_m[k], **pose), rig,
+                                         supersample=SUPERSAMPLE, physics=physics,
+                                         noise_seed=noise_seed + 1 + k).views)
+    return (views, alone_views) if alone else views
 
 
 def score(estimates, truth) -> dict:
@@ -124,14 +137,24 @@ def run(trials: int, plan) -> list[dict]:
             seed = [k, trial, 17] if layout == "spread" else [k, trial, 17, 1]
             rng = np.random.default_rng(seed)
             truth = draw_lights(rng, k, LAYOUTS[layout])
-            views = captures(rng, rig, board, truth, physics)
-            for mode in ("given", "counted") if k > 1 else ("single",):
+            modes = ("given", "counted") if k > 1 else ("single",)
+            if layout == "close":
+                modes += ("each alone",)
+                views, alone_views = captures(rng, rig, board, truth, physics, alone=True)
+            else:
+                views = captures(rng, rig, board, truth, physics)
+            for mode in modes:
                 t0 = time.perf_counter()
                 rec = dict(physics=physics_name, layout=layout, n_lights=k, trial=trial,
                            mode=mode, truth_m=truth.tolist())
                 try:
                     if mode == "single":
                         estimates = (estimate_light(views, rig, board),)
+                    elif mode == "each alone":
+                        # Each lamp from the captures it lights alone, the others off
+                        # (calibrate_light_files(light=K) / calibrate-light --light K).
+                        estimates = tuple(estimate_light(alone_views[j], rig, board)
+                                          for j in range(k))
                     else:
                         found = estimate_lights(views, rig, board,
                                                 n_lights=k if mode == "given" else None)
@@ -267,7 +290,10 @@ def write(rows: list[dict], records: list[dict], args, far: list[dict]) -> None:
         "radius, 12-20 cm apart ('spread') or 4-8 cm apart ('close'); "
         f"`python benchmarks/light_calibration_multi.py --trials {args.trials}`. 'given': "
         "told the number of lights; 'counted': it counts them; 'single': `estimate_light` "
-        "with one light. Errors per light; sigma = "
+        "with one light; 'each alone': every lamp calibrated from the same plate poses lit "
+        "by it alone, the others switched off (`estimate_light`, as "
+        "`calibrate_light_files(light=K)` / `calibrate-light --light K` run it). Errors per "
+        "light; sigma = "
         "sqrt(trace C) of the reported covariance; 'within k sigma': the true light inside "
         "the reported k-sigma ellipsoid (68.3 / 95.4 / 99.7 % for an honest Gaussian). "
         "'wrong': an estimate > 10 mm from every true light, two on one light, or a count "
@@ -332,7 +358,7 @@ def main() -> None:
         args.trials, args.downstream = 2, 2
     physics = ("model",) if args.quick else ("model", "faithful")
     plan = [(p, "spread", k) for p in physics for k in (1, 2, 3)]
-    plan += [("model", "close", k) for k in (2, 3)]
+    plan += [(p, "close", k) for p in physics for k in (2, 3)]
     records = run(args.trials, plan)
     far = [r for k in (2, 3) for r in downstream(k, args.downstream)]
     write(summarise(records), records, args, far)

@@ -63,6 +63,10 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
+# What a user can do when lamps close together merge their highlights on the plate.
+ONE_LAMP_AT_A_TIME = ("calibrate each lamp alone, the others switched off "
+                      "(calibrate_light_files(light=K), or calibrate-light --light K)")
+
 # ---------------------------------------------------------------------- the whole calibration
 def read_capture(folder: str | os.PathLike, rig: CameraRig) -> list[np.ndarray]:
     """Read the views of one plate capture: one image per camera, named after it.
@@ -428,10 +432,15 @@ def estimate_lights(
         raise LightError(
             f"lights: expected every capture to show the same number of lights when counting "
             f"them, got {counts} highlight sets per capture (highlights of lamps close "
-            f"together merge, or sit on a marker); give the number of lights")
+            f"together merge, or sit on a marker); give the number of lights, or "
+            f"{ONE_LAMP_AT_A_TIME}")
     matches, reason = match_captures([g.sets for g in groupings], poses, rig, k,
                                      max_ray_distance_m=max_residual_m)
     if reason:
+        if max(counts) < k:
+            # No capture shows every lamp apart: close lamps merge on every plate pose.
+            reason += (f" (lamps close together merge their highlights on the plate; "
+                       f"{ONE_LAMP_AT_A_TIME})")
         raise LightError(reason)
     groupings, matches, left_out = leave_out_contradicted_sets(
         groupings, matches, poses, rig, k, refine=refine, max_residual_m=max_residual_m)
@@ -466,8 +475,8 @@ def estimate_lights(
         raise LightError(
             f"lights: expected every two lights to show in a common view of some capture, "
             f"got two that never do ({where}): one of them may be the merged highlight of "
-            f"two lamps (a light between them); add captures where both show apart, or "
-            f"check the number of lights")
+            f"two lamps (a light between them); add captures where both show apart, "
+            f"check the number of lights, or {ONE_LAMP_AT_A_TIME}")
     estimates = []
     for light in range(k):
         centers, reasons = [], []
@@ -503,7 +512,7 @@ def estimate_lights(
                 f"lights: counted one light, but its highlight fits one lamp's lobe in none "
                 f"of the {len(poses)} captures ({fits[0].reasons[0]}); lamps close together "
                 f"whose highlights merge into one blob look like this: give the number of "
-                f"lights (with one, the rays' light is kept)")
+                f"lights (with one, the rays' light is kept), or {ONE_LAMP_AT_A_TIME}")
         estimates = [with_photometric(e, fit, rig, shared_move=k > 1)
                      for e, fit in zip(estimates, fits, strict=True)]
     # Lights left to right (then top to bottom): an order that does not depend on which
@@ -546,16 +555,23 @@ class LightCalibration:
     lights : LightsEstimate or None
         With several lights, all of them and how their highlights were sorted; None when
         one light was calibrated the single-light way.
+    light_index : int or None
+        The one light of ``rig.lights`` calibrated alone (``calibrate_light_files(light=)``),
+        the others written back as they were; None otherwise.
     """
 
     estimate: LightEstimate
     rig: CameraRig
     backup: Path | None = None
     lights: LightsEstimate | None = None
+    light_index: int | None = None
 
     @property
     def estimates(self) -> tuple[LightEstimate, ...]:
-        """Every light's estimate, in the order of ``rig.lights``."""
+        """Every light's estimate calibrated here, in the order of ``rig.lights``.
+
+        One light calibrated alone (``light_index``) gives its estimate only.
+        """
         return (self.estimate,) if self.lights is None else self.lights.lights
 
 
@@ -588,6 +604,7 @@ def calibrate_light_files(
     *,
     write: bool = True,
     n_lights: int | str | None = None,
+    light: int | str | None = None,
     **options: Any,
 ) -> LightCalibration:
     """Calibrate from capture folders and store the light in ``rig.json``.
@@ -610,6 +627,14 @@ def calibrate_light_files(
         None: as many as ``rig.json`` lists (one if none). One light is calibrated with
         :func:`estimate_light`, several with :func:`estimate_lights`; lights already in
         ``rig.json`` keep their names and radii.
+    light : int, str or None
+        Calibrate one lamp of several from captures that show it alone (the other lamps
+        switched off): the index of one of the lights ``rig.json`` lists, its name, or
+        the number of lights it lists to add a new one. That light is calibrated the
+        single-light way and keeps its name and radius; the other lights are written
+        back as they were. Lamps so close that their highlights merge on the plate
+        cannot be told apart in one capture; calibrated one at a time they can. Not
+        with ``n_lights`` (other than 1).
     **options
         Keyword options of :func:`estimate_light` / :func:`estimate_lights`
         (``photometric`` applies to up to :data:`MAX_IMAGE_READ_LIGHTS` lights: more are
@@ -622,6 +647,25 @@ def calibrate_light_files(
     """
     rig = CameraRig.from_json(rig_path)
     board = Board.from_json(board_path)
+    if light is not None:
+        if n_lights not in (None, 1):
+            raise LightError(f"light and n_lights: one lamp is calibrated alone (light="
+                             f"{light!r}), expected n_lights None or 1, got {n_lights!r}")
+        index = _light_index(rig, light)
+        # The captures show this lamp alone: SRDE reading the plate is told of it only
+        # (with its radius, if rig.json gives one).
+        alone = rig.with_lights(rig.lights[index:index + 1])
+        options.pop("match_tolerance_px", None)
+        estimate = estimate_light(list(capture_dirs), alone, board, **options)
+        position = tuple(float(v) for v in estimate.position_m)
+        lights = list(rig.lights)
+        if index < len(lights):
+            lights[index] = replace(lights[index], position_m=position)
+        else:
+            lights.append(RigLight(position))
+        new_rig = rig.with_lights(lights)
+        return LightCalibration(estimate, new_rig, _write_rig(new_rig, rig_path, write),
+                                light_index=index)
     if n_lights is None:
         n_lights = max(len(rig.lights), 1)
     elif n_lights != "auto" and (isinstance(n_lights, bool) or not isinstance(n_lights, int)):
@@ -642,15 +686,41 @@ def calibrate_light_files(
                                       for m in multi.matches))
         estimate = multi.lights[0]
     new_rig = rig.with_lights(lights)
-    backup = None
-    if write:
-        path = Path(rig_path)
-        backup = backup_path(path)
-        try:
-            old = path.read_bytes()
-        except OSError as exc:
-            raise FileFormatError(f"{backup}: could not back up {path.name}: {exc}") from None
-        # The backup is written like every other file: whole or not at all.
-        write_atomic(backup, old)
-        new_rig.to_json(path)
-    return LightCalibration(estimate, new_rig, backup, multi)
+    return LightCalibration(estimate, new_rig, _write_rig(new_rig, rig_path, write), multi)
+
+
+def _light_index(rig: CameraRig, light: Any) -> int:
+    """Return the index ``light`` names: an index, a name, or ``len(rig.lights)`` (a new one)."""
+    names = [lt.name for lt in rig.lights]
+    if isinstance(light, str):
+        if names.count(light) == 1:
+            return names.index(light)
+        known = [n for n in names if n]
+        raise LightError(f"light: expected the name of one of the rig's lights "
+                         f"({', '.join(map(repr, known)) if known else 'none is named'}) or "
+                         f"an index, got {light!r}")
+    if isinstance(light, bool) or not isinstance(light, (int, np.integer)) \
+            or not 0 <= light <= len(names):
+        which = (f"an index 0-{len(names) - 1} of the rig's {len(names)} light(s), or "
+                 f"{len(names)} to add one" if names else "0 to add the rig's first light")
+        raise LightError(f"light: expected {which}, got {light!r}")
+    if len(names) >= MAX_LIGHTS and light == len(names):
+        raise LightError(f"light: the rig already lists {len(names)} lights, the most it "
+                         f"can hold; expected an index 0-{len(names) - 1}, got {light!r}")
+    return int(light)
+
+
+def _write_rig(new_rig: CameraRig, rig_path: str | os.PathLike, write: bool) -> Path | None:
+    """Write ``new_rig`` over ``rig_path``, keeping the old file; the backup's path or None."""
+    if not write:
+        return None
+    path = Path(rig_path)
+    backup = backup_path(path)
+    try:
+        old = path.read_bytes()
+    except OSError as exc:
+        raise FileFormatError(f"{backup}: could not back up {path.name}: {exc}") from None
+    # The backup is written like every other file: whole or not at all.
+    write_atomic(backup, old)
+    new_rig.to_json(path)
+    return backup

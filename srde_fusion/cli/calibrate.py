@@ -95,6 +95,11 @@ def _lights_arg(text: str) -> int | str:
     return value
 
 
+def _light_arg(text: str) -> int | str:
+    """``--light``: a light's index (digits) or its name."""
+    return int(text) if text.isdigit() else text
+
+
 def _calibrate_light_command(args) -> int:
     options = {} if args.match_tolerance_px is None else {
         "match_tolerance_px": args.match_tolerance_px}
@@ -104,6 +109,7 @@ def _calibrate_light_command(args) -> int:
         args.rig,
         write=not args.dry_run,
         n_lights=args.lights,
+        light=args.light,
         method=args.method,
         refine=not args.no_refine,
         photometric=not args.no_photometric,
@@ -121,12 +127,19 @@ def _calibrate_light_command(args) -> int:
             radius = ("radius unknown" if light.radius_m is None
                       else f"radius {light.radius_m * 1000:g} mm, from {args.rig}")
             print(f"rig light {k}{label}: {radius}; the plate cannot measure it")
+    index = calibration.light_index
+    n = len(calibration.rig.lights)
+    if index is not None:
+        name = calibration.rig.lights[index].name
+        what = f"light {index}" + (f" ({name})" if name else "")
+        kept = "" if n == 1 else f"; the other {n - 1} light(s) as rig.json had them"
+    else:
+        what, kept = ("the light" if n == 1 else f"{n} lights"), ""
     if args.dry_run:
         print(f"{args.rig} left unchanged (--dry-run)")
     else:
-        n = len(calibration.rig.lights)
-        what = "the light" if n == 1 else f"{n} lights"
-        print(f"wrote {what} into {args.rig} (previous file kept as {calibration.backup})")
+        print(f"wrote {what} into {args.rig}{kept} (previous file kept as "
+              f"{calibration.backup})")
     if args.figure is not None and calibration.lights is not None:
         board = Board.from_json(args.board)
         for k, estimate in enumerate(calibration.estimates):
@@ -171,6 +184,17 @@ def _register_calibrate_light(subparsers) -> None:
         "lights by geometry; an ambiguous sorting is an error, never a guess. Lights "
         "already in rig.json keep their names and radius_m (the plate cannot measure a "
         "radius)",
+    )
+    p.add_argument(
+        "--light",
+        type=_light_arg,
+        default=None,
+        metavar="K|NAME",
+        help="calibrate one of the lights rig.json lists from captures that show it alone "
+        "(the other lamps switched off): its index from 0 or its name; the number of lights "
+        "rig.json lists adds a new one. The other lights are written back unchanged. Lamps "
+        "so close that their highlights merge on the plate are calibrated one at a time "
+        "this way",
     )
     p.add_argument(
         "--match-tolerance-px",

@@ -50,13 +50,15 @@ def board() -> Board:
     return Board.corner_layout(plate_size_m=PLATE_SIZE_M)
 
 
-def _captures(rig, board, lights_m, plates=PLATES):
+def _captures(rig, board, lights_m, plates=PLATES, aim_at_m=None):
+    """Render the plates lit by ``lights_m``, each aimed at ``aim_at_m`` (the lights' mean)."""
     out = []
+    aim_at_m = np.mean(lights_m, axis=0) if aim_at_m is None else aim_at_m
     for spec in plates:
         kw = dict(spec)
         aim = kw.pop("aim_m", None)
         if aim is not None:
-            kw["normal"] = highlight_normal(aim, np.mean(lights_m, axis=0))
+            kw["normal"] = highlight_normal(aim, aim_at_m)
         scene = plate_scene(board, rig, lights_m, **kw)
         rendering = render(scene, rig, supersample=2)
         truth = PlatePose.from_center_normal(kw["center_m"], scene.objects[0].normal,
@@ -330,18 +332,36 @@ def test_one_light_the_multi_light_way_agrees_with_the_single_light_way(rig3x3, 
     assert _nearest(multi.positions_m[0], LIGHTS_M[:1])[1] < DETECTED_TOL_M
 
 
-def test_counting_one_light_that_no_lobe_fit_confirms_is_refused(rig3x3, board):
+# Two lamps 5 cm apart: their highlights merge into one blob on every plate pose.
+CLOSE_M = np.array([LIGHTS_M[0], LIGHTS_M[0] + [0.05, 0.0, 0.0]])
+
+
+@pytest.fixture(scope="module")
+def close_lamps(rig3x3, board):
+    """The plates lit by both close lamps, then by each alone (the plates aimed alike)."""
+    aim = CLOSE_M.mean(axis=0)
+    together = [v for v, _, _ in _captures(rig3x3, board, CLOSE_M)]
+    alone = [[v for v, _, _ in _captures(rig3x3, board, CLOSE_M[k], aim_at_m=aim)]
+             for k in range(2)]
+    return together, alone
+
+
+def test_counting_one_light_that_no_lobe_fit_confirms_is_refused(close_lamps, rig3x3, board):
     """Two lamps 5 cm apart merge their highlights: counting sees one lamp between them.
 
     Its blob is no single lamp's lobe, and the lobe fit on the plate says so in every
     capture; told there is one light, the rays' light is kept with those reasons.
     """
-    close = np.array([LIGHTS_M[0], LIGHTS_M[0] + [0.05, 0.0, 0.0]])
-    views = [v for v, _, _ in _captures(rig3x3, board, close)]
+    close = CLOSE_M
+    views = close_lamps[0]
     with pytest.raises(LightError, match=r"counted one light, but its highlight fits one "
                                          r"lamp's lobe in none of the 3 captures .*give the "
-                                         r"number of lights"):
+                                         r"number of lights.*calibrate each lamp alone"):
         estimate_lights(views, rig3x3, board)
+    # Told there are two, no capture shows them apart: refused, with what to do.
+    with pytest.raises(LightError, match=r"expected a capture showing all 2 lights .*lamps "
+                                         r"close together merge .*--light K"):
+        estimate_lights(views, rig3x3, board, n_lights=2)
     told = estimate_lights(views, rig3x3, board, n_lights=1)
     light = told.lights[0]
     assert light.photometric.n_used == 0 and light.geometric_position_m is None
@@ -475,6 +495,71 @@ def test_calibrate_light_writes_every_light_keeping_names_and_radii(capture_dirs
         run_cli(capsys, "calibrate-light", *dirs, "--board", root / "board.json", "--rig",
                 bare, "--lights", "none")
     assert "expected a positive number of lights or 'auto'" in capsys.readouterr().err
+
+
+def test_close_lamps_calibrated_one_at_a_time(close_lamps, rig3x3, board, tmp_path,
+                                              capsys):
+    """Each lamp of the merging pair, captured alone, is calibrated into its own entry."""
+    _, alone = close_lamps
+    board.to_json(tmp_path / "board.json")
+    rig_path = tmp_path / "rig.json"
+    # rig.json knows both lamps roughly, named, with measured radii.
+    rough = [RigLight((0.1, -0.3, 0.0), radius_m=0.004, name="left"),
+             RigLight((0.25, -0.3, 0.0), radius_m=0.006, name="right")]
+    rig3x3.with_lights(rough).to_json(rig_path)
+    for k, name in enumerate(("left", "right")):
+        root = tmp_path / name
+        root.mkdir()
+        dirs = write_capture_folders(root, rig3x3, alone[k])
+        before = CameraRig.from_json(rig_path)
+        # by name on the command line, by index through the library (same light)
+        code, out, err = run_cli(capsys, "calibrate-light", *dirs, "--board",
+                                 tmp_path / "board.json", "--rig", rig_path, "--light", name)
+        assert code == 0, err
+        assert f"wrote light {k} ({name}) into" in out and "the other 1 light(s)" in out
+        after = CameraRig.from_json(rig_path)
+        assert after.lights[1 - k] == before.lights[1 - k]  # the other lamp untouched
+        assert (after.lights[k].name, after.lights[k].radius_m) == (name, rough[k].radius_m)
+        assert np.linalg.norm(after.lights[k].position - CLOSE_M[k]) < DETECTED_TOL_M
+        again = calibrate_light_files(dirs, tmp_path / "board.json", rig_path, light=k,
+                                      write=False)
+        assert again.light_index == k and again.backup is None
+        np.testing.assert_allclose(again.rig.lights[k].position, after.lights[k].position)
+    assert len(list(tmp_path.glob("rig.json.bak*"))) == 2  # one backup per write
+    # A rig without lights takes a lamp as its first; one with one light, as its second.
+    left, right = (sorted((tmp_path / name).iterdir()) for name in ("left", "right"))
+    bare = tmp_path / "bare.json"
+    rig3x3.to_json(bare)
+    first = calibrate_light_files(left, tmp_path / "board.json", bare, light=0, write=False)
+    assert len(first.rig.lights) == 1 and first.rig.lights[0].radius_m is None
+    first.rig.to_json(bare)
+    second = calibrate_light_files(right, tmp_path / "board.json", bare, light=1, write=False)
+    assert second.rig.lights[0] == first.rig.lights[0] and len(second.rig.lights) == 2
+    assert np.linalg.norm(second.rig.lights[1].position - CLOSE_M[1]) < DETECTED_TOL_M
+    # The same lamp added again is one light listed twice: refused.
+    with pytest.raises(LightError, match=r"one light listed twice"):
+        calibrate_light_files(left, tmp_path / "board.json", rig_path, light=2, write=False)
+
+
+def test_one_lamp_alone_input_errors(capture_dirs, rig3x3, tmp_path):
+    root, dirs = capture_dirs
+    rig_path = tmp_path / "rig.json"
+    rig3x3.with_lights([RigLight((0.1, -0.3, 0.0), name="left"),
+                        RigLight((0.3, -0.3, 0.0))]).to_json(rig_path)
+    board_path = root / "board.json"
+    with pytest.raises(LightError, match=r"light: expected an index 0-1 of the rig's 2 "
+                                         r"light\(s\), or 2 to add one, got 3"):
+        calibrate_light_files(dirs, board_path, rig_path, light=3)
+    with pytest.raises(LightError, match=r"light: expected the name of one of the rig's "
+                                         r"lights \('left'\) or an index, got 'right'"):
+        calibrate_light_files(dirs, board_path, rig_path, light="right")
+    with pytest.raises(LightError, match=r"expected n_lights None or 1, got 2"):
+        calibrate_light_files(dirs, board_path, rig_path, light=0, n_lights=2)
+    with pytest.raises(LightError, match=r"light: expected 0 to add the rig's first light, "
+                                         r"got True"):
+        bare = tmp_path / "bare.json"
+        rig3x3.to_json(bare)
+        calibrate_light_files(dirs, board_path, bare, light=True)
 
 
 def test_a_stereo_pair_that_cannot_tell_two_lamps_apart_says_so(board):
