@@ -514,8 +514,10 @@ def test_close_lamps_calibrated_one_at_a_time(close_lamps, rig3x3, board, tmp_pa
         before = CameraRig.from_json(rig_path)
         # by name on the command line, by index through the library (same light)
         code, out, err = run_cli(capsys, "calibrate-light", *dirs, "--board",
-                                 tmp_path / "board.json", "--rig", rig_path, "--light", name)
+                                 tmp_path / "board.json", "--rig", rig_path, "--light", name,
+                                 "--figure", tmp_path / f"fig_{name}")
         assert code == 0, err
+        assert (tmp_path / f"fig_{name}" / "light_3d.png").is_file()
         assert f"wrote light {k} ({name}) into" in out and "the other 1 light(s)" in out
         after = CameraRig.from_json(rig_path)
         assert after.lights[1 - k] == before.lights[1 - k]  # the other lamp untouched
