@@ -439,8 +439,9 @@ def estimate_lights(
     if reason:
         if max(counts) < k:
             # No capture shows every lamp apart: close lamps merge on every plate pose.
-            reason += (f" (lamps close together merge their highlights on the plate; "
-                       f"{ONE_LAMP_AT_A_TIME})")
+            reason += (f" (a lamp whose highlight misses the plate's free centre needs "
+                       f"other plate poses; lamps close together merge their highlights on "
+                       f"every pose: {ONE_LAMP_AT_A_TIME})")
         raise LightError(reason)
     groupings, matches, left_out = leave_out_contradicted_sets(
         groupings, matches, poses, rig, k, refine=refine, max_residual_m=max_residual_m)

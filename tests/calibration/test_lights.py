@@ -360,7 +360,8 @@ def test_counting_one_light_that_no_lobe_fit_confirms_is_refused(close_lamps, ri
         estimate_lights(views, rig3x3, board)
     # Told there are two, no capture shows them apart: refused, with what to do.
     with pytest.raises(LightError, match=r"expected a capture showing all 2 lights .*lamps "
-                                         r"close together merge .*--light K"):
+                                         r"close together merge their highlights on every "
+                                         r"pose: .*--light K"):
         estimate_lights(views, rig3x3, board, n_lights=2)
     told = estimate_lights(views, rig3x3, board, n_lights=1)
     light = told.lights[0]
