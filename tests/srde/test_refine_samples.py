@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -97,6 +99,10 @@ def test_a_pair_is_read_pixel_by_pixel_as_far_from_the_outline_as_blocks():
                          None).n_support
 
     assert support(pixels) == 1 < support(blocks) == SUPPORT_POINTS ** 2
+    # Block means one pixel wide (a small window on a larger array) are block means: the
+    # model is averaged over the pixel as over any block.
+    assert pixels.every_pixel and not blocks.every_pixel
+    assert support(replace(pixels, every_pixel=False)) == SUPPORT_POINTS ** 2
 
 
 @pytest.mark.parametrize("value", [1, "yes", 0.0])

@@ -8,8 +8,8 @@ pixel ray, camera centre, luminance and clipping flag.
 A sample is a mean over its block's area, not a value at its centre: on a lobe's steep
 flank the two differ, and the difference shifts the fitted highlight. The model is
 therefore averaged over the same square (:func:`support_points`: Gauss-Legendre points
-across the block, which integrate it exactly up to third order along each axis). A
-sample of one pixel is read at its centre (:data:`PIXEL_SUPPORT_POINTS`).
+across the block, which integrate it exactly up to third order along each axis). An
+every-pixel sample is read at its centre (:data:`PIXEL_SUPPORT_POINTS`).
 """
 
 from __future__ import annotations
@@ -50,11 +50,15 @@ SAMPLES_PER_SIDE = 30
 PIXEL_SAMPLES_MAX_CAMERAS = 2
 
 
-#: Points per axis on a sample of one pixel: its centre. A pixel's area is an average
-#: too, but over a lobe many pixels wide it moves the model by a second-order term: on
-#: eight stereo scenes read pixel by pixel (six sharp lobes under a 15 mm lamp, two rough
-#: clipped ones), averaging each pixel over 2 x 2 points moved the plane by at most
-#: 0.001 px, at three to four times the cost.
+#: Points per axis on an every-pixel sample (``PIXEL_SAMPLES_MAX_CAMERAS``): its centre.
+#: A pixel's area is an average too, but over a lobe many pixels wide it moves the model
+#: by a second-order term: on eight stereo scenes read pixel by pixel (six sharp lobes
+#: under a 15 mm lamp, two rough clipped ones), averaging each pixel over 2 x 2 points
+#: moved the plane by at most 0.001 px, at three to four times the cost. Block means that
+#: come out one pixel wide (a small window on a larger array: a sharp lobe, few samples,
+#: little cost) keep the blocks' 2 x 2 points: read at their centres, they changed 5 of
+#: the 220 several-light and faceted objects, 4 for the worse (one faceted face 0.046 ->
+#: 0.068 px) and one both ways.
 PIXEL_SUPPORT_POINTS = 1
 
 
@@ -101,6 +105,9 @@ class HighlightSamples:
     half_window_px: int
     block_px: int
     outline_px: int  # how far inside the object's outline the samples' pixels stay
+    # Every pixel a sample (``sample_windows(pixel_samples=True)``), not block means that
+    # came out one pixel wide because the window is small.
+    every_pixel: bool = False
 
     @property
     def may_come_nearer(self) -> bool:
@@ -224,7 +231,7 @@ def sample_windows(views, rig: CameraRig, mask: np.ndarray, plane: Plane, center
     cameras_m = np.repeat(rig.centers_m[used], counts, axis=0)
     return HighlightSamples(cameras_m[order], rig.rays(np.concatenate(uvs)[order]),
                     luminance_all[order], saturated_all[order], tuple(used), half, block,
-                    outline)
+                    outline, pixel_samples)
 
 
 def support_points(samples: HighlightSamples, rig: CameraRig, points: int
@@ -238,7 +245,7 @@ def support_points(samples: HighlightSamples, rig: CameraRig, points: int
     rig : CameraRig
     points : int
         Gauss-Legendre points per axis; 1 evaluates the model at block centres only.
-        Samples of one pixel take at most :data:`PIXEL_SUPPORT_POINTS`.
+        Every-pixel samples take at most :data:`PIXEL_SUPPORT_POINTS`.
 
     Returns
     -------
@@ -248,7 +255,7 @@ def support_points(samples: HighlightSamples, rig: CameraRig, points: int
     numpy.ndarray, (S,)
         The quadrature weight of each group (they sum to 1).
     """
-    if samples.block_px == 1:
+    if samples.every_pixel:
         points = min(points, PIXEL_SUPPORT_POINTS)
     if points == 1:
         return samples, np.ones(1)
@@ -264,7 +271,7 @@ def support_points(samples: HighlightSamples, rig: CameraRig, points: int
     expanded = HighlightSamples(np.tile(samples.camera_m, (n, 1)), np.concatenate(rays),
                                 np.tile(samples.luminance, n), np.tile(samples.saturated, n),
                                 samples.view_indices, samples.half_window_px, samples.block_px,
-                                samples.outline_px)
+                                samples.outline_px, samples.every_pixel)
     return expanded, np.array(group_weights)
 
 
