@@ -211,15 +211,14 @@ def fit_cost_below_truth(views, rig: CameraRig, mask, result, truth,
     setup = refinement_setup(views, rig, mask, found, result.refinement.lobe, light_radius_m)
     samples = refine_internals.sample_windows(setup.views, rig, mask, found, setup.centers,
                                               box=setup.box, settled=True)
-    costs, rings = [], None
-    for plane in (found, truth):
-        model = setup.model(samples, plane, disc_rings=rings)
-        start = model.initial_guess()
-        if plane is found and start is not None:
-            rings = refine_internals._disc_rings_for(model, samples, setup.lobe, start)
-            if rings is not None:
-                model = setup.model(samples, plane, disc_rings=rings)
-        costs.append(refine_internals._profile_at_start(model, start, 40)[1])
+    model = setup.model(samples, found)
+    start = model.initial_guess()
+    if start is not None:
+        model = refine_internals._with_rings_for_width(setup, samples, found, model, start)
+    costs = [refine_internals._profile_at_start(model, start, 40)[1]]
+    rings = refine_internals._main(model).reflection.disc_rings
+    model = setup.model(samples, truth, disc_rings=rings)
+    costs.append(refine_internals._profile_at_start(model, model.initial_guess(), 40)[1])
     return bool(costs[0] <= costs[1])
 
 

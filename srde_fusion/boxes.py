@@ -150,12 +150,7 @@ def eroded_crop(mask: np.ndarray, kernel: np.ndarray, bbox: tuple[int, int, int,
     origin : (int, int)
         ``(u, v)`` of ``crop[0, 0]`` in the image.
     """
-    reach = max(kernel.shape) // 2
-    h, w = mask.shape
-    u0, v0, u1, v1 = bbox
-    u0, v0, u1, v1 = max(u0 - reach, 0), max(v0 - reach, 0), min(u1 + reach, w), min(v1 + reach, h)
-    pixels = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
-    return cv2.erode(pixels, kernel).view(bool), (u0, v0)
+    return _grown_crop(mask, kernel, bbox, cv2.erode)
 
 
 def eroded(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
@@ -163,13 +158,7 @@ def eroded(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 
     See :func:`eroded_crop`; an empty mask stays empty.
     """
-    out = np.zeros(mask.shape, dtype=bool)
-    x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
-    if bw == 0:
-        return out
-    crop, (u0, v0) = eroded_crop(mask, kernel, (x, y, x + bw, y + bh))
-    out[v0:v0 + crop.shape[0], u0:u0 + crop.shape[1]] = crop
-    return out
+    return _on_mask_box(mask, kernel, cv2.erode)
 
 
 def dilated(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
@@ -187,14 +176,30 @@ def dilated(mask: np.ndarray, kernel: np.ndarray) -> np.ndarray:
     kernel : numpy.ndarray, (kh, kw) uint8
         Structuring element, centred.
     """
+    return _on_mask_box(mask, kernel, cv2.dilate)
+
+
+def _grown_crop(mask: np.ndarray, kernel: np.ndarray, bbox: tuple[int, int, int, int],
+                morph) -> tuple[np.ndarray, tuple[int, int]]:
+    """Apply ``morph`` (``cv2.erode`` or ``cv2.dilate``) over ``bbox`` grown by the reach.
+
+    The box is grown by the kernel's half-size and clipped to the image; returns the
+    crop and its origin ``(u, v)``.
+    """
+    reach = max(kernel.shape) // 2
+    h, w = mask.shape
+    u0, v0, u1, v1 = bbox
+    u0, v0, u1, v1 = max(u0 - reach, 0), max(v0 - reach, 0), min(u1 + reach, w), min(v1 + reach, h)
+    pixels = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
+    return morph(pixels, kernel).view(bool), (u0, v0)
+
+
+def _on_mask_box(mask: np.ndarray, kernel: np.ndarray, morph) -> np.ndarray:
+    """``morph`` of the mask as an ``(H, W)`` array, computed around its box only."""
     out = np.zeros(mask.shape, dtype=bool)
     x, y, bw, bh = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
     if bw == 0:
         return out
-    reach = max(kernel.shape) // 2
-    h, w = mask.shape
-    u0, v0 = max(x - reach, 0), max(y - reach, 0)
-    u1, v1 = min(x + bw + reach, w), min(y + bh + reach, h)
-    pixels = np.ascontiguousarray(mask[v0:v1, u0:u1]).view(np.uint8)
-    out[v0:v1, u0:u1] = cv2.dilate(pixels, kernel).view(bool)
+    crop, (u0, v0) = _grown_crop(mask, kernel, (x, y, x + bw, y + bh), morph)
+    out[v0:v0 + crop.shape[0], u0:u0 + crop.shape[1]] = crop
     return out

@@ -583,13 +583,8 @@ def test_a_stereo_pair_that_cannot_tell_two_lamps_apart_says_so(board):
 @pytest.fixture(scope="module")
 def lamp0_only(rig3x3, board):
     """Captures with only the first lamp on (the plates aimed as for two lamps)."""
-    out = []
-    for spec in PLATES[1:]:
-        kw = dict(spec)
-        kw["normal"] = highlight_normal(kw.pop("aim_m"), np.mean(LIGHTS_M[:2], axis=0))
-        out.append(render(plate_scene(board, rig3x3, LIGHTS_M[0], **kw), rig3x3,
-                          supersample=2).views)
-    return out
+    return [views for views, _, _ in _captures(rig3x3, board, LIGHTS_M[0], PLATES[1:],
+                                               aim_at_m=LIGHTS_M[:2].mean(axis=0))]
 
 
 def test_counting_refuses_captures_that_disagree_on_the_count(two, lamp0_only, rig3x3, board):

@@ -153,7 +153,7 @@ class LobeModel:
         The Fresnel term (see :class:`PlaneReflection`).
     support : int
         Points per axis at which the model is averaged over each sample's block (1: at
-        block centres); a sample of one pixel is read at its centre
+        block centres); an every-pixel sample is read at its centre
         (:data:`~.samples.PIXEL_SUPPORT_POINTS`).
     light_radius_m : float or None
         Radius of the spherical light, metres: the lobe is seen through the light's disc

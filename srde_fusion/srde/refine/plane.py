@@ -546,14 +546,12 @@ def _attempt(setup: _Setup, sample_plane: Plane, photometry: np.ndarray | None =
     else:
         theta0 = photometry.copy()
         theta0[:N_PLANE] = 0.0
-    rings = _disc_rings_for(model, samples, setup.lobe, theta0)
-    if rings is not None and rings != DISC_RINGS:
-        again = setup.model(samples, sample_plane, disc_rings=rings)
-        if again.valid:
-            model = again
-            # the first stage reads no more points than the blocks' pattern
-            near = near if rings > DISC_RINGS else _near(setup, samples, sample_plane,
-                                                         model, rings)
+    again = _with_rings_for_width(setup, samples, sample_plane, model, theta0)
+    if again is not model:
+        model, rings = again, _main(again).reflection.disc_rings
+        # the first stage reads no more points than the blocks' pattern
+        near = near if rings > DISC_RINGS else _near(setup, samples, sample_plane, model,
+                                                     rings)
     fit = _fit(model, theta0, setup.max_iterations, near)
     # The fair reference: the initial plane with every photometric parameter fitted,
     # starting from the joint solution's, on the same samples.
@@ -588,6 +586,21 @@ def _disc_rings_for(model: LobeModel | JointLobeModel, samples: HighlightSamples
     if start is None or start.disc is None:
         return None
     return disc_rings(start.disc.reach, lobe, math.exp(theta[I_WIDTH]), samples.block_px)
+
+
+def _with_rings_for_width(setup: _Setup, samples: HighlightSamples, plane: Plane,
+                          model: LobeModel | JointLobeModel, theta: np.ndarray
+                          ) -> LobeModel | JointLobeModel:
+    """``model`` with the light's disc read through the rings the lobe of ``theta`` needs.
+
+    (:func:`_disc_rings_for`.) ``model`` itself for a point light, when it reads that
+    many rings already, or when the model with that many is not valid.
+    """
+    rings = _disc_rings_for(model, samples, setup.lobe, theta)
+    if rings is None or rings == _main(model).reflection.disc_rings:
+        return model
+    again = setup.model(samples, plane, disc_rings=rings)
+    return again if again.valid else model
 
 
 def _near(setup: _Setup, samples: HighlightSamples, plane: Plane,
