@@ -631,7 +631,8 @@ def calibrate_light_files(
     light : int, str or None
         Calibrate one lamp of several from captures that show it alone (the other lamps
         switched off): the index of one of the lights ``rig.json`` lists, its name, or
-        the number of lights it lists to add a new one. That light is calibrated the
+        the number of lights it lists to add a new one. A string is a name first: digits
+        that name no light are an index. That light is calibrated the
         single-light way and keeps its name and radius; the other lights are written
         back as they were. Lamps so close that their highlights merge on the plate
         cannot be told apart in one capture; calibrated one at a time they can. Not
@@ -691,11 +692,17 @@ def calibrate_light_files(
 
 
 def _light_index(rig: CameraRig, light: Any) -> int:
-    """Return the index ``light`` names: an index, a name, or ``len(rig.lights)`` (a new one)."""
+    """Return the index ``light`` names: an index, a name, or ``len(rig.lights)`` (a new one).
+
+    A string is a light's name; one of digits that names no light is an index (as the
+    command line gives it), so a light named "2" is found by its name.
+    """
     names = [lt.name for lt in rig.lights]
     if isinstance(light, str):
         if names.count(light) == 1:
             return names.index(light)
+        if light.isascii() and light.isdigit() and light not in names:
+            return _light_index(rig, int(light))
         known = [n for n in names if n]
         raise LightError(f"light: expected the name of one of the rig's lights "
                          f"({', '.join(map(repr, known)) if known else 'none is named'}) or "

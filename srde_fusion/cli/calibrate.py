@@ -95,11 +95,6 @@ def _lights_arg(text: str) -> int | str:
     return value
 
 
-def _light_arg(text: str) -> int | str:
-    """``--light``: a light's index (digits) or its name."""
-    return int(text) if text.isdigit() else text
-
-
 def _calibrate_light_command(args) -> int:
     options = {} if args.match_tolerance_px is None else {
         "match_tolerance_px": args.match_tolerance_px}
@@ -187,14 +182,13 @@ def _register_calibrate_light(subparsers) -> None:
     )
     p.add_argument(
         "--light",
-        type=_light_arg,
         default=None,
         metavar="K|NAME",
         help="calibrate one of the lights rig.json lists from captures that show it alone "
-        "(the other lamps switched off): its index from 0 or its name; the number of lights "
-        "rig.json lists adds a new one. The other lights are written back unchanged. Lamps "
-        "so close that their highlights merge on the plate are calibrated one at a time "
-        "this way",
+        "(the other lamps switched off): its name, or its index from 0 (digits that name "
+        "no light); the number of lights rig.json lists adds a new one. The other lights "
+        "are written back unchanged. Lamps so close that their highlights merge on the "
+        "plate are calibrated one at a time this way",
     )
     p.add_argument(
         "--match-tolerance-px",

@@ -22,6 +22,7 @@ from srde_fusion.calibration import (
     leave_out_contradicted_sets,
     match_captures,
 )
+from srde_fusion.calibration.captures import _light_index
 from srde_fusion.errors import LightError
 from srde_fusion.geometry import CameraRig, RigLight
 from srde_fusion.synthetic import highlight_normal, plate_scene, render
@@ -563,6 +564,21 @@ def test_one_lamp_alone_input_errors(capture_dirs, rig3x3, tmp_path):
         bare = tmp_path / "bare.json"
         rig3x3.to_json(bare)
         calibrate_light_files(dirs, board_path, bare, light=True)
+
+
+def test_a_lamp_is_chosen_by_name_before_index(rig3x3):
+    """The command line gives every ``--light`` as text: a light named "1" is that light,
+    digits that name no light are an index, and anything else is an unknown name."""
+    rig = rig3x3.with_lights([RigLight((0.1, -0.3, 0.0), name="1"),
+                              RigLight((0.3, -0.3, 0.0), name="front")])
+    assert _light_index(rig, "1") == 0  # the name, not index 1
+    assert _light_index(rig, "front") == 1
+    assert _light_index(rig, "0") == 0 and _light_index(rig, "2") == 2  # indices; 2 adds one
+    with pytest.raises(LightError, match=r"expected an index 0-1 of the rig's 2 light\(s\), "
+                                         r"or 2 to add one, got 5"):
+        _light_index(rig, "5")
+    with pytest.raises(LightError, match=r"lights \('1', 'front'\) or an index, got 'back'"):
+        _light_index(rig, "back")
 
 
 def test_a_stereo_pair_that_cannot_tell_two_lamps_apart_says_so(board):
