@@ -57,6 +57,8 @@ SECOND_SET_SEED = 51004
 LARGER_SET_SEED = 53001
 # A 3-face scene whose two best-ranked sets (equal support) both fail.
 BOTH_SETS_FAIL_SEED = 33019
+# A valley whose right set of face planes ranks below sets with a wrong plane, which fail.
+NEXT_RANK_SEED = 32007
 # A 3-face scene whose third face's highlight centres give a plane 0.9 px off; its lobe
 # fit moves it by 1.5 px onto the face, explaining the images 24x better than its start.
 MOVED_FACE_SEED = 33002
@@ -329,6 +331,26 @@ def test_a_larger_set_as_good_on_the_highlights_is_tried_when_the_best_fails(rig
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
 
 
+def test_the_next_rank_is_tried_when_every_set_of_the_best_fails(rig, monkeypatch):
+    # A valley whose right set holds 7 highlights on their own faces; a wrong plane that
+    # takes another face's highlight ranks wrong sets at 8, and their lobe fits fail.
+    _, rendering, lit = _rendered(rig, NEXT_RANK_SEED, 2, False, physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    srde = SRDE(lit, max_faces=3)
+    result = srde.estimate(rendering.views, mask)
+    assert result.ok, result.reason
+    assert result.faces.rule == "valley"
+    assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
+    context, ranked = _ranked_sets(srde, rendering, mask)
+    solved = [face.plane for face in result.faces.faces]
+    taken = [s for s in ranked if len(s.scores) == 2 and all(
+        min(context.plane_gap_px(a.plane, p) for p in solved) <= 0.5 for a in s.scores)]
+    assert taken and taken[0].value[0] < ranked[0].value[0]
+    monkeypatch.setattr(faces_module, "RANKS_TRIED", 1)
+    result = srde.estimate(rendering.views, mask)
+    assert result.status == "inconsistent", result.reason
+
+
 def test_every_failed_set_is_named(rig):
     _, rendering, lit = _rendered(rig, BOTH_SETS_FAIL_SEED, 3, True, physics=Physics.faithful())
     result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
@@ -513,6 +535,9 @@ def test_a_face_the_lobe_fit_does_not_confirm_is_read_again_away_from_the_edge(r
     assert len(read) == 4 and read[3] < read[2] < read[1]
     assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
     monkeypatch.setattr(faces_module, "RETRY_EDGE_PX", 0.0)  # no band: no second reading
+    # (A set of the next rank, read once, is confirmed here: within 0.05 px. Only the
+    # best rank's sets are tried, to see them fail.)
+    monkeypatch.setattr(faces_module, "RANKS_TRIED", 1)
     read.clear()
     tries = _record_tries(monkeypatch)
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
