@@ -45,12 +45,15 @@ Run: ``python benchmarks/mismatched_physics.py [--scenes 10]`` (about 25 minutes
 cores); writes ``benchmarks/results/mismatched_physics.md`` and ``.json``. With
 ``--speed-only`` only the speed section runs (one typical scene per roughness bin and
 light radius, and the harsh scenes; nothing scored but the timed planes' status) and
-writes ``mismatched_physics_speed.md`` and ``.json`` instead.
+writes ``mismatched_physics_speed.md`` and ``.json`` instead. ``--tables-only`` rebuilds
+the results page from the stored ``.json`` without running anything.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
 import platform
 import time
@@ -365,19 +368,52 @@ def accuracy_tables(records: list[dict], rig_name: str) -> tuple[list[str], dict
     return lines, numbers
 
 
+def one_sided_chance(k: int, n: int) -> float:
+    """Chance that ``n`` fair coin flips put at least ``max(k, n - k)`` on one side."""
+    m = max(k, n - k)
+    if 2 * m == n:
+        return 1.0
+    tail = sum(math.comb(n, i) for i in range(m, n + 1)) / 2.0**n
+    return min(1.0, 2.0 * tail)
+
+
+def lopsided(k: int, n: int) -> bool:
+    """More than 70 % of ``n`` scenes on one side: ``k`` too near, or ``n - k``."""
+    return max(k, n - k) > 0.7 * n
+
+
 def target_lines(numbers: dict, rig_name: str) -> list[str]:
+    """The issue's targets per physics and light radius, and the signs' balance.
+
+    A bin is lopsided when more than 70 % of its scenes err on one side. With about ten
+    scenes a bin, balanced signs make a bin lopsided by chance alone about one time in
+    nine: each lopsided bin is given with that chance for its count, and each physics
+    with the number of lopsided bins chance alone would give.
+    """
     out = []
     for physics in ("faithful", "faithful, radius given"):
+        expected = found = 0.0
         for radius_label, bins in numbers[physics]["default"].items():
             worst = max(s["epe"] for s in bins.values())
             target = TARGETS_PX[rig_name][0.0 if radius_label == "0 mm" else "lit"]
-            near = [s["too_near"] for s in bins.values() if s["n"] >= 3]
-            lopsided = [f"{v:.0%}" for v in near if v > 0.7 or v < 0.3]
+            sides = []
+            for s in bins.values():
+                n = s["n"]
+                if n < 3:
+                    continue
+                k = round(s["too_near"] * n)
+                expected += sum(math.comb(n, i) for i in range(n + 1) if lopsided(i, n)) / 2.0**n
+                if lopsided(k, n):
+                    found += 1
+                    sides.append(f"{k} of {n} too near (chance "
+                                 f"{one_sided_chance(k, n):.0%})")
             verdict = "met" if worst <= target else "NOT met"
             out.append(f"- {rig_name}, {physics}, light {radius_label}: worst roughness bin "
                        f"mean EPE {worst:.4f} px (target <= {target} px): {verdict}"
-                       + (f"; bins with more than 70 % of scenes on one side: {lopsided}"
-                          if lopsided else ""))
+                       + (f"; bins with more than 70 % of scenes on one side: "
+                          f"{', '.join(sides)}" if sides else ""))
+        out.append(f"- {rig_name}, {physics}: {found:g} lopsided bin(s); balanced signs would "
+                   f"give {expected:.1f} by chance")
     return out
 
 
@@ -455,15 +491,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="timed calls per scene and method, the best kept (speed only; "
                         "more are steadier on a loaded machine)")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
+    parser.add_argument("--tables-only", action="store_true",
+                        help="rebuild the results page from the stored .json, running nothing")
     args = parser.parse_args(argv)
     if args.speed_only:
         return speed_only(args)
 
-    md = ["# SRDE on scenes rendered with physics its refinement does not model", "",
-          __doc__.split("\n\n", 2)[1].replace("\n", " "), "",
-          f"{args.scenes} scenes per rig, roughness bin and light radius (seeds 5000 + ...); "
-          f"{args.harsh} harsh scenes per rig for timing. Machine: {platform.machine()}, "
-          f"{os.cpu_count()} cores, Python {platform.python_version()}.", ""]
+    if args.tables_only:
+        report = json.loads((args.out / f"{NAME}.json").read_text())
+        write_results(args.out, NAME, report_lines(report, args.harsh), report)
+        return 0
     report: dict = {"scenes": args.scenes, "rigs": {}}
     for rig_name, rig in rigs().items():
         records = []
@@ -474,12 +511,32 @@ def main(argv: list[str] | None = None) -> int:
                 for p, r in records[-1]["runs"].items()), flush=True)
         harsh = [run_scene(rig, 9000 + i, RandomSceneConfig(**HARSH), timed=True)
                  for i in range(args.harsh)]
+        wide = [w for w in (wide_scene(rig, 7000 + i) for i in range(args.wide)) if w]
+        report["rigs"][rig_name] = {"records": records, "harsh_records": harsh,
+                                    "wide_records": wide}
+    report["render_s"] = {p: float(np.median([r["runs"][p]["render_s"]
+                                              for rig in report["rigs"].values()
+                                              for r in rig["records"]])) for p in PHYSICS}
+    write_results(args.out, NAME, report_lines(report, args.harsh), report)
+    return 0
+
+
+def report_lines(report: dict, n_harsh: int) -> list[str]:
+    """The results page from the stored records; fills ``report``'s summaries in place."""
+    md = ["# SRDE on scenes rendered with physics its refinement does not model", "",
+          __doc__.split("\n\n", 2)[1].replace("\n", " "), "",
+          f"{report['scenes']} scenes per rig, roughness bin and light radius (seeds 5000 + "
+          f"...); {n_harsh} harsh scenes per rig for timing. Machine: {platform.machine()}, "
+          f"{os.cpu_count()} cores, Python {platform.python_version()}.", ""]
+    for rig_name, rig in rigs().items():
+        stored = report["rigs"][rig_name]
+        records, harsh, wide = (stored["records"], stored["harsh_records"],
+                                stored["wide_records"])
         table, numbers = accuracy_tables(records, rig_name)
         against_geometric, against_numbers = geometric_lines(records)
         typical_speed, typical_numbers = speed_lines(records, "typical scenes")
         harsh_speed, harsh_numbers = speed_lines(harsh, "harsh scenes")
         harsh_epe = {p: summarise(harsh, p, "default") for p in ROWS}
-        wide = [w for w in (wide_scene(rig, 7000 + i) for i in range(args.wide)) if w]
         wide_table, wide_numbers = wide_lines(wide)
         ratios = [r["disc_over_width"] for r in wide]
         md += [f"## {rig_name} ({rig.n_cameras} views)", "", *table, "",
@@ -495,20 +552,12 @@ def main(argv: list[str] | None = None) -> int:
                f"{max(ratios, default=0):.1f} lobe widths in radius; the light integrated over "
                f"{WIDE_LIGHT_SAMPLES} points; time: default SRDE, faithful, best of three):",
                "", *wide_table, ""]
-        report["rigs"][rig_name] = {"accuracy": numbers, "harsh_accuracy": harsh_epe,
-                                    "against_geometric": against_numbers,
-                                    "wide_accuracy": wide_numbers, "wide_records": wide,
-                                    "speed": {"typical": typical_numbers,
-                                              "harsh": harsh_numbers},
-                                    "records": records, "harsh_records": harsh}
-    render_s = {p: float(np.median([r["runs"][p]["render_s"]
-                                    for rig in report["rigs"].values()
-                                    for r in rig["records"]])) for p in PHYSICS}
+        stored.update({"accuracy": numbers, "harsh_accuracy": harsh_epe,
+                       "against_geometric": against_numbers, "wide_accuracy": wide_numbers,
+                       "speed": {"typical": typical_numbers, "harsh": harsh_numbers}})
     md += ["Render time per frame (median over both rigs): " + ", ".join(
-        f"{p} {s:.2f} s" for p, s in render_s.items()), ""]
-    report["render_s"] = render_s
-    write_results(args.out, NAME, md, report)
-    return 0
+        f"{p} {s:.2f} s" for p, s in report["render_s"].items()), ""]
+    return md
 
 
 if __name__ == "__main__":
