@@ -714,8 +714,8 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     planes = [face.plane for face in faces]
     labels = split_faces(planes, rig, box, inside, rule)
     if SECOND_READING:
-        faces = _read_again(srde, views, mask, faces, results, modelled_by_face, labels, box,
-                            context)
+        faces, results = _read_again(srde, views, mask, faces, results, modelled_by_face,
+                                     labels, box, context)
         planes = [face.plane for face in faces]
         labels = split_faces(planes, rig, box, inside, rule)
     refined = [replace(s, plane=p) for s, p in zip(chosen, planes, strict=True)]
@@ -775,18 +775,18 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
 
 def _read_again(srde: SRDE, views, mask: np.ndarray, faces: list[FaceResult], results,
                 modelled_by_face, labels: np.ndarray, box, context: AssignmentContext
-                ) -> list[FaceResult]:
+                ) -> tuple[list[FaceResult], list[SRDEResult]]:
     """Each face refined once more on its part as the refined planes draw it (``labels``).
 
     Starts from the face's refined plane and reads the same highlights' windows, less
     the pixels within :data:`FACE_EDGE_MARGIN_PX` of another face's part. A face whose
     second reading is not confirmed, not pinned down or moves it by more than
-    ``SAME_PLANE_PX`` keeps its first.
+    ``SAME_PLANE_PX`` keeps its first. Returns the faces and their results.
     """
     u0, v0, u1, v1 = box
     lights = srde.lights_m
     near_edge = _near_other_face(labels, FACE_EDGE_MARGIN_PX).view(bool)
-    out = []
+    out, read = [], []
     for f, face in enumerate(faces):
         face_mask = np.zeros(mask.shape, dtype=bool)
         face_mask[v0:v1, u0:u1] = (labels == f + 1) & ~near_edge
@@ -800,10 +800,13 @@ def _read_again(srde: SRDE, views, mask: np.ndarray, faces: list[FaceResult], re
         if (again.ok and refinement is not None and refinement.ok
                 and refinement.disparity_sigma_px <= MAX_FACE_SIGMA_PX
                 and context.plane_gap_px(again.plane, face.plane) <= SAME_PLANE_PX):
-            face = replace(face, plane=again.plane, virtual_light_m=again.virtual_light_m,
-                           refinement=refinement)
-        out.append(face)
-    return out
+            out.append(replace(face, plane=again.plane, virtual_light_m=again.virtual_light_m,
+                               refinement=refinement))
+            read.append(again)
+        else:
+            out.append(face)
+            read.append(results[f])
+    return out, read
 
 
 def _unexplained_reference(rig, gathered, scores: list[PlaneScore], labels, box,
