@@ -175,6 +175,19 @@ def _alone(rig, seed, n_faces, convex, face):
     return SRDE(lit).estimate(rendering.views, rendering.instance_mask == face + 1), rendering
 
 
+def _three_faces_within_the_target(rig, seed):
+    """A 3-face ridge's faithful render, solved with three faces within FACE_EPE_PX.
+
+    Returns ``(result, rendering, lit rig)``.
+    """
+    _, rendering, lit = _rendered(rig, seed, 3, True, physics=Physics.faithful())
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
+    assert result.ok, result.reason
+    assert len(result.faces.faces) == 3
+    assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+    return result, rendering, lit
+
+
 def _face_epes(disparity, rendering, n_faces):
     return [float(np.mean(np.abs(disparity[rendering.instance_mask == k + 1]
                                  - rendering.disparity_px[rendering.instance_mask == k + 1])))
@@ -243,12 +256,7 @@ def test_two_faces_are_solved_within_the_target(rig, seed, convex, rule):
 
 @pytest.mark.parametrize("seed", [THREE_SEED, REORDERED_SEED, GLOW_SEED, TWO_VIEW_FACE_SEED])
 def test_three_faces_are_solved_within_the_target(rig, seed):
-    _, rendering, lit = _rendered(rig, seed, 3, True, physics=Physics.faithful())
-    mask = rendering.instance_mask > 0
-    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
-    assert result.ok, result.reason
-    assert len(result.faces.faces) == 3
-    assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+    _three_faces_within_the_target(rig, seed)
 
 
 def _record(monkeypatch, name: str) -> list:
@@ -356,14 +364,9 @@ def test_the_next_rank_is_tried_when_every_set_of_the_best_fails(rig, monkeypatc
 
 
 def test_each_face_is_read_again_on_the_part_the_refined_planes_give_it(rig, monkeypatch):
-    _, rendering, lit = _rendered(rig, SECOND_READING_SEED, 3, True, physics=Physics.faithful())
-    mask = rendering.instance_mask > 0
-    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
-    assert result.ok, result.reason
-    assert len(result.faces.faces) == 3
-    assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+    _, rendering, lit = _three_faces_within_the_target(rig, SECOND_READING_SEED)
     monkeypatch.setattr(faces_module, "SECOND_READING", False)
-    first = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    first = SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0)
     assert first.ok, first.reason
     assert max(_face_epes(first.disparity, rendering, 3)) > 0.1  # the middle face
 
