@@ -382,6 +382,11 @@ def lopsided(k: int, n: int) -> bool:
     return max(k, n - k) > 0.7 * n
 
 
+def lopsided_chance(n: int) -> float:
+    """Chance that balanced signs make a bin of ``n`` scenes :func:`lopsided`."""
+    return sum(math.comb(n, i) for i in range(n + 1) if lopsided(i, n)) / 2.0**n
+
+
 def target_lines(numbers: dict, rig_name: str) -> list[str]:
     """The issue's targets per physics and light radius, and the signs' balance.
 
@@ -402,7 +407,7 @@ def target_lines(numbers: dict, rig_name: str) -> list[str]:
                 if n < 3:
                     continue
                 k = round(s["too_near"] * n)
-                expected += sum(math.comb(n, i) for i in range(n + 1) if lopsided(i, n)) / 2.0**n
+                expected += lopsided_chance(n)
                 if lopsided(k, n):
                     found += 1
                     sides.append(f"{k} of {n} too near (chance "

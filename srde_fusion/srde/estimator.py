@@ -570,6 +570,17 @@ class SRDE:
                           centers, used, residual, self.method, tuple(notes), detections,
                           refinement)
 
+    def _finish_on_plane(self, mask, plane, light, used, centers, detections, notes,
+                         **options) -> SRDEResult:
+        """:meth:`_finish` for the virtual light ``plane`` mirrors ``light`` to.
+
+        For a plane already known (a face's, a lobe fit's); ``options`` go to ``_finish``.
+        """
+        point = plane.mirror(light)
+        w = 1.0 / (point[2] - self.rig.reference_center_m[2])
+        return self._finish(mask, point, w, used, centers, detections, notes, light=light,
+                            **options)
+
     def _grazing_possible(self, plane, box) -> bool:
         """Whether any pixel of the box ``(u0, v0, u1, v1)`` may see the plane too obliquely.
 

@@ -610,7 +610,6 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     An ``ok`` result whose ``faces`` holds every face, or the first check that failed.
     """
     rig, lights = srde.rig, srde.lights_m
-    u0, v0, u1, v1 = box
     rule, edge_px = split.rule, gathered.blob_radius_px
     tolerance_px = 2.0 * srde.max_residual_px
     # Each face's plane refitted to its own highlights alone (those away from the edge
@@ -631,15 +630,11 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
         plane = context.fit(own) if own.n_matched >= 2 else None
         chosen.append(own if plane is None else replace(own, plane=plane))
     labels = split_faces([s.plane for s in chosen], rig, box, inside, rule)
-    # The refinement reads each face away from its neighbours: the edge is where the
-    # planes put it, and blocks near it may hold the neighbour's shading.
-    near_edge = _near_other_face(labels, FACE_EDGE_MARGIN_PX).view(bool)
     faces: list[FaceResult] = []
     results = []
     modelled_by_face = []
-    for f, score in enumerate(chosen):
-        face_mask = np.zeros(mask.shape, dtype=bool)
-        face_mask[v0:v1, u0:u1] = (labels == f + 1) & ~near_edge
+    parts = _face_parts(labels, box, mask.shape, len(chosen))
+    for f, (score, face_mask) in enumerate(zip(chosen, parts, strict=True)):
         result, face, modelled = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
                                              gathered)
         if result.ok and srde.refine and not face.refinement:
@@ -773,6 +768,26 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
                       faces=Faces(rule, labels, tuple(faces)))
 
 
+def _face_parts(labels: np.ndarray, box, shape: tuple[int, int], n_faces: int
+                ) -> list[np.ndarray]:
+    """Each face's part of the mask as the refinement reads it, ``(H, W)`` bool each.
+
+    Faces ``1 .. n_faces`` of ``labels`` (over ``box``); a face without pixels has an
+    empty part.
+    The refinement reads each face away from its neighbours: the edge is where the
+    planes put it, and blocks near it may hold the neighbour's shading, so the pixels
+    within :data:`FACE_EDGE_MARGIN_PX` of another face's part are left out.
+    """
+    u0, v0, u1, v1 = box
+    near_edge = _near_other_face(labels, FACE_EDGE_MARGIN_PX).view(bool)
+    parts = []
+    for f in range(1, n_faces + 1):
+        part = np.zeros(shape, dtype=bool)
+        part[v0:v1, u0:u1] = (labels == f) & ~near_edge
+        parts.append(part)
+    return parts
+
+
 def _read_again(srde: SRDE, views, mask: np.ndarray, faces: list[FaceResult], results,
                 modelled_by_face, labels: np.ndarray, box, context: AssignmentContext
                 ) -> tuple[list[FaceResult], list[SRDEResult]]:
@@ -783,19 +798,14 @@ def _read_again(srde: SRDE, views, mask: np.ndarray, faces: list[FaceResult], re
     second reading is not confirmed, not pinned down or moves it by more than
     ``SAME_PLANE_PX`` keeps its first. Returns the faces and their results.
     """
-    u0, v0, u1, v1 = box
     lights = srde.lights_m
-    near_edge = _near_other_face(labels, FACE_EDGE_MARGIN_PX).view(bool)
     out, read = [], []
-    for f, face in enumerate(faces):
-        face_mask = np.zeros(mask.shape, dtype=bool)
-        face_mask[v0:v1, u0:u1] = (labels == f + 1) & ~near_edge
-        light = lights[face.light]
-        point = face.plane.mirror(light)
-        w = 1.0 / (point[2] - srde.rig.reference_center_m[2])
-        again = srde._finish(face_mask, point, w, face.used_views, face.highlight_centers,
-                             results[f].detections, (), views=views, light=light,
-                             modelled_lights=[lights[k] for k in modelled_by_face[f]])
+    parts = _face_parts(labels, box, mask.shape, len(faces))
+    for f, (face, face_mask) in enumerate(zip(faces, parts, strict=True)):
+        again = srde._finish_on_plane(face_mask, face.plane, lights[face.light],
+                                      face.used_views, face.highlight_centers,
+                                      results[f].detections, (), views=views,
+                                      modelled_lights=[lights[k] for k in modelled_by_face[f]])
         refinement = again.refinement
         if (again.ok and refinement is not None and refinement.ok
                 and refinement.disparity_sigma_px <= MAX_FACE_SIGMA_PX
@@ -992,13 +1002,12 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
         next((d for d in gathered.found[j] if np.allclose(d.center_uv, centers[j])),
              HighlightDetection.missing(f"no highlight of light {main} on face {label}"))
         for j in range(rig.n_cameras))
-    point = score.plane.mirror(lights[main])
-    w = 1.0 / (point[2] - rig.reference_center_m[2])
     # Lights whose highlights on this face come near the main one's are rendered with it.
     near = near_lights(score.on_object, score.predicted_uv, main, gathered.blob_radius_px)
     modelled = [k for k in np.flatnonzero(near).tolist() if np.any(_own(where[k], label))]
-    result = srde._finish(face_mask, point, w, used, centers, detections, (), views=views,
-                          light=lights[main], modelled_lights=[lights[k] for k in modelled])
+    result = srde._finish_on_plane(face_mask, score.plane, lights[main], used, centers,
+                                   detections, (), views=views,
+                                   modelled_lights=[lights[k] for k in modelled])
     face = None
     if result.ok:
         face = FaceResult(label, result.plane, main, result.virtual_light_m, centers, used,

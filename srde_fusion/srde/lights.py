@@ -1939,14 +1939,12 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
                   + (f" ({len(fits)} distinct planes)" if len(fits) > 2 else "") + evidence)
         return dataclasses.replace(failed, status="ambiguous", reason=reason)
     fit, main, used, *_ = fits[winner]
-    point = fit.plane.mirror(lights[main])
-    w = 1.0 / (point[2] - rig.reference_center_m[2])
     centers = _centres(rig, fit.plane, lights[main], np.ones(rig.n_cameras, bool))
     detections = tuple(HighlightDetection.missing(f"light {main}: in a merged blob")
                        for _ in range(rig.n_cameras))
-    result = srde._finish(mask, point, w, used, centers, detections,
-                          (*failed.notes, note + f" gives the plane (RMS {fit.residual:.3g})"),
-                          refine=False, light=lights[main])
+    result = srde._finish_on_plane(
+        mask, fit.plane, lights[main], used, centers, detections,
+        (*failed.notes, note + f" gives the plane (RMS {fit.residual:.3g})"), refine=False)
     if not result.ok:
         return dataclasses.replace(failed, notes=(*failed.notes, note + f": {result.reason}"))
     return dataclasses.replace(result, refinement=fit,
