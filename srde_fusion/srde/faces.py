@@ -124,6 +124,12 @@ FACE_EDGE_MARGIN_PX = 4.0
 #: by at most ``SAME_PLANE_PX``; else the first does.
 SECOND_READING = True
 
+#: A face's refined plane, not only its start plane, explains the reference view's
+#: highlights of the face's own light: a start proposed from other views' centres can
+#: predict the face's own reference highlight beyond the tolerance, where the refined
+#: plane meets it, and the split was then refused as leaving a highlight unexplained.
+FINAL_PLANES_EXPLAIN = True
+
 #: A face whose lobe fit does not confirm its plane is read once more without the band
 #: where its plane and a neighbour's differ by less than this, px (where the faces' edge
 #: lies if the planes are off by that much).
@@ -733,6 +739,15 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
                             f"edge; limit {MAX_OPEN_EDGE_FRACTION:.0%})")
     # (A highlight near the edge that a face's fit left out may lie away from the edge
     # the refined planes draw: it is still explained.)
+    if FINAL_PLANES_EXPLAIN:
+        # Only the face's own light counts: another light's highlight that a face's plane
+        # happens to predict there is no sign that the face accounts for it.
+        for face in faces:
+            final = context.score(face.plane, at_least=1, near_outline=True)
+            if final is not None:
+                own_light = np.full(final.matched.shape, -1)
+                own_light[face.light] = final.matched[face.light]
+                theirs.append(replace(final, matched=own_light))
     stray = _unexplained_reference(rig, gathered, theirs, labels, box, edge_px)
     if stray:
         # With every light known, each highlight on the object is some light's on some

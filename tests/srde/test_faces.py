@@ -63,6 +63,10 @@ NEXT_RANK_SEED = 32007
 # px of a neighbour inside), came out 0.15 px off; read again on the part the refined
 # planes give it, 0.04 px. Two sets of starting planes then end on the same three faces.
 SECOND_READING_SEED = 33009
+# A ridge (seeds 121000+) whose second face's start plane, proposed from its highlights in
+# three other views, predicts the face's own reference highlight beyond the tolerance;
+# its refined plane meets it.
+FINAL_PLANE_SEED = 121016
 # A 3-face scene whose third face's highlight centres give a plane 0.9 px off; its lobe
 # fit moves it by 1.5 px onto the face, explaining the images 24x better than its start.
 MOVED_FACE_SEED = 33002
@@ -508,6 +512,20 @@ def test_a_face_left_out_is_refused(rig, monkeypatch):
     assert len(tries) == 2 and result is tries[1] and result.ok, result.reason
     assert len(result.faces.faces) == 3
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+
+
+def test_a_reference_highlight_the_refined_face_explains_is_its_own(rig, monkeypatch):
+    # Judged by the start planes alone, the face's own highlight in the reference view is
+    # explained by no face, and the right split was refused as leaving it out.
+    _, rendering, lit = _rendered(rig, FINAL_PLANE_SEED, 2, True, physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert result.ok and len(result.faces.faces) == 2, result.reason
+    assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
+    monkeypatch.setattr(faces_module, "FINAL_PLANES_EXPLAIN", False)
+    refused = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert refused.status == "face_split", refused.reason
+    assert "none of the 2 faces explains" in refused.reason
 
 
 def test_a_face_of_three_pieced_off_from_two_views_is_refused(rig):
