@@ -55,6 +55,7 @@ from .lights import (
     BLEND_RADII,
     DECISIVE_COST_RATIO,
     SAME_PLANE_PX,
+    UNEXPLAINED_RATIO,
     AssignmentContext,
     PlaneScore,
     ViewCandidates,
@@ -129,6 +130,12 @@ SECOND_READING = True
 #: predict the face's own reference highlight beyond the tolerance, where the refined
 #: plane meets it, and the split was then refused as leaving a highlight unexplained.
 FINAL_PLANES_EXPLAIN = True
+
+#: A set of faces must explain more highlights than one plane does alone: the first
+#: plane of the pool (the most highlights) that the evidence against does not outweigh
+#: (the one-plane path's own refusal, ``UNEXPLAINED_RATIO``), or none if all are.
+#: Measured against a plane that path refuses itself, right splits were dropped.
+CREDIBLE_BAR = True
 
 #: A face whose lobe fit does not confirm its plane is read once more without the band
 #: where its plane and a neighbour's differ by less than this, px (where the faces' edge
@@ -271,9 +278,10 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     plane: a set counts when some rule puts every face's highlights on its own part
     (:func:`_evaluate`). The best set is the one with the most highlights on their own
     faces (less those elsewhere), then the most net support. A set must explain more
-    highlights than the first plane does alone, counting those the faces' edge cuts
-    (:data:`CUT_BY_EDGE`): they do not place the split, but the first plane's count
-    holds every highlight it explains.
+    highlights than the first plane of the pool does alone, of the planes the evidence
+    against does not outweigh (:data:`CREDIBLE_BAR`), counting those the faces'
+    edge cuts (:data:`CUT_BY_EDGE`): they do not place the split, but the single plane's
+    count holds every highlight it explains.
 
     ``keep_proposed`` (the second try of :func:`estimate_faces`): each proposed plane
     joins the pool beside its refit, and the pool holds twice as many. A refit moves a
@@ -328,9 +336,15 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
                 split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside)
                 if split is not None and split.value > pair.value:
                     splits.append(split)
-    # Faces must explain more highlights than the first plane does alone (which counts
+    # Faces must explain more highlights than one credible plane does alone (which counts
     # every highlight it explains, near an edge or not).
-    splits = [s for s in splits if s.explained > len(first)]
+    bar = len(first)
+    if CREDIBLE_BAR:
+        # (The pool is in the order of the highlights its planes' proposals explain: the
+        # first credible plane takes the first plane's place.)
+        credible = [p for p in pool if not p.outweighed(UNEXPLAINED_RATIO)]
+        bar = len(explained_pairs(credible[0])) if credible else 0
+    splits = [s for s in splits if s.explained > bar]
     splits.sort(key=lambda s: s.value, reverse=True)
 
     def same_planes(a: _Split, b: _Split) -> bool:
