@@ -33,7 +33,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from mismatched_physics import HARSH, STEREO_BASELINE_M, rigs, scene_for
+from mismatched_physics import HARSH, STEREO_BASELINE_M, best_time_s, rigs, scene_for
 from results_files import write_results
 
 from srde_fusion.geometry import CameraRig
@@ -59,15 +59,6 @@ def scaled_rig(kind: str, scale: float) -> CameraRig:
     return CameraRig.stereo(STEREO_BASELINE_M, fx=600.0 * scale, image_size=size)
 
 
-def best_s(fn, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
-
-
 def calls_per_estimate(srde: SRDE, views, mask) -> int:
     """Python-level function calls of one estimate (as the profiler counts them)."""
     profile = cProfile.Profile()
@@ -88,11 +79,11 @@ def run_scene(kind: str, seed: int) -> dict:
         lit = rig.with_light(scene.light.position_m)
         methods = {"geometric": SRDE(lit, refine=False), "default": SRDE(lit)}
         entry = {"scale": scale, "pixels": rig.width * rig.height,
-                 "floor_s": best_s(lambda v=views: [cv2.cvtColor(x, cv2.COLOR_RGB2GRAY)
+                 "floor_s": best_time_s(lambda v=views: [cv2.cvtColor(x, cv2.COLOR_RGB2GRAY)
                                                     for x in v], REPEATS["floor"])}
         for name, srde in methods.items():
             entry[f"{name}_status"] = srde.estimate(views, mask).status
-            entry[f"{name}_s"] = best_s(lambda s=srde, v=views, m=mask: s.estimate(v, m),
+            entry[f"{name}_s"] = best_time_s(lambda s=srde, v=views, m=mask: s.estimate(v, m),
                                         REPEATS[name])
             if scale == 1.0:
                 record[f"{name}_calls"] = calls_per_estimate(srde, views, mask)

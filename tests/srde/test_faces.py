@@ -517,33 +517,28 @@ def test_a_face_left_out_is_refused(rig, monkeypatch):
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
 
 
-def test_a_reference_highlight_the_refined_face_explains_is_its_own(rig, monkeypatch):
+@pytest.mark.parametrize(("seed", "convex", "rule", "status", "said"), [
     # Judged by the start planes alone, the face's own highlight in the reference view is
     # explained by no face, and the right split was refused as leaving it out.
-    _, rendering, lit = _rendered(rig, FINAL_PLANE_SEED, 2, True, physics=Physics.faithful())
+    (FINAL_PLANE_SEED, True, "FINAL_PLANES_EXPLAIN", "face_split",
+     "none of the 2 faces explains"),
+    # A set of faces must explain more highlights than one plane does; measured against a
+    # plane the one-plane path itself refuses (more evidence against it than half what it
+    # explains), the right split was dropped and the object refused.
+    (CREDIBLE_BAR_SEED, False, "CREDIBLE_BAR", "inconsistent",
+     "evidence against the best plane"),
+])
+def test_a_right_split_a_rule_once_refused_is_solved(rig, monkeypatch, seed, convex, rule,
+                                                       status, said):
+    _, rendering, lit = _rendered(rig, seed, 2, convex, physics=Physics.faithful())
     mask = rendering.instance_mask > 0
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert result.ok and len(result.faces.faces) == 2, result.reason
     assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
-    monkeypatch.setattr(faces_module, "FINAL_PLANES_EXPLAIN", False)
+    monkeypatch.setattr(faces_module, rule, False)
     refused = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
-    assert refused.status == "face_split", refused.reason
-    assert "none of the 2 faces explains" in refused.reason
-
-
-def test_faces_need_only_outdo_a_plane_that_could_stand_alone(rig, monkeypatch):
-    # A set of faces must explain more highlights than one plane does; measured against
-    # a plane the one-plane path itself refuses (more evidence against it than half what
-    # it explains), the right split was dropped and the object refused.
-    _, rendering, lit = _rendered(rig, CREDIBLE_BAR_SEED, 2, False, physics=Physics.faithful())
-    mask = rendering.instance_mask > 0
-    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
-    assert result.ok and len(result.faces.faces) == 2, result.reason
-    assert max(_face_epes(result.disparity, rendering, 2)) <= FACE_EPE_PX
-    monkeypatch.setattr(faces_module, "CREDIBLE_BAR", False)
-    refused = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
-    assert refused.status == "inconsistent", refused.reason
-    assert "evidence against the best plane" in refused.reason
+    assert refused.status == status, refused.reason
+    assert said in refused.reason
 
 
 def test_a_face_of_three_pieced_off_from_two_views_is_refused(rig):
