@@ -125,35 +125,35 @@ def summary(records: list[dict], kind: str) -> tuple[list[str], dict]:
               "target for the whole call | Python-level calls per estimate |",
               "|---|---:|---:|---:|---:|---:|"]
     numbers: dict = {"scenes": len(used)}
+    notes = []
     for method in ("geometric", "default"):
-        whole, fixed, pixel = [], [], []
+        whole, fixed, fixed_s, pixel, smallest = [], [], [], [], []
         for r in used:
-            floor = r["scales"][0]["floor_s"]
+            full = r["scales"][0]
+            floor = full["floor_s"]
             a, b = split_time(r, method)
-            whole.append(r["scales"][0][f"{method}_s"] / floor)
+            whole.append(full[f"{method}_s"] / floor)
             fixed.append(a / floor)
-            pixel.append(b * r["scales"][0]["pixels"] / floor)
+            fixed_s.append(a)
+            pixel.append(b * full["pixels"] / floor)
+            # Measured, not fitted: the smallest size's call against the full size's floor.
+            smallest.append(r["scales"][-1][f"{method}_s"] / floor)
         row = {"whole_x_floor": float(np.median(whole)), "fixed_x_floor": float(np.median(fixed)),
                "per_pixel_x_floor": float(np.median(pixel)),
-               "fixed_ms": 1000 * float(np.median([split_time(r, method)[0] for r in used])),
+               "fixed_ms": 1000 * float(np.median(fixed_s)),
                "calls": int(np.median([r[f"{method}_calls"] for r in used])),
-               "target_x_floor": TARGETS[method]}
+               "target_x_floor": TARGETS[method],
+               "smallest_x_full_floor": float(np.median(smallest))}
         numbers[method] = row
         lines.append(f"| {method} | {row['whole_x_floor']:.1f}x | {row['fixed_x_floor']:.1f}x "
                      f"({row['fixed_ms']:.2f} ms) | {row['per_pixel_x_floor']:.1f}x | "
                      f"{row['target_x_floor']:g}x | {row['calls']} |")
-    lines.append("")
-    for method in ("geometric", "default"):
-        row = numbers[method]
-        # Measured, not fitted: the smallest size's call against the full size's floor.
-        smallest = float(np.median([r["scales"][-1][f"{method}_s"] / r["scales"][0]["floor_s"]
-                                    for r in used]))
-        row["smallest_x_full_floor"] = smallest
-        lines.append(f"- {method}: the fixed part alone is {row['fixed_x_floor']:.1f}x the "
+        notes.append(f"- {method}: the fixed part alone is {row['fixed_x_floor']:.1f}x the "
                      f"floor, {row['fixed_x_floor'] / row['target_x_floor']:.1f} times the "
                      f"whole call's budget ({row['target_x_floor']:g}x); measured without the "
-                     f"fit, the call on views of 1/16 the pixels takes {smallest:.1f}x the "
-                     "full-size floor.")
+                     f"fit, the call on views of 1/16 the pixels takes "
+                     f"{row['smallest_x_full_floor']:.1f}x the full-size floor.")
+    lines += ["", *notes]
     lines.append("")
     return lines, numbers
 

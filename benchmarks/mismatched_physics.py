@@ -504,7 +504,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.tables_only:
         report = json.loads((args.out / f"{NAME}.json").read_text())
-        write_results(args.out, NAME, report_lines(report, args.harsh), report)
+        write_results(args.out, NAME, report_lines(report), report)
         return 0
     report: dict = {"scenes": args.scenes, "rigs": {}}
     for rig_name, rig in rigs().items():
@@ -522,12 +522,13 @@ def main(argv: list[str] | None = None) -> int:
     report["render_s"] = {p: float(np.median([r["runs"][p]["render_s"]
                                               for rig in report["rigs"].values()
                                               for r in rig["records"]])) for p in PHYSICS}
-    write_results(args.out, NAME, report_lines(report, args.harsh), report)
+    write_results(args.out, NAME, report_lines(report), report)
     return 0
 
 
-def report_lines(report: dict, n_harsh: int) -> list[str]:
+def report_lines(report: dict) -> list[str]:
     """The results page from the stored records; fills ``report``'s summaries in place."""
+    n_harsh = len(next(iter(report["rigs"].values()))["harsh_records"])
     md = ["# SRDE on scenes rendered with physics its refinement does not model", "",
           __doc__.split("\n\n", 2)[1].replace("\n", " "), "",
           f"{report['scenes']} scenes per rig, roughness bin and light radius (seeds 5000 + "

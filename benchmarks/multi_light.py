@@ -48,13 +48,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 from faceted import Estimated  # fusion of a result already computed (run from this folder)
 from fusion_eval import sgbm_backbone
 from results_files import write_results
 
-from srde_fusion.boxes import eroded
 from srde_fusion.fusion import fuse
 from srde_fusion.geometry import plane_disparity
 from srde_fusion.srde import SRDE
@@ -131,8 +129,7 @@ def correspondence_time(srde: SRDE, views, mask, repeat: int) -> float:
     ``SRDE.estimate`` takes that path only for two or more lights; told of one, this
     times what the correspondence itself costs before any second light is added.
     """
-    r = srde.mask_erosion_px
-    search = eroded(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+    search = srde._erode(mask)  # the search region estimate() hands that path
     return timed(lambda: estimate_with_lights(srde, views, mask, search), repeat)[1]
 
 

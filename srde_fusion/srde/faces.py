@@ -349,9 +349,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
 
     def same_planes(a: _Split, b: _Split) -> bool:
         # The same set in another order (a pair and a third, or another pair and a third).
-        return len(a.scores) == len(b.scores) and all(
-            any(context.plane_gap_px(x.plane, y.plane) <= SAME_PLANE_PX for y in b.scores)
-            for x in a.scores)
+        return _same_planes(context, [x.plane for x in a.scores], [y.plane for y in b.scores])
 
     ranked: list[_Split] = []
     for split in splits:
@@ -617,8 +615,16 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
 
 def _same_faces(context: AssignmentContext, a: SRDEResult, b: SRDEResult) -> bool:
     """Whether two solved sets end on the same face planes (each within SAME_PLANE_PX)."""
-    planes_a = [face.plane for face in a.faces.faces]
-    planes_b = [face.plane for face in b.faces.faces]
+    return _same_planes(context, [face.plane for face in a.faces.faces],
+                        [face.plane for face in b.faces.faces])
+
+
+def _same_planes(context: AssignmentContext, planes_a: list[Plane], planes_b: list[Plane]
+                 ) -> bool:
+    """Whether two sets of planes are the same set: as many, each one near one of the other.
+
+    Near: within ``SAME_PLANE_PX`` over the object (``context.plane_gap_px``).
+    """
     return len(planes_a) == len(planes_b) and all(
         any(context.plane_gap_px(p, q) <= SAME_PLANE_PX for q in planes_b) for p in planes_a)
 
