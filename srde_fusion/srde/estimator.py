@@ -333,21 +333,43 @@ class SRDE:
                 return self._failed(
                     "mask_too_small", f"mask: nothing left to search after eroding the "
                     f"{int(mask.sum())}-px mask by {self.mask_erosion_px} px")
-        gathered = None  # every view's candidates, found once for faces and lights
-        if self.max_faces > 1:
-            gathered = gather_candidates(self, views, search)
-            faceted = estimate_faces(self, views, mask, gathered)
-            if faceted is not None:
-                return faceted
+        if self.max_faces == 1:
+            return self._one_plane(views, mask, search, None)
+        gathered = gather_candidates(self, views, search)  # found once for faces and lights
+        faceted = estimate_faces(self, views, mask, gathered)
+        if faceted is None or faceted.ok:
+            return self._one_plane(views, mask, search, gathered) if faceted is None \
+                else faceted
+        # Sets of faces were tried and every one failed. A flat object whose blobs suggest
+        # a second plane (a highlight of another light on its flank, say) is still the
+        # one-plane path's to solve, by that path's own checks; a faceted object it
+        # refuses (it solved none of the faceted benchmark's 600 objects), and the faces'
+        # reason stands.
+        one_plane = self._one_plane(views, mask, search, gathered, faces_tried=True)
+        return one_plane if one_plane.ok else faceted
+
+    def _one_plane(self, views, mask, search, gathered, *, faces_tried: bool = False
+                   ) -> SRDEResult:
+        """Estimate the object as one plane: by several lights or by the single light.
+
+        ``gathered``: every view's candidates when the faces' step found them (None
+        otherwise). ``faces_tried``: the faces' tries all failed already; none is made
+        again.
+        """
+        rig = self.rig
         if len(self.lights_m) > 1:
             result = estimate_with_lights(self, views, mask, search, gathered=gathered)
-            if self.max_faces == 1 or result.status not in ("inconsistent", "ambiguous"):
+            if self.max_faces == 1 or faces_tried or result.status not in (
+                    "inconsistent", "ambiguous", "too_few_views"):
                 return result
             # No face split was found, and the highlights hold evidence against one plane
             # or two planes explain them alike: faces from every view's candidates
             # (faces.estimate_faces), or this failure. (Objects without such evidence,
             # a highlight missing say, are not tried again: the try costs tens of ms.)
-            again = estimate_faces(self, views, mask, gathered, every_view=True)
+            # When no plane explains the centres at all, only blobs cut by a straight
+            # edge (centred on their arcs) can change that.
+            again = estimate_faces(self, views, mask, gathered, every_view=True,
+                                   cut_only=result.status == "too_few_views")
             return result if again is None else again
         ref = rig.reference
         search_bbox = search_box(search, 0)

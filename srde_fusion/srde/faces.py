@@ -12,7 +12,9 @@ lines, a light) are the same, only more than one of them is the answer:
    the object is a single plane and the caller takes its usual path. Sets that the
    highlights rank alike are told apart by the image (step 3): the first whose faces all
    pass is taken, two that both pass are ambiguous; when all of them fail, the sets of
-   the next rank are tried the same way.
+   the next rank are tried the same way. When every set fails, the planes are proposed
+   again from every view's candidates, and last from candidates whose blobs cut by a
+   straight edge are centred on their arcs (:data:`RECENTRED_TRY`).
 2. **Split.** Two planes meet in a 3-D line whose image is the faces' edge. Along a
    reference pixel's ray a convex object (a ridge) shows the *farther* of the faces'
    planes (the ray enters the solid last through it), a concave one (a valley) the
@@ -136,6 +138,21 @@ FINAL_PLANES_EXPLAIN = True
 #: (the one-plane path's own refusal, ``UNEXPLAINED_RATIO``), or none if all are.
 #: Measured against a plane that path refuses itself, right splits were dropped.
 CREDIBLE_BAR = True
+
+#: When every other try fails, the faces are tried once more with each blob cut by a
+#: straight chord (a face's edge, a straight stretch of the outline) centred on the
+#: ellipse through the rest of its outline (:func:`.cut_highlights.arc_center`), every
+#: view's candidates proposing planes: a face whose highlights reach its edge in most
+#: views has centroids pixels inside its part, and no proposed plane comes near it.
+RECENTRED_TRY = True
+
+#: The last try's answer stands only when every face's lobe fit pins its plane down to
+#: this standard error, px. Its faces' fits mostly move their starts by hundredths of a
+#: pixel, so the plane is the recentred centres' and carries their error, which the
+#: fit's own standard error does not see. (On the four faceted seed sets it was drawn
+#: from, its faces within 0.05 px had at most 0.035 px; faces 0.26-0.53 px off,
+#: 0.046-0.079 px.)
+RECENTRED_MAX_SIGMA_PX = 0.04
 
 #: A face whose lobe fit does not confirm its plane is read once more without the band
 #: where its plane and a neighbour's differ by less than this, px (where the faces' edge
@@ -518,7 +535,7 @@ def _rule_fit(where: list[np.ndarray], min_views: int) -> tuple[bool, int, str]:
 
 # ---------------------------------------------------------------------- the estimate
 def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates | None, *,
-                   every_view: bool = False) -> SRDEResult | None:
+                   every_view: bool = False, cut_only: bool = False) -> SRDEResult | None:
     """:meth:`SRDE.estimate` for an object of up to ``srde.max_faces`` flat faces.
 
     Returns None when the highlights show one plane only (or none): the caller then
@@ -530,13 +547,18 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     ``gathered``: :func:`~.lights.gather_candidates` for the object's search region
     (None: no candidate, so no faces). ``every_view``: the second try only (below), for
     an object the one-plane path could not solve either; an ``ok`` result or None.
+    ``cut_only`` (with ``every_view``): only the last try, cut blobs centred on their
+    arcs (:data:`RECENTRED_TRY`), for an object whose centres no plane explains.
     """
     if gathered is None:
         return None
     every = tuple(range(srde.rig.n_cameras))
     if every_view:
-        again = _estimate_faces(srde, views, mask, gathered, anchors=every)
-        return again if again is not None and again.ok else None
+        again = None if cut_only else _estimate_faces(srde, views, mask, gathered,
+                                                      anchors=every)
+        if again is not None and again.ok:
+            return again
+        return _recentred_try(srde, views, mask, gathered)
     result = _estimate_faces(srde, views, mask, gathered, anchors=None)
     if result is None or result.ok:
         return result
@@ -548,9 +570,38 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     # extra planes also widen the sets a right split competes with (first, they lost
     # four objects the reference's planes solve, gaining one). An object that shows one
     # plane (None) is tried again only when the one-plane path fails too (SRDE.estimate):
-    # tried here, a flat object with max_faces=3 took three times as long.
+    # tried here, a flat object with max_faces=3 took three times as long. Last, blobs
+    # cut by a face's edge are centred on their arcs (RECENTRED_TRY).
     again = _estimate_faces(srde, views, mask, gathered, anchors=every)
-    return again if again is not None and again.ok else result
+    if again is not None and again.ok:
+        return again
+    return _recentred_try(srde, views, mask, gathered) or result
+
+
+def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
+                   ) -> SRDEResult | None:
+    """Return the faces from candidates whose cut blobs are centred on their arcs, if ok.
+
+    (:data:`RECENTRED_TRY`.) None when no blob is cut, no set of faces passes, or a
+    face's standard error exceeds :data:`RECENTRED_MAX_SIGMA_PX`: the caller's failure
+    stands.
+    """
+    if not RECENTRED_TRY:
+        return None
+    recentred = gathered.recentred(views, srde.config.encoding)
+    if recentred is None:
+        return None
+    again = _estimate_faces(srde, views, mask, recentred,
+                            anchors=tuple(range(srde.rig.n_cameras)))
+    if again is None or not again.ok:
+        return None
+    loose = [face.refinement.disparity_sigma_px for face in again.faces.faces
+             if face.refinement is None
+             or not face.refinement.disparity_sigma_px <= RECENTRED_MAX_SIGMA_PX]
+    if loose:
+        _log.debug("faces: the recentred try's faces are pinned down to %s px only", loose)
+        return None
+    return again
 
 
 def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,

@@ -49,6 +49,7 @@ from ..geometry import (
 )
 from ..imaging import luminance
 from .config import BLOB_LEVEL, PEAK_SMOOTHING_SIGMA_PX, DetectorConfig
+from .cut_highlights import arc_center
 from .highlight import (
     HighlightDetection,
     detect_in_view,
@@ -1378,6 +1379,35 @@ class ViewCandidates:
         return _Context(srde.rig, srde.lights_m, mask, self.centers_uv, self.lit,
                         2.0 * srde.max_residual_px, srde.object_depth_m, srde.min_views,
                         self.blob_radius_px, self.boxes, **options)
+
+    def recentred(self, views, encoding: str) -> ViewCandidates | None:
+        """Return these candidates with each cut blob centred on its arc (:func:`.arc_center`).
+
+        A blob cut by a straight chord (a face's edge, a straight stretch of the outline)
+        has its centroid pulled into the part left; the ellipse through the rest of its
+        outline has the whole highlight's centre. Each blob is read again as the largest
+        component above its level in its box. None when no blob is cut.
+        """
+        found, moved = [], False
+        for j, dets in enumerate(self.found):
+            row = []
+            for d in dets:
+                u0, v0, u1, v1 = d.bbox
+                above = luminance(views[j][v0:v1, u0:u1], encoding) > d.level
+                count, parts = cv2.connectedComponents(above.view(np.uint8), connectivity=8)
+                center = None
+                if count > 1:
+                    largest = 1 + int(np.argmax(np.bincount(parts.ravel(), minlength=count)[1:]))
+                    center = arc_center(parts == largest)
+                if center is not None:
+                    d = dataclasses.replace(d, center_uv=center + np.array([u0, v0], float))
+                    moved = True
+                row.append(d)
+            found.append(row)
+        if not moved:
+            return None
+        centers = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
+        return ViewCandidates(found, centers, self.lit, self.blob_radius_px)
 
 
 def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates | None:
