@@ -337,9 +337,10 @@ class SRDE:
             return self._one_plane(views, mask, search, None)
         gathered = gather_candidates(self, views, search)  # found once for faces and lights
         faceted = estimate_faces(self, views, mask, gathered)
-        if faceted is None or faceted.ok:
-            return self._one_plane(views, mask, search, gathered) if faceted is None \
-                else faceted
+        if faceted is None:
+            return self._one_plane(views, mask, search, gathered)
+        if faceted.ok:
+            return faceted
         # Sets of faces were tried and every one failed. A flat object whose blobs suggest
         # a second plane (a highlight of another light on its flank, say) is still the
         # one-plane path's to solve, by that path's own checks; a faceted object it

@@ -575,7 +575,8 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     again = _estimate_faces(srde, views, mask, gathered, anchors=every)
     if again is not None and again.ok:
         return again
-    return _recentred_try(srde, views, mask, gathered) or result
+    last = _recentred_try(srde, views, mask, gathered)
+    return result if last is None else last
 
 
 def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
@@ -583,8 +584,8 @@ def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     """Return the faces from candidates whose cut blobs are centred on their arcs, if ok.
 
     (:data:`RECENTRED_TRY`.) None when no blob is cut, no set of faces passes, or a
-    face's standard error exceeds :data:`RECENTRED_MAX_SIGMA_PX`: the caller's failure
-    stands.
+    face's standard error exceeds :data:`RECENTRED_MAX_SIGMA_PX` (or no refinement
+    gave one): the caller's failure stands.
     """
     if not RECENTRED_TRY:
         return None
@@ -595,11 +596,11 @@ def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
                             anchors=tuple(range(srde.rig.n_cameras)))
     if again is None or not again.ok:
         return None
-    loose = [face.refinement.disparity_sigma_px for face in again.faces.faces
-             if face.refinement is None
-             or not face.refinement.disparity_sigma_px <= RECENTRED_MAX_SIGMA_PX]
-    if loose:
-        _log.debug("faces: the recentred try's faces are pinned down to %s px only", loose)
+    # (Without the refinement nothing pins a face down beyond its recentred centres.)
+    sigmas = [math.inf if face.refinement is None else face.refinement.disparity_sigma_px
+              for face in again.faces.faces]
+    if not all(sigma <= RECENTRED_MAX_SIGMA_PX for sigma in sigmas):
+        _log.debug("faces: the recentred try's faces are pinned down to %s px only", sigmas)
         return None
     return again
 

@@ -577,6 +577,8 @@ def test_cut_highlights_centred_on_their_arcs_solve_three_faces(rig, monkeypatch
     result = srde.estimate(rendering.views, mask)
     assert result.ok and len(result.faces.faces) == 3, result.reason
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+    # Geometric only, nothing pins the faces down beyond the recentred centres.
+    assert not SRDE(lit, max_faces=3, refine=False).estimate(rendering.views, mask).ok
     monkeypatch.setattr(faces_module, "RECENTRED_TRY", False)
     refused = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert not refused.ok
