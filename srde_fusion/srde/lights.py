@@ -398,7 +398,7 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
         if label == 0:  # the smoothed peak sits beside its pixels: take the largest part
             if count <= 1:
                 continue
-            label = 1 + int(np.argmax(np.bincount(parts[above_box], minlength=count)[1:]))
+            label = _largest_label(parts, count)
         blob = parts == label
         # The light-weighted centroid over the blob's box (zero off the blob).
         weights = np.where(blob, lum[ay:ay + ah, ax:ax + aw] - level, 0.0)
@@ -416,6 +416,19 @@ def _label_maxima(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     # (ufunc.at has a fast loop only when the values already have the output's type.)
     np.maximum.at(out, labels, values.astype(np.float64))
     return out
+
+
+def _largest_label(labels: np.ndarray, count: int) -> int:
+    """Return the label of the largest component in ``cv2.connectedComponents``' output.
+
+    ``count`` components with the background 0, ``count > 1``; ties go to the lowest label.
+    """
+    return 1 + int(np.argmax(np.bincount(labels.ravel(), minlength=count)[1:]))
+
+
+def _centers(found) -> list[np.ndarray]:
+    """Return each view's candidate centres ``(m_j, 2)`` from its detections, pixels."""
+    return [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
 
 
 def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1395,10 +1408,8 @@ class ViewCandidates:
                 u0, v0, u1, v1 = d.bbox
                 above = luminance(views[j][v0:v1, u0:u1], encoding) > d.level
                 count, parts = cv2.connectedComponents(above.view(np.uint8), connectivity=8)
-                center = None
-                if count > 1:
-                    largest = 1 + int(np.argmax(np.bincount(parts.ravel(), minlength=count)[1:]))
-                    center = arc_center(parts == largest)
+                center = arc_center(parts == _largest_label(parts, count)) if count > 1 \
+                    else None
                 if center is not None:
                     d = dataclasses.replace(d, center_uv=center + np.array([u0, v0], float))
                     moved = True
@@ -1406,8 +1417,7 @@ class ViewCandidates:
             found.append(row)
         if not moved:
             return None
-        centers = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
-        return ViewCandidates(found, centers, self.lit, self.blob_radius_px)
+        return ViewCandidates(found, _centers(found), self.lit, self.blob_radius_px)
 
 
 def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates | None:
@@ -1435,7 +1445,7 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
             band, band_bbox = candidate_band(rig, j, box, (w_lo, w_hi))
             found.append([] if band_bbox is None else
                          find_candidates(views[j], band, config, region_bbox=band_bbox))
-    cands = [np.array([d.center_uv for d in dets]).reshape(-1, 2) for dets in found]
+    cands = _centers(found)
     # The half-maximum level of each view's dimmest candidate.
     level_of_view = np.array([min((d.level for d in dets), default=math.inf) for dets in found])
     patch_means: dict[tuple[int, int, int], float] = {}  # (view, u, v) -> mean luminance
