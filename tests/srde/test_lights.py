@@ -445,6 +445,30 @@ def test_merged_highlights_are_solved_by_one_lobe_per_light(seed):
                               - out.disparity_px[mask])) > 5 * epe
 
 
+def test_a_joint_fit_that_subtracts_a_light_is_refused(monkeypatch):
+    # Four lights; two merge into one blob in every view, and the joint lobe fit from
+    # one start settles on a plane 1.25 px off, where the other lights' fitted
+    # intensities are negative (a lobe subtracted from the image). No lamp emits
+    # negative light: that fit is refused, and the fit from the other start gives the
+    # plane.
+    from srde_fusion.srde.refine import plane as refine_module
+
+    rig, scene, out, lit, mask = faithful_scene(52415, 4)
+    judged = []
+    judge = refine_module._judge
+
+    def recording(fit, cost_initial, model, *args):
+        judged.append(judge(fit, cost_initial, model, *args))
+        return judged[-1]
+
+    monkeypatch.setattr(refine_module, "_judge", recording)
+    result = SRDE(lit).estimate(out.views, mask)
+    assert result.ok, result.reason
+    assert any("one lobe per light" in note for note in result.notes)
+    assert masked_epe(result, lit, out, mask) < 0.05
+    assert any("negative specular intensity" in why for why in judged)
+
+
 def test_centres_and_lobes_that_disagree_beside_merged_blobs_go_to_the_joint_fit():
     # Most blobs are merged; the few centres that measure a light give a plane 0.4 px
     # off, which the photometric fit contradicts by many pixels. Rather than keep the

@@ -662,8 +662,9 @@ def _samples_contrast(samples: HighlightSamples) -> float:
     return float(samples.luminance.max() - low_quantile_of(samples.luminance))
 
 
-def _judge(fit: Minimum, cost_initial: float, model: LobeModel, samples: HighlightSamples,
-           contrast: float, rig: CameraRig, light: np.ndarray, initial_plane: Plane) -> str:
+def _judge(fit: Minimum, cost_initial: float, model: LobeModel | JointLobeModel,
+           samples: HighlightSamples, contrast: float, rig: CameraRig, light: np.ndarray,
+           initial_plane: Plane) -> str:
     """Why a fit's plane must not replace the initial plane ("" if it may).
 
     ``contrast`` is the samples' highlight contrast (:func:`_samples_contrast`).
@@ -675,6 +676,17 @@ def _judge(fit: Minimum, cost_initial: float, model: LobeModel, samples: Highlig
         return f"fit: cost {cost:.4g} does not improve on the initial plane's {cost_initial:.4g}"
     if not theta[I_SPEC] > 0.0:
         return f"fit: specular intensity {theta[I_SPEC]:.3g} is not positive"
+    if isinstance(model, JointLobeModel):
+        # No lamp emits negative light: a further light's lobe subtracted from the image
+        # is a fit that explains one light's highlight by another light's shape (a local
+        # minimum, as on a merged blob whose plane came out 1.25 px off with such a light).
+        # A light whose lobe misses the samples is held at 0, not negative.
+        further = model.specular(theta)[1:]
+        if np.any(further < 0.0):
+            k = int(np.argmin(further))
+            return (f"fit: further light {k + 1} of the joint fit has a negative specular "
+                    f"intensity ({further[k]:.3g}, against {theta[I_SPEC]:.3g} for the "
+                    "first); no lamp emits negative light")
     at_bound = model.parameters_at_bounds(theta)
     if at_bound:
         return (f"fit: {at_bound} at the bound of its range; the lobe model does not "
