@@ -684,9 +684,10 @@ def _judge(fit: Minimum, cost_initial: float, model: LobeModel | JointLobeModel,
         further = model.specular(theta)[1:]
         if np.any(further < 0.0):
             k = int(np.argmin(further))
-            return (f"fit: further light {k + 1} of the joint fit has a negative specular "
-                    f"intensity ({further[k]:.3g}, against {theta[I_SPEC]:.3g} for the "
-                    "first); no lamp emits negative light")
+            return (f"fit: further light {k + 1} of {len(further)} in the joint fit (counted "
+                    f"after its main light) has a negative specular intensity "
+                    f"({further[k]:.3g}, against the main light's {theta[I_SPEC]:.3g}); no "
+                    "lamp emits negative light")
     at_bound = model.parameters_at_bounds(theta)
     if at_bound:
         return (f"fit: {at_bound} at the bound of its range; the lobe model does not "
