@@ -552,13 +552,8 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     """
     if gathered is None:
         return None
-    every = tuple(range(srde.rig.n_cameras))
     if every_view:
-        again = None if cut_only else _estimate_faces(srde, views, mask, gathered,
-                                                      anchors=every)
-        if again is not None and again.ok:
-            return again
-        return _recentred_try(srde, views, mask, gathered)
+        return _later_tries(srde, views, mask, gathered, cut_only=cut_only)
     result = _estimate_faces(srde, views, mask, gathered, anchors=None)
     if result is None or result.ok:
         return result
@@ -572,11 +567,22 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     # plane (None) is tried again only when the one-plane path fails too (SRDE.estimate):
     # tried here, a flat object with max_faces=3 took three times as long. Last, blobs
     # cut by a face's edge are centred on their arcs (RECENTRED_TRY).
-    again = _estimate_faces(srde, views, mask, gathered, anchors=every)
-    if again is not None and again.ok:
-        return again
-    last = _recentred_try(srde, views, mask, gathered)
-    return result if last is None else last
+    later = _later_tries(srde, views, mask, gathered)
+    return result if later is None else later
+
+
+def _later_tries(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, *,
+                 cut_only: bool = False) -> SRDEResult | None:
+    """Return the faces from every view's candidates, else from recentred ones (ok or None).
+
+    ``cut_only``: the recentred try alone (:func:`_recentred_try`).
+    """
+    if not cut_only:
+        again = _estimate_faces(srde, views, mask, gathered,
+                                anchors=tuple(range(srde.rig.n_cameras)))
+        if again is not None and again.ok:
+            return again
+    return _recentred_try(srde, views, mask, gathered)
 
 
 def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
