@@ -51,10 +51,11 @@ from ..geometry import (
     triangulate_rectified,
 )
 from .backends import DetectionRequest, HighlightBackend, NumpyBackend
+from .candidates import gather_candidates
 from .config import DEFAULT_BLOB_CENTER, MIN_BLOB_AREA_PX, DetectorConfig
 from .faces import MAX_FACES, estimate_faces
 from .highlight import HighlightDetection, search_box
-from .lights import check_lights, estimate_with_lights, gather_candidates
+from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
 from .result import SRDEResult
 from .search import BaselineSearch

@@ -2,7 +2,7 @@
 
 A box seen on an edge is one mask but two planes. Each face mirrors the known lights on
 its own plane, so each face's highlights triangulate to its own virtual lights; the
-plane hypotheses of :mod:`.lights` (a reference candidate, partners on its baseline
+plane hypotheses of :mod:`.assignment` (a reference candidate, partners on its baseline
 lines, a light) are the same, only more than one of them is the answer:
 
 1. **Planes.** The plane explaining the most highlights is the first face; each further
@@ -52,20 +52,18 @@ import numpy as np
 from .._json import json_safe
 from ..boxes import dilated
 from ..geometry import Plane, plane_depth, plane_disparity
-from .highlight import HighlightDetection, search_box
-from .lights import (
+from .assignment import (
     BLEND_RADII,
-    DECISIVE_COST_RATIO,
     SAME_PLANE_PX,
     UNEXPLAINED_RATIO,
     AssignmentContext,
     PlaneScore,
-    ViewCandidates,
     explained_pairs,
-    lobes_prefer,
-    near_lights,
     reflection_points,
 )
+from .candidates import ViewCandidates
+from .highlight import HighlightDetection, search_box
+from .lights import DECISIVE_COST_RATIO, lobes_prefer, near_lights
 from .refine import PlaneRefinement
 from .result import SRDEResult
 
@@ -544,7 +542,7 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     with its reason (``"face_split"`` when the planes do not split the mask consistently
     with the highlights; a face's own failure, named, otherwise).
 
-    ``gathered``: :func:`~.lights.gather_candidates` for the object's search region
+    ``gathered``: :func:`~.candidates.gather_candidates` for the object's search region
     (None: no candidate, so no faces). ``every_view``: the second try only (below), for
     an object the one-plane path could not solve either; an ``ok`` result or None.
     ``cut_only`` (with ``every_view``): only the last try, cut blobs centred on their
@@ -946,7 +944,7 @@ def unexplained_plane(context: AssignmentContext, pool: list[PlaneScore],
     face accounts for a blob its plane explains, and for one whose box holds its
     plane's prediction of some light on the object (or within a blob radius of its
     outline: the blob's near side is on the object) or whose centre lies within
-    :data:`~.lights.BLEND_RADII` blob radii of one (a blob merged with another, or cut
+    :data:`~.assignment.BLEND_RADII` blob radii of one (a blob merged with another, or cut
     by the faces' edge or the outline with the predicted centre on the hidden side, has
     its centre moved by up to a few radii). A plane (from
     the hypotheses the faces were chosen from) that explains one light's highlights in

@@ -505,7 +505,7 @@ def region_background(values: np.ndarray, peak: float, min_contrast: float) -> f
     that is bright all over (an overexposed object) still shows no contrast there.
 
     Only the several-lights candidates of the reference view use it
-    (:func:`~.lights.find_candidates` with ``object_region``), where no blob centre is
+    (:func:`~.candidates.find_candidates` with ``object_region``), where no blob centre is
     taken for a measurement before the lobes of every light are fitted on one plane. The
     single-light detector keeps the median: its geometric plane is the blob's centre
     triangulated, and the centre of a blob that fills the object is cut by the outline

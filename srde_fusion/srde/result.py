@@ -16,8 +16,8 @@ from .._json import json_safe
 from ..geometry import (
     Plane,
 )
+from .assignment import LightsSolution
 from .highlight import HighlightDetection
-from .lights import LightsSolution
 from .refine import PlaneRefinement
 
 if TYPE_CHECKING:
@@ -88,7 +88,7 @@ class SRDEResult:
         plane; ``residual_px`` stays the triangulation's.
     lights : LightsSolution or None
         With several lights: which highlight belongs to which light, the evidence, and the
-        joint plane (:func:`~srde_fusion.srde.lights.assign_lights`); None with one light.
+        joint plane (:func:`~srde_fusion.srde.assignment.assign_lights`); None with one light.
     faces : Faces or None
         A faceted object (``SRDE(max_faces=2 or 3)``): the split rule, the faces' label map
         over ``box`` and each face's plane (:mod:`~srde_fusion.srde.faces`); ``plane`` and

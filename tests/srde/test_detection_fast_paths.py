@@ -29,6 +29,13 @@ from srde_fusion.srde.backends import (
     HostFrame,
     NumpyBackend,
 )
+from srde_fusion.srde.candidates import (
+    SEPARATING_DIP,
+    _dips,
+    _label_maxima,
+    _nonzero,
+    _separated_peaks,
+)
 from srde_fusion.srde.config import DetectorConfig
 from srde_fusion.srde.estimator import _in_box, _mask_box, _plane_disparity_in_box
 from srde_fusion.srde.highlight import (
@@ -38,13 +45,6 @@ from srde_fusion.srde.highlight import (
     median,
     search_box,
     weighted_centroid,
-)
-from srde_fusion.srde.lights import (
-    SEPARATING_DIP,
-    _dips,
-    _label_maxima,
-    _nonzero,
-    _separated_peaks,
 )
 from srde_fusion.srde.search import BaselineSearch
 from srde_fusion.synthetic import RandomSceneConfig, random_scene, render

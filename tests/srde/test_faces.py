@@ -15,9 +15,10 @@ from srde_fusion.geometry import plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.srde import faces as faces_module
 from srde_fusion.srde import lights as lights_module
+from srde_fusion.srde.assignment import AssignmentContext
+from srde_fusion.srde.candidates import gather_candidates
 from srde_fusion.srde.faces import FACE_RULES, choose_faces, split_faces
 from srde_fusion.srde.highlight import search_box
-from srde_fusion.srde.lights import gather_candidates
 from srde_fusion.synthetic import default_rig, random_scene, render
 from srde_fusion.synthetic.faceted import faceted_scene
 from srde_fusion.synthetic.physics import Physics
@@ -296,7 +297,7 @@ def _record_tries(monkeypatch) -> list:
 
 def _without_same_centres(monkeypatch) -> None:
     """No other light's plane through the best plane's centres is ever found."""
-    monkeypatch.setattr(lights_module._Context, "same_centres_other_light",
+    monkeypatch.setattr(AssignmentContext, "same_centres_other_light",
                         lambda self, best: None)
 
 

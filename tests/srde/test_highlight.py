@@ -233,8 +233,8 @@ def test_a_clipped_blob_covering_most_of_the_region():
     # search region, so the region's median is the blob's own level. The single-light
     # detector says so (its centre would be cut by the outline); the several-lights
     # candidates of the object's own region read the background low and find the blob.
+    from srde_fusion.srde.candidates import find_candidates
     from srde_fusion.srde.config import DetectorConfig
-    from srde_fusion.srde.lights import find_candidates
     center = np.array([64.3, 47.6])
     image = to_srgb8(gaussian_blob(center, sigma=10.0, peak=6.0, background=0.05))
     region = np.zeros((H, W), bool)

@@ -8,16 +8,10 @@ import pytest
 from srde_fusion.errors import LightError, SRDEError
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity
 from srde_fusion.srde import SRDE, SRDE_STATUSES
+from srde_fusion.srde.assignment import AssignmentContext, assign_lights, fit_mirror_plane
+from srde_fusion.srde.candidates import candidate_band, find_candidates
 from srde_fusion.srde.config import DetectorConfig
-from srde_fusion.srde.lights import (
-    AssignmentContext,
-    _settled_at_start,
-    assign_lights,
-    candidate_band,
-    check_lights,
-    find_candidates,
-    fit_mirror_plane,
-)
+from srde_fusion.srde.lights import _settled_at_start, check_lights
 from srde_fusion.srde.refine import PlaneRefinement
 from srde_fusion.synthetic import RandomSceneConfig, default_rig, random_scene, render
 from srde_fusion.synthetic.scene import rig_lights
@@ -614,7 +608,7 @@ def test_lit_answers_do_not_depend_on_what_was_asked_before():
     # The brightness test keeps each 3 x 3 patch it read; its answers must be those of
     # reading every patch afresh, in any order and with repeated points.
     from srde_fusion.imaging import luminance
-    from srde_fusion.srde.lights import gather_candidates
+    from srde_fusion.srde.candidates import gather_candidates
 
     rig, _, out, lit_rig, mask = lit_scene(7003, 3)
     srde = SRDE(lit_rig, refine=False)
@@ -646,7 +640,7 @@ def test_lit_answers_do_not_depend_on_what_was_asked_before():
 
 
 def test_same_highlights_under_another_light_is_recognised():
-    from srde_fusion.srde.lights import PlaneScore, _same_highlights_other_light
+    from srde_fusion.srde.assignment import PlaneScore, _same_highlights_other_light
 
     class Matched:
         """Just the matches of a score, with the score's own reading of them."""
