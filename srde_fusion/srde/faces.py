@@ -337,8 +337,10 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     # highlights the plane that explains the most does not.
     first = explained_pairs(pool[0])
     second = any(_own_views(p, first) >= min_views for p in pool[1:])
+    depths = _FilledDepths(context.rig, box)
     for a, b in combinations(range(len(pool)), 2):
-        split, reason = _evaluate(context, (pool[a], pool[b]), min_views, box, inside)
+        split, reason = _evaluate(context, (pool[a], pool[b]), min_views, box, inside,
+                                  depths)
         if split is not None:
             splits.append(split)
         elif not why and second:
@@ -348,7 +350,8 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
             for third in pool:
                 if any(third is s for s in pair.scores):
                     continue
-                split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside)
+                split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside,
+                                     depths)
                 if split is not None and split.value > pair.value:
                     splits.append(split)
     # Faces must explain more highlights than one credible plane does alone (which counts
@@ -374,7 +377,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
 
 
 def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
-              inside: np.ndarray) -> tuple[_Split | None, str]:
+              inside: np.ndarray, depths: _FilledDepths) -> tuple[_Split | None, str]:
     """Split the mask among ``faces`` by the rule their highlights agree with, if one does.
 
     Each face must have one light's highlights on its own part in ``min_views`` views,
@@ -384,7 +387,7 @@ def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_vie
     rig, lights = context.rig, context.lights
     passing, problems = [], []
     for rule in FACE_RULES:
-        labels = split_faces([f.plane for f in faces], rig, box, inside, rule)
+        labels = split_faces([f.plane for f in faces], rig, box, inside, rule, depths=depths)
         where = _highlights_by_face(rig, lights, list(faces), labels, box,
                                     context.blob_radius_px)
         ok, _, problem = _rule_fit(where, min_views)
@@ -412,7 +415,7 @@ def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_vie
 
 # ---------------------------------------------------------------------- split
 def split_faces(planes: list[Plane], rig, box: tuple[int, int, int, int], inside: np.ndarray,
-                rule: str) -> np.ndarray:
+                rule: str, *, depths: _FilledDepths | None = None) -> np.ndarray:
     """Label each mask pixel with the face whose plane it sees under ``rule``.
 
     Parameters
@@ -427,21 +430,58 @@ def split_faces(planes: list[Plane], rig, box: tuple[int, int, int, int], inside
     rule : {"ridge", "valley"}
         Ridge: the farther plane along the pixel's ray; valley: the nearer. A plane the
         ray meets behind the camera (or never) is never seen.
+    depths : _FilledDepths, optional
+        Where the planes' depths over ``box`` are kept when the same planes are split
+        again and again (ranking sets of faces); computed here otherwise.
 
     Returns
     -------
     numpy.ndarray, (v1 - v0, u1 - u0) uint8
         0 outside the mask, k for ``planes[k - 1]``.
     """
-    fill = -np.inf if rule == "ridge" else np.inf
-    depths = []
-    for plane in planes:
-        z = np.asarray(plane_depth(plane, rig, window=box), dtype=np.float64)
-        depths.append(np.where(np.isfinite(z) & (z > 0), z, fill))
-    stack = np.stack(depths)  # (F, h, w)
-    pick = np.argmax(stack, axis=0) if rule == "ridge" else np.argmin(stack, axis=0)
-    seen = np.isfinite(np.take_along_axis(stack, pick[None], axis=0)[0])
-    return np.where(inside & seen, pick + 1, 0).astype(np.uint8)
+    depth = (lambda plane: _filled_depth(plane, rig, box, rule)) if depths is None \
+        else (lambda plane: depths(plane, rule))
+    # The first plane of the farthest (ridge) or nearest (valley) depth, plane by plane:
+    # numpy's arg-reduction across a stack of planes reads it with a stride per pixel.
+    first = depth(planes[0])
+    pick = np.zeros(first.shape, dtype=np.uint8)
+    top = first
+    for f, plane in enumerate(planes[1:], start=1):
+        z = depth(plane)
+        better = z > top if rule == "ridge" else z < top
+        pick[better] = f
+        top = np.where(better, z, top)
+    # (The picked depth is finite where some plane is seen: the others are the fill.)
+    return np.where(inside & np.isfinite(top), pick + 1, 0).astype(np.uint8)
+
+
+def _filled_depth(plane: Plane, rig, box: tuple[int, int, int, int], rule: str
+                  ) -> np.ndarray:
+    """Return the plane's depth over ``box``, ``(h, w)`` float64, filled where rays miss it.
+
+    The fill is the depth no other face loses to under ``rule``: -inf for a ridge (the
+    farther plane is seen), +inf for a valley.
+    """
+    z = np.asarray(plane_depth(plane, rig, window=box), dtype=np.float64)
+    return np.where(np.isfinite(z) & (z > 0), z, -np.inf if rule == "ridge" else np.inf)
+
+
+class _FilledDepths:
+    """:func:`_filled_depth` of each plane and rule, computed once.
+
+    Ranking the sets of faces splits the mask for every pair and triple of up to 24
+    planes under both rules: each plane's depth map is the same every time.
+    """
+
+    def __init__(self, rig, box: tuple[int, int, int, int]) -> None:
+        self.rig, self.box = rig, box
+        self._kept: dict[tuple[bytes, float, str], np.ndarray] = {}
+
+    def __call__(self, plane: Plane, rule: str) -> np.ndarray:
+        key = (np.asarray(plane.n, dtype=np.float64).tobytes(), float(plane.offset_m), rule)
+        if key not in self._kept:
+            self._kept[key] = _filled_depth(plane, self.rig, self.box, rule)
+        return self._kept[key]
 
 
 def _label_at(labels: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
@@ -486,7 +526,6 @@ def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], lab
     the face's own part and :data:`CUT_BY_EDGE` otherwise. ``face_labels``: each
     score's own label in ``labels`` (by default 1, 2, ... in order).
     """
-    near_other = _near_other_face(labels, edge_px)
     out = []
     if face_labels is None:
         face_labels = range(1, len(scores) + 1)
@@ -499,7 +538,7 @@ def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], lab
                                               rig.centers_m[views])
                 ref_uv = rig.project(points)
                 label = _label_at(labels, box, ref_uv)
-                cut = _label_at(near_other, box, ref_uv) > 0
+                cut = _near_other_face_at(labels, box, ref_uv, edge_px)
                 where[k, views] = np.where(
                     cut & (label > 0), np.where(label == own_label, OWN_NEAR_EDGE, CUT_BY_EDGE),
                     label)
@@ -516,6 +555,32 @@ def _near_other_face(labels: np.ndarray, edge_px: float) -> np.ndarray:
         grown = cv2.dilate((labels == f).view(np.uint8), kernel).view(bool)
         near |= grown & (labels > 0) & (labels != f)
     return near.view(np.uint8)
+
+
+def _near_other_face_at(labels: np.ndarray, box, uv: np.ndarray, edge_px: float) -> np.ndarray:
+    """Whether reference pixels ``uv`` ``(M, 2)`` are near another face's part, ``(M,)`` bool.
+
+    :func:`_near_other_face`'s map read at the points (False outside the box), without
+    drawing it: ranking the sets of faces asks about a few highlights of each split.
+    """
+    u0, v0, _, _ = box
+    u = np.rint(uv[:, 0]).astype(np.intp) - u0
+    v = np.rint(uv[:, 1]).astype(np.intp) - v0
+    h, w = labels.shape
+    r = int(math.ceil(edge_px))
+    # The dilation's element over the window around each point, cut at the box (beyond
+    # it the dilation's border adds nothing).
+    element = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)).astype(bool)
+    out = np.zeros(len(uv), dtype=bool)
+    for i in np.flatnonzero((u >= 0) & (u < w) & (v >= 0) & (v < h)):
+        own = labels[v[i], u[i]]
+        if own:
+            top, left = v[i] - r, u[i] - r
+            a0, a1 = max(top, 0), min(v[i] + r + 1, h)
+            b0, b1 = max(left, 0), min(u[i] + r + 1, w)
+            around = labels[a0:a1, b0:b1][element[a0 - top:a1 - top, b0 - left:b1 - left]]
+            out[i] = bool(np.any((around > 0) & (around != own)))
+    return out
 
 
 def _rule_fit(where: list[np.ndarray], min_views: int) -> tuple[bool, int, str]:
@@ -921,7 +986,6 @@ def _unexplained_reference(rig, gathered, scores: list[PlaneScore], labels, box,
     """
     ref = rig.reference
     explained = {int(q) for s in scores for q in s.matched[:, ref] if q >= 0}
-    near = _near_other_face(labels, edge_px)
     found = [d for dets in gathered.found for d in dets]
     area = float(np.median([d.area_px for d in found]))
     score = float(np.median([d.score for d in found]))
@@ -931,7 +995,7 @@ def _unexplained_reference(rig, gathered, scores: list[PlaneScore], labels, box,
         det = gathered.found[ref][q]
         glow = det.area_px >= GLOW_AREA_RATIO * area and det.score <= GLOW_SCORE_RATIO * score
         if q not in explained and not glow and _label_at(labels, box, point)[0] > 0 \
-                and not _label_at(near, box, point)[0]:
+                and not _near_other_face_at(labels, box, point, edge_px)[0]:
             stray.append(f"({uv[0]:.0f}, {uv[1]:.0f})")
     return ", ".join(stray)
 

@@ -11,7 +11,7 @@ import pytest
 from srde_fusion.errors import SceneError, SRDEError
 from srde_fusion.fusion import DEFAULT_BORDER_CHECK, border_band, fuse, read_estimate, textured_mask
 from srde_fusion.fusion.checks import border_stats, nearest_face
-from srde_fusion.geometry import plane_disparity
+from srde_fusion.geometry import Plane, plane_depth, plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.srde import faces as faces_module
 from srde_fusion.srde import lights as lights_module
@@ -230,6 +230,64 @@ def test_split_rule_matches_the_visible_face(rig, convex):
     flipped = split_faces(planes, rig, box, inside, wrong)
     assert np.count_nonzero(flipped != crop) >= 0.9 * inside.sum()
     assert set(FACE_RULES) == {"ridge", "valley"}
+
+
+def _split_by_gathering(planes, rig, box, inside, rule):
+    """The split as first written: every depth filled, then the picked one gathered."""
+    fill = -np.inf if rule == "ridge" else np.inf
+    stack = []
+    for plane in planes:
+        z = np.asarray(plane_depth(plane, rig, window=box), dtype=np.float64)
+        stack.append(np.where(np.isfinite(z) & (z > 0), z, fill))
+    stack = np.stack(stack)
+    pick = np.argmax(stack, axis=0) if rule == "ridge" else np.argmin(stack, axis=0)
+    seen = np.isfinite(np.take_along_axis(stack, pick[None], axis=0)[0])
+    return np.where(inside & seen, pick + 1, 0).astype(np.uint8)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_split_with_kept_depths_is_the_split_computed_afresh(rig, seed):
+    # Planes at random tilts, some turned from the camera over part of the box (their
+    # rays miss them there): the kept depths of a pool of planes, read for pair after
+    # pair under both rules, give the labels of the split as first written.
+    rng = np.random.default_rng(seed)
+    box = (200, 150, 360, 290)
+    inside = rng.random((140, 160)) < 0.9
+    pool = [Plane.from_point_normal([rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05),
+                                     rng.uniform(0.5, 1.0)],
+                                    [rng.uniform(-8.0, 8.0), rng.uniform(-8.0, 8.0), -1.0],
+                                    towards_m=(0.0, 0.0, 0.0)) for _ in range(4)]
+    depths = faces_module._FilledDepths(rig, box)
+    missed = [~np.isfinite(plane_depth(plane, rig, window=box)) for plane in pool]
+    assert any(m.any() and not m.all() for m in missed)
+    for rule in FACE_RULES:
+        for planes in (pool[:2], pool[1:4], pool[::-1], [pool[0], pool[2]]):
+            expected = _split_by_gathering(planes, rig, box, inside, rule)
+            assert np.array_equal(split_faces(planes, rig, box, inside, rule), expected)
+            assert np.array_equal(split_faces(planes, rig, box, inside, rule, depths=depths),
+                                  expected)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_edge_test_at_points_is_the_edge_map_read_there(seed):
+    # Parts of up to three faces with holes and the mask's outline, points on and off
+    # the box: the test at the points is the dilated map read at them, pixel for pixel.
+    rng = np.random.default_rng(seed)
+    h, w = 60, 80
+    box = (100, 40, 100 + w, 40 + h)
+    vv, uu = np.mgrid[0:h, 0:w]
+    labels = np.where(uu * rng.uniform(-1, 1) + vv * rng.uniform(-1, 1) > rng.uniform(-20, 40),
+                      1, 2).astype(np.uint8)
+    labels[(uu - rng.uniform(0, w)) ** 2 + (vv - rng.uniform(0, h)) ** 2 < 150] = 3
+    labels[rng.random((h, w)) < 0.1] = 0
+    uv = np.stack([rng.uniform(box[0] - 5, box[2] + 5, 400),
+                   rng.uniform(box[1] - 5, box[3] + 5, 400)], axis=1)
+    for edge_px in (1.0, 2.5, 4.0, 6.3):
+        expected = faces_module._label_at(faces_module._near_other_face(labels, edge_px), box,
+                                          uv) > 0
+        found = faces_module._near_other_face_at(labels, box, uv, edge_px)
+        assert expected.any() and not expected.all()
+        assert np.array_equal(found, expected)
 
 
 def test_split_leaves_pixels_outside_the_mask_unlabelled(rig):
