@@ -429,6 +429,9 @@ class _Context:
         offsets = rig.centers_m - rig.reference_center_m
         self.steps = np.stack([-k.fx * offsets[:, 0], -k.fy * offsets[:, 1]], axis=1)  # (N, 2)
         self.corners = box_corners(mask)
+        # Each plane's disparity at the corners: the faces' ranking compares the same
+        # planes thousands of times.
+        self._at_corners: dict[tuple[bytes, float], np.ndarray] = {}
 
     # -------------------------------------------------------------- proposals
     def proposals(self, *, loose: bool = False, anchors: tuple[int, ...] | None = None):
@@ -779,8 +782,18 @@ class _Context:
                                 observed)
 
     def plane_gap_px(self, a: Plane, b: Plane) -> float:
-        """Largest disparity difference of two planes at the object's box corners, px."""
-        return plane_gap_px(self.rig, self.corners, a, b)
+        """Largest disparity difference of two planes at the object's box corners, px.
+
+        :func:`plane_gap_px` at :attr:`corners`, each plane's disparities computed once.
+        """
+        return float(np.max(np.abs(self._disparity_at_corners(a)
+                                   - self._disparity_at_corners(b))))
+
+    def _disparity_at_corners(self, plane: Plane) -> np.ndarray:
+        key = (np.asarray(plane.normal, dtype=np.float64).tobytes(), float(plane.offset_m))
+        if key not in self._at_corners:
+            self._at_corners[key] = plane_disparity(plane, self.rig, self.corners)
+        return self._at_corners[key]
 
     # -------------------------------------------------------------- the answer
     def solution(self, best: _Score, rival: _Score | None, *, same_centres: bool = False

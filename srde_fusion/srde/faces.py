@@ -337,10 +337,12 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     # highlights the plane that explains the most does not.
     first = explained_pairs(pool[0])
     second = any(_own_views(p, first) >= min_views for p in pool[1:])
+    # (Each plane's depth map and mirror points are the same in every set it joins.)
     depths = _FilledDepths(context.rig, box)
+    mirrored: dict[int, list] = {}
     for a, b in combinations(range(len(pool)), 2):
         split, reason = _evaluate(context, (pool[a], pool[b]), min_views, box, inside,
-                                  depths)
+                                  depths, mirrored)
         if split is not None:
             splits.append(split)
         elif not why and second:
@@ -351,7 +353,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
                 if any(third is s for s in pair.scores):
                     continue
                 split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside,
-                                     depths)
+                                     depths, mirrored)
                 if split is not None and split.value > pair.value:
                     splits.append(split)
     # Faces must explain more highlights than one credible plane does alone (which counts
@@ -377,19 +379,22 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
 
 
 def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
-              inside: np.ndarray, depths: _FilledDepths) -> tuple[_Split | None, str]:
+              inside: np.ndarray, depths: _FilledDepths, mirrored: dict[int, list]
+              ) -> tuple[_Split | None, str]:
     """Split the mask among ``faces`` by the rule their highlights agree with, if one does.
 
     Each face must have one light's highlights on its own part in ``min_views`` views,
     and :data:`OWN_HIGHLIGHT_RATIO` times more of its highlights there than elsewhere;
     each part must be large enough. Both rules passing with the same count is no split.
+    ``depths`` and ``mirrored`` keep each plane's depth map and each score's mirror
+    points (:func:`_mirror_points`, by the score's ``id``) from one set to the next.
     """
     rig, lights = context.rig, context.lights
     passing, problems = [], []
     for rule in FACE_RULES:
         labels = split_faces([f.plane for f in faces], rig, box, inside, rule, depths=depths)
         where = _highlights_by_face(rig, lights, list(faces), labels, box,
-                                    context.blob_radius_px)
+                                    context.blob_radius_px, mirrored=mirrored)
         ok, _, problem = _rule_fit(where, min_views)
         small = _too_small(labels, inside)
         if not ok or small:
@@ -518,32 +523,60 @@ def _own(where: np.ndarray, label: int) -> np.ndarray:
 
 
 def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], labels, box,
-                        edge_px: float, face_labels=None) -> list[np.ndarray]:
+                        edge_px: float, face_labels=None, *,
+                        mirrored: dict[int, list] | None = None) -> list[np.ndarray]:
     """Per face: the label under each explained highlight, ``(K, N)`` int.
 
     -1 where the face's plane explains no highlight; where the highlight's mirror point
     lies within ``edge_px`` of another face's part, :data:`OWN_NEAR_EDGE` if it lies on
     the face's own part and :data:`CUT_BY_EDGE` otherwise. ``face_labels``: each
-    score's own label in ``labels`` (by default 1, 2, ... in order).
+    score's own label in ``labels`` (by default 1, 2, ... in order). ``mirrored``: the
+    scores' mirror points already found (:func:`_mirror_points`, by ``id``), kept there.
     """
-    out = []
     if face_labels is None:
         face_labels = range(1, len(scores) + 1)
-    for score, own_label in zip(scores, face_labels, strict=True):
-        where = np.full(score.matched.shape, -1, dtype=np.intp)
-        for k in range(score.matched.shape[0]):
-            views = np.flatnonzero(score.matched[k] >= 0)
-            if views.size:
-                points, _ = reflection_points(score.plane, score.plane.mirror(lights_m[k]),
-                                              rig.centers_m[views])
-                ref_uv = rig.project(points)
-                label = _label_at(labels, box, ref_uv)
-                cut = _near_other_face_at(labels, box, ref_uv, edge_px)
-                where[k, views] = np.where(
-                    cut & (label > 0), np.where(label == own_label, OWN_NEAR_EDGE, CUT_BY_EDGE),
-                    label)
-        out.append(where)
+    # Every explained highlight's mirror point in the reference view, then the labels
+    # and the edge test at all of them at once.
+    asked, points_uv = [], []
+    for f, score in enumerate(scores):
+        found = None if mirrored is None else mirrored.get(id(score))
+        if found is None:
+            found = _mirror_points(rig, lights_m, score)
+            if mirrored is not None:
+                mirrored[id(score)] = found
+        for k, views, uv in found:
+            asked.append((f, k, views))
+            points_uv.append(uv)
+    out = [np.full(score.matched.shape, -1, dtype=np.intp) for score in scores]
+    if not asked:
+        return out
+    uv = np.concatenate(points_uv)
+    label = _label_at(labels, box, uv)
+    cut = _near_other_face_at(labels, box, uv, edge_px)
+    own = np.concatenate([np.full(len(views), face_labels[f]) for f, _, views in asked])
+    where = np.where(cut & (label > 0), np.where(label == own, OWN_NEAR_EDGE, CUT_BY_EDGE),
+                     label)
+    start = 0
+    for f, k, views in asked:
+        out[f][k, views] = where[start:start + len(views)]
+        start += len(views)
     return out
+
+
+def _mirror_points(rig, lights_m: np.ndarray, score: PlaneScore) -> list:
+    """Where the score's explained highlights reflect, seen from the reference camera.
+
+    ``(light, views, uv)`` per light with explained highlights: the views ``(M,)`` and the
+    mirror points' reference pixels ``(M, 2)``.
+    """
+    found = []
+    for k in range(score.matched.shape[0]):
+        views = np.flatnonzero(score.matched[k] >= 0)
+        if views.size:
+            points, _ = reflection_points(score.plane, score.plane.mirror(lights_m[k]),
+                                          rig.centers_m[views])
+            found.append((k, views, rig.project(points)))
+    return found
 
 
 def _near_other_face(labels: np.ndarray, edge_px: float) -> np.ndarray:
@@ -568,18 +601,19 @@ def _near_other_face_at(labels: np.ndarray, box, uv: np.ndarray, edge_px: float)
     v = np.rint(uv[:, 1]).astype(np.intp) - v0
     h, w = labels.shape
     r = int(math.ceil(edge_px))
-    # The dilation's element over the window around each point, cut at the box (beyond
-    # it the dilation's border adds nothing).
-    element = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)).astype(bool)
     out = np.zeros(len(uv), dtype=bool)
-    for i in np.flatnonzero((u >= 0) & (u < w) & (v >= 0) & (v < h)):
-        own = labels[v[i], u[i]]
-        if own:
-            top, left = v[i] - r, u[i] - r
-            a0, a1 = max(top, 0), min(v[i] + r + 1, h)
-            b0, b1 = max(left, 0), min(u[i] + r + 1, w)
-            around = labels[a0:a1, b0:b1][element[a0 - top:a1 - top, b0 - left:b1 - left]]
-            out[i] = bool(np.any((around > 0) & (around != own)))
+    at = np.flatnonzero((u >= 0) & (u < w) & (v >= 0) & (v < h))
+    own = labels[v[at], u[at]]
+    at, own = at[own > 0], own[own > 0]
+    if at.size == 0:
+        return out
+    # The dilation's element around every point, read from the labels padded with 0
+    # (beyond the box the dilation's border adds nothing).
+    element = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)).astype(bool)
+    dv, du = np.nonzero(element)
+    padded = np.pad(labels, r)
+    around = padded[v[at, None] + dv[None], u[at, None] + du[None]]  # (P, element pixels)
+    out[at] = np.any((around > 0) & (around != own[:, None]), axis=1)
     return out
 
 
