@@ -20,29 +20,18 @@ plane explains the candidates as well, the object is reported ``"ambiguous"``: a
 assignment yields a wrong plane with a small residual, so a tie is a reasoned failure,
 never a guess. Pure geometry on highlight centres.
 """
+
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..boxes import eroded
-from ..geometry import (
-    CameraRig,
-    Plane,
-    plane_disparity,
-    plane_from_lights,
-    project_points,
-)
-from .highlight import (
-    search_box,
-)
+from ..geometry import CameraRig, Plane, plane_disparity, plane_from_lights, project_points
+from .highlight import search_box
 from .refine.samples import references_from_views
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = [
     "AssignmentContext",

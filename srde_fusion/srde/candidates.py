@@ -10,6 +10,7 @@ contrast threshold and is not the flat top of a brighter clipped blob), and
 lights' possible depths). Which light each candidate belongs to is
 :mod:`.assignment`'s question.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -21,9 +22,7 @@ import cv2
 import numpy as np
 
 from ..boxes import BoxMask
-from ..geometry import (
-    CameraRig,
-)
+from ..geometry import CameraRig
 from ..imaging import luminance
 from .assignment import AssignmentContext
 from .config import BLOB_LEVEL, PEAK_SMOOTHING_SIGMA_PX, DetectorConfig

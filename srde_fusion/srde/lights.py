@@ -8,6 +8,7 @@ centres cannot decide (blobs of several lights merged, two planes explaining the
 highlights it predicts missing) the joint lobe fit from each hypothesis decides, or the
 object fails with its reason.
 """
+
 from __future__ import annotations
 
 import copy
@@ -19,12 +20,7 @@ import numpy as np
 
 from .._checks import check_point3
 from ..errors import LightError
-from ..geometry import (
-    MAX_LIGHTS,
-    CameraRig,
-    Plane,
-    project_points,
-)
+from ..geometry import MAX_LIGHTS, CameraRig, Plane, project_points
 from .assignment import (
     BLEND_RADII,
     SAME_PLANE_PX,
@@ -36,10 +32,7 @@ from .assignment import (
     plane_gap_px,
 )
 from .candidates import ViewCandidates, gather_candidates
-from .highlight import (
-    HighlightDetection,
-    detect_in_view,
-)
+from .highlight import HighlightDetection, detect_in_view
 from .refine.samples import WINDOW_PER_BLOB_RADIUS
 from .search import BaselineSearch
 
