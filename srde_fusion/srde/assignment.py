@@ -420,7 +420,7 @@ class _Context:
         self.corners = box_corners(mask)
         # Each plane's disparity at the corners: the faces' ranking compares the same
         # planes thousands of times.
-        self._at_corners: dict[tuple[bytes, float], np.ndarray] = {}
+        self._at_corners: dict[Plane, np.ndarray] = {}
 
     # -------------------------------------------------------------- proposals
     def proposals(self, *, loose: bool = False, anchors: tuple[int, ...] | None = None):
@@ -775,14 +775,12 @@ class _Context:
 
         :func:`plane_gap_px` at :attr:`corners`, each plane's disparities computed once.
         """
-        return float(np.max(np.abs(self._disparity_at_corners(a)
-                                   - self._disparity_at_corners(b))))
+        return _largest_gap_px(self._disparity_at_corners(a), self._disparity_at_corners(b))
 
     def _disparity_at_corners(self, plane: Plane) -> np.ndarray:
-        key = (np.asarray(plane.normal, dtype=np.float64).tobytes(), float(plane.offset_m))
-        if key not in self._at_corners:
-            self._at_corners[key] = plane_disparity(plane, self.rig, self.corners)
-        return self._at_corners[key]
+        if plane not in self._at_corners:
+            self._at_corners[plane] = plane_disparity(plane, self.rig, self.corners)
+        return self._at_corners[plane]
 
     # -------------------------------------------------------------- the answer
     def solution(self, best: _Score, rival: _Score | None, *, same_centres: bool = False
@@ -1013,5 +1011,8 @@ def box_corners(mask: np.ndarray) -> np.ndarray:
 
 def plane_gap_px(rig: CameraRig, corners: np.ndarray, a: Plane, b: Plane) -> float:
     """Largest disparity difference of two planes at pixels ``corners`` ``(M, 2)``, px."""
-    return float(np.max(np.abs(plane_disparity(a, rig, corners)
-                               - plane_disparity(b, rig, corners))))
+    return _largest_gap_px(plane_disparity(a, rig, corners), plane_disparity(b, rig, corners))
+
+
+def _largest_gap_px(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs(a - b)))

@@ -337,12 +337,9 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     # highlights the plane that explains the most does not.
     first = explained_pairs(pool[0])
     second = any(_own_views(p, first) >= min_views for p in pool[1:])
-    # (Each plane's depth map and mirror points are the same in every set it joins.)
-    depths = _FilledDepths(context.rig, box)
-    mirrored: dict[int, list] = {}
+    kept = _KeptPerPlane(context.rig, context.lights, box)
     for a, b in combinations(range(len(pool)), 2):
-        split, reason = _evaluate(context, (pool[a], pool[b]), min_views, box, inside,
-                                  depths, mirrored)
+        split, reason = _evaluate(context, (pool[a], pool[b]), min_views, box, inside, kept)
         if split is not None:
             splits.append(split)
         elif not why and second:
@@ -353,7 +350,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
                 if any(third is s for s in pair.scores):
                     continue
                 split, _ = _evaluate(context, (*pair.scores, third), min_views, box, inside,
-                                     depths, mirrored)
+                                     kept)
                 if split is not None and split.value > pair.value:
                     splits.append(split)
     # Faces must explain more highlights than one credible plane does alone (which counts
@@ -379,22 +376,21 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
 
 
 def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
-              inside: np.ndarray, depths: _FilledDepths, mirrored: dict[int, list]
-              ) -> tuple[_Split | None, str]:
+              inside: np.ndarray, kept: _KeptPerPlane) -> tuple[_Split | None, str]:
     """Split the mask among ``faces`` by the rule their highlights agree with, if one does.
 
     Each face must have one light's highlights on its own part in ``min_views`` views,
     and :data:`OWN_HIGHLIGHT_RATIO` times more of its highlights there than elsewhere;
     each part must be large enough. Both rules passing with the same count is no split.
-    ``depths`` and ``mirrored`` keep each plane's depth map and each score's mirror
-    points (:func:`_mirror_points`, by the score's ``id``) from one set to the next.
+    ``kept`` holds each plane's depth map and mirror points from one set to the next.
     """
     rig, lights = context.rig, context.lights
     passing, problems = [], []
     for rule in FACE_RULES:
-        labels = split_faces([f.plane for f in faces], rig, box, inside, rule, depths=depths)
+        labels = split_faces([f.plane for f in faces], rig, box, inside, rule,
+                             depth=kept.depth)
         where = _highlights_by_face(rig, lights, list(faces), labels, box,
-                                    context.blob_radius_px, mirrored=mirrored)
+                                    context.blob_radius_px, mirror_points=kept.mirror_points)
         ok, _, problem = _rule_fit(where, min_views)
         small = _too_small(labels, inside)
         if not ok or small:
@@ -420,7 +416,7 @@ def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_vie
 
 # ---------------------------------------------------------------------- split
 def split_faces(planes: list[Plane], rig, box: tuple[int, int, int, int], inside: np.ndarray,
-                rule: str, *, depths: _FilledDepths | None = None) -> np.ndarray:
+                rule: str, *, depth=None) -> np.ndarray:
     """Label each mask pixel with the face whose plane it sees under ``rule``.
 
     Parameters
@@ -435,24 +431,25 @@ def split_faces(planes: list[Plane], rig, box: tuple[int, int, int, int], inside
     rule : {"ridge", "valley"}
         Ridge: the farther plane along the pixel's ray; valley: the nearer. A plane the
         ray meets behind the camera (or never) is never seen.
-    depths : _FilledDepths, optional
-        Where the planes' depths over ``box`` are kept when the same planes are split
-        again and again (ranking sets of faces); computed here otherwise.
+    depth : callable, optional
+        ``depth(plane, rule)`` -> :func:`_filled_depth` over ``box``, where the same
+        planes are split again and again (:class:`_KeptPerPlane`); computed here otherwise.
 
     Returns
     -------
     numpy.ndarray, (v1 - v0, u1 - u0) uint8
         0 outside the mask, k for ``planes[k - 1]``.
     """
-    depth = (lambda plane: _filled_depth(plane, rig, box, rule)) if depths is None \
-        else (lambda plane: depths(plane, rule))
+    if depth is None:
+        def depth(plane: Plane, rule: str) -> np.ndarray:
+            return _filled_depth(plane, rig, box, rule)
     # The first plane of the farthest (ridge) or nearest (valley) depth, plane by plane:
     # numpy's arg-reduction across a stack of planes reads it with a stride per pixel.
-    first = depth(planes[0])
+    first = depth(planes[0], rule)
     pick = np.zeros(first.shape, dtype=np.uint8)
     top = first
     for f, plane in enumerate(planes[1:], start=1):
-        z = depth(plane)
+        z = depth(plane, rule)
         better = z > top if rule == "ridge" else z < top
         pick[better] = f
         top = np.where(better, z, top)
@@ -471,33 +468,48 @@ def _filled_depth(plane: Plane, rig, box: tuple[int, int, int, int], rule: str
     return np.where(np.isfinite(z) & (z > 0), z, -np.inf if rule == "ridge" else np.inf)
 
 
-class _FilledDepths:
-    """:func:`_filled_depth` of each plane and rule, computed once.
+class _KeptPerPlane:
+    """Each plane's depth map and mirror points, computed once while sets are ranked.
 
     Ranking the sets of faces splits the mask for every pair and triple of up to 24
-    planes under both rules: each plane's depth map is the same every time.
+    planes under both rules: a plane's :func:`_filled_depth` and its score's
+    :func:`_mirror_points` are the same in every set it joins. (Planes equal as values
+    are one key: a normal's -0.0 against 0.0 changes no finite depth.)
     """
 
-    def __init__(self, rig, box: tuple[int, int, int, int]) -> None:
-        self.rig, self.box = rig, box
-        self._kept: dict[tuple[bytes, float, str], np.ndarray] = {}
+    def __init__(self, rig, lights_m: np.ndarray, box: tuple[int, int, int, int]) -> None:
+        self.rig, self.lights_m, self.box = rig, lights_m, box
+        self._depths: dict[tuple[Plane, str], np.ndarray] = {}
+        self._mirrored: dict[tuple[Plane, bytes], list] = {}
 
-    def __call__(self, plane: Plane, rule: str) -> np.ndarray:
-        key = (np.asarray(plane.n, dtype=np.float64).tobytes(), float(plane.offset_m), rule)
-        if key not in self._kept:
-            self._kept[key] = _filled_depth(plane, self.rig, self.box, rule)
-        return self._kept[key]
+    def depth(self, plane: Plane, rule: str) -> np.ndarray:
+        """Return :func:`_filled_depth` of ``plane`` under ``rule``."""
+        if (plane, rule) not in self._depths:
+            self._depths[plane, rule] = _filled_depth(plane, self.rig, self.box, rule)
+        return self._depths[plane, rule]
+
+    def mirror_points(self, score: PlaneScore) -> list:
+        """Return :func:`_mirror_points` of ``score`` (its plane and the highlights it explains)."""
+        key = (score.plane, (score.matched >= 0).tobytes())
+        if key not in self._mirrored:
+            self._mirrored[key] = _mirror_points(self.rig, self.lights_m, score)
+        return self._mirrored[key]
 
 
 def _label_at(labels: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
     """Labels ``(M,)`` at reference pixels ``uv`` ``(M, 2)``; 0 outside the box."""
-    u0, v0, u1, v1 = box
-    u = np.rint(uv[:, 0]).astype(np.intp) - u0
-    v = np.rint(uv[:, 1]).astype(np.intp) - v0
-    ok = (u >= 0) & (u < u1 - u0) & (v >= 0) & (v < v1 - v0)
+    u, v, ok = _box_pixels(box, uv)
     out = np.zeros(len(uv), dtype=np.intp)
     out[ok] = labels[v[ok], u[ok]]
     return out
+
+
+def _box_pixels(box, uv: np.ndarray):
+    """Pixels ``uv`` ``(M, 2)`` rounded, in the box's own ``(u, v)``, and which lie in it."""
+    u0, v0, u1, v1 = box
+    u = np.rint(uv[:, 0]).astype(np.intp) - u0
+    v = np.rint(uv[:, 1]).astype(np.intp) - v0
+    return u, v, (u >= 0) & (u < u1 - u0) & (v >= 0) & (v < v1 - v0)
 
 
 #: A reference candidate this many times the median candidate's area or more ...
@@ -523,15 +535,16 @@ def _own(where: np.ndarray, label: int) -> np.ndarray:
 
 
 def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], labels, box,
-                        edge_px: float, face_labels=None, *,
-                        mirrored: dict[int, list] | None = None) -> list[np.ndarray]:
+                        edge_px: float, face_labels=None, *, mirror_points=None
+                        ) -> list[np.ndarray]:
     """Per face: the label under each explained highlight, ``(K, N)`` int.
 
     -1 where the face's plane explains no highlight; where the highlight's mirror point
     lies within ``edge_px`` of another face's part, :data:`OWN_NEAR_EDGE` if it lies on
     the face's own part and :data:`CUT_BY_EDGE` otherwise. ``face_labels``: each
-    score's own label in ``labels`` (by default 1, 2, ... in order). ``mirrored``: the
-    scores' mirror points already found (:func:`_mirror_points`, by ``id``), kept there.
+    score's own label in ``labels`` (by default 1, 2, ... in order). ``mirror_points``:
+    ``mirror_points(score)`` -> :func:`_mirror_points`, where they are kept
+    (:class:`_KeptPerPlane`); computed here otherwise.
     """
     if face_labels is None:
         face_labels = range(1, len(scores) + 1)
@@ -539,11 +552,8 @@ def _highlights_by_face(rig, lights_m: np.ndarray, scores: list[PlaneScore], lab
     # and the edge test at all of them at once.
     asked, points_uv = [], []
     for f, score in enumerate(scores):
-        found = None if mirrored is None else mirrored.get(id(score))
-        if found is None:
-            found = _mirror_points(rig, lights_m, score)
-            if mirrored is not None:
-                mirrored[id(score)] = found
+        found = _mirror_points(rig, lights_m, score) if mirror_points is None \
+            else mirror_points(score)
         for k, views, uv in found:
             asked.append((f, k, views))
             points_uv.append(uv)
@@ -596,13 +606,10 @@ def _near_other_face_at(labels: np.ndarray, box, uv: np.ndarray, edge_px: float)
     :func:`_near_other_face`'s map read at the points (False outside the box), without
     drawing it: ranking the sets of faces asks about a few highlights of each split.
     """
-    u0, v0, _, _ = box
-    u = np.rint(uv[:, 0]).astype(np.intp) - u0
-    v = np.rint(uv[:, 1]).astype(np.intp) - v0
-    h, w = labels.shape
+    u, v, inside = _box_pixels(box, uv)
     r = int(math.ceil(edge_px))
     out = np.zeros(len(uv), dtype=bool)
-    at = np.flatnonzero((u >= 0) & (u < w) & (v >= 0) & (v < h))
+    at = np.flatnonzero(inside)
     own = labels[v[at], u[at]]
     at, own = at[own > 0], own[own > 0]
     if at.size == 0:

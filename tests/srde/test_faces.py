@@ -257,15 +257,15 @@ def test_split_with_kept_depths_is_the_split_computed_afresh(rig, seed):
                                      rng.uniform(0.5, 1.0)],
                                     [rng.uniform(-8.0, 8.0), rng.uniform(-8.0, 8.0), -1.0],
                                     towards_m=(0.0, 0.0, 0.0)) for _ in range(4)]
-    depths = faces_module._FilledDepths(rig, box)
+    kept = faces_module._KeptPerPlane(rig, np.zeros((1, 3)), box)
     missed = [~np.isfinite(plane_depth(plane, rig, window=box)) for plane in pool]
     assert any(m.any() and not m.all() for m in missed)
     for rule in FACE_RULES:
         for planes in (pool[:2], pool[1:4], pool[::-1], [pool[0], pool[2]]):
             expected = _split_by_gathering(planes, rig, box, inside, rule)
             assert np.array_equal(split_faces(planes, rig, box, inside, rule), expected)
-            assert np.array_equal(split_faces(planes, rig, box, inside, rule, depths=depths),
-                                  expected)
+            assert np.array_equal(split_faces(planes, rig, box, inside, rule,
+                                              depth=kept.depth), expected)
 
 
 @pytest.mark.parametrize("seed", range(8))
