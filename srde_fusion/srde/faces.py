@@ -63,6 +63,7 @@ from .assignment import (
 )
 from .candidates import ViewCandidates
 from .highlight import HighlightDetection, search_box
+from .hinges import hinge_chords, hinge_plane, outline_corners
 from .lights import DECISIVE_COST_RATIO, lobes_prefer, near_lights
 from .refine import PlaneRefinement
 from .result import SRDEResult
@@ -151,6 +152,18 @@ RECENTRED_TRY = True
 #: from, its faces within 0.05 px had at most 0.035 px; faces 0.26-0.53 px off,
 #: 0.046-0.079 px.)
 RECENTRED_MAX_SIGMA_PX = 0.04
+
+#: When every other try fails, planes turned about the edges between faces join the
+#: pool (:mod:`.hinges`): a face whose blobs the outline and its edge both cut has
+#: centres pixels off, and no plane proposed from them comes near it.
+HINGE_TRY = True
+
+#: Planes turned about the outline's chords that join the pool, at most.
+HINGE_PLANES = 16
+
+#: The best pairs of faces each further plane is tried with in the hinge try (3 in the
+#: others): a turned plane is a third face beside its source and the source's neighbour.
+HINGE_PAIRS_EXTENDED = 24
 
 #: A face whose lobe fit does not confirm its plane is read once more without the band
 #: where its plane and a neighbour's differ by less than this, px (where the faces' edge
@@ -284,7 +297,8 @@ class _Split:
 
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
-                 min_views: int, box, inside: np.ndarray, keep_proposed: bool = False
+                 min_views: int, box, inside: np.ndarray, keep_proposed: bool = False,
+                 pooled: bool = False, pairs_extended: int = 3
                  ) -> tuple[list[_Split], str, list[PlaneScore]]:
     """Rank the sets of face planes by how well their splits agree with the highlights.
 
@@ -305,6 +319,8 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     refits of the face that explains most crowd the planes of faces seen in fewer views
     out of a pool of :data:`MAX_FACE_HYPOTHESES`.
 
+    ``pooled``: ``scores`` are the pool already (distinct planes, most highlights first).
+
     Returns
     -------
     ranked : list of _Split
@@ -316,19 +332,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     pool : list of PlaneScore
         The distinct refitted planes tried, most highlights first.
     """
-    ranked = sorted(scores, key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
-    pool: list[PlaneScore] = []
-    cap = 2 * MAX_FACE_HYPOTHESES if keep_proposed else MAX_FACE_HYPOTHESES
-    for score in ranked:
-        refit = context.refit(score)
-        for candidate in (refit, score) if keep_proposed else (refit,):
-            if all(context.plane_gap_px(candidate.plane, p.plane) > SAME_PLANE_PX
-                   for p in pool):
-                pool.append(candidate)
-            if len(pool) == cap:
-                break
-        if len(pool) == cap:
-            break
+    pool = list(scores) if pooled else face_pool(context, scores, keep_proposed=keep_proposed)
     if len(pool) < 2:
         return [], "", pool
     splits: list[_Split] = []
@@ -345,7 +349,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
         elif not why and second:
             why = reason
     if max_faces > 2 and splits:
-        for pair in sorted(splits, key=lambda s: s.value, reverse=True)[:3]:
+        for pair in sorted(splits, key=lambda s: s.value, reverse=True)[:pairs_extended]:
             for third in pool:
                 if any(third is s for s in pair.scores):
                     continue
@@ -373,6 +377,27 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
         if not any(same_planes(split, kept) for kept in ranked):
             ranked.append(split)
     return ranked, (why if not ranked else ""), pool
+
+
+def face_pool(context: AssignmentContext, scores: list[PlaneScore], *,
+              keep_proposed: bool = False) -> list[PlaneScore]:
+    """Return the distinct refitted planes that explain the most highlights, most first.
+
+    At most :data:`MAX_FACE_HYPOTHESES`; with ``keep_proposed`` each proposed plane joins
+    beside its refit, and twice as many are kept (:func:`choose_faces`).
+    """
+    ranked = sorted(scores, key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
+    pool: list[PlaneScore] = []
+    cap = 2 * MAX_FACE_HYPOTHESES if keep_proposed else MAX_FACE_HYPOTHESES
+    for score in ranked:
+        refit = context.refit(score)
+        for candidate in (refit, score) if keep_proposed else (refit,):
+            if all(context.plane_gap_px(candidate.plane, p.plane) > SAME_PLANE_PX
+                   for p in pool):
+                pool.append(candidate)
+            if len(pool) == cap:
+                return pool
+    return pool
 
 
 def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
@@ -686,7 +711,26 @@ def _later_tries(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, 
                                 anchors=tuple(range(srde.rig.n_cameras)))
         if again is not None and again.ok:
             return again
-    return _recentred_try(srde, views, mask, gathered)
+    recentred = _recentred_try(srde, views, mask, gathered)
+    if recentred is not None:
+        return recentred
+    return _hinge_try(srde, views, mask, gathered)
+
+
+def _hinge_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
+               ) -> SRDEResult | None:
+    """Return the faces with planes turned about the edges of the planes found, if ok.
+
+    (:data:`HINGE_TRY`.) Each well-seen plane of the pool, turned about every chord
+    between the outline's corners, gives the plane that explains the most candidates
+    beyond it (:func:`.hinges.hinge_plane`); those planes join the pool. None when no
+    set of faces passes: the caller's failure stands.
+    """
+    if not HINGE_TRY:
+        return None
+    again = _estimate_faces(srde, views, mask, gathered,
+                            anchors=tuple(range(srde.rig.n_cameras)), hinges=True)
+    return again if again is not None and again.ok else None
 
 
 def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
@@ -716,17 +760,25 @@ def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
 
 
 def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
-                    anchors: tuple[int, ...] | None) -> SRDEResult | None:
-    """:func:`estimate_faces` with the planes proposed from ``anchors``' candidates."""
+                    anchors: tuple[int, ...] | None, *, hinges: bool = False
+                    ) -> SRDEResult | None:
+    """:func:`estimate_faces` with the planes proposed from ``anchors``' candidates.
+
+    ``hinges``: the pool's well-seen planes and the planes turned about the outline's
+    chords from them (:func:`_hinge_scores`) instead.
+    """
     context = gathered.context(srde, mask, all_lights_in_front=False)
     scores = [s for s in (context.score(p) for p in context.proposals(anchors=anchors))
               if s is not None]
+    if hinges:
+        scores = _hinge_scores(context, scores, mask, srde.min_views)
     box = search_box(mask, 0)
     u0, v0, u1, v1 = box
     inside = mask[v0:v1, u0:u1]
     ranked, why, pool = choose_faces(context, scores, max_faces=srde.max_faces,
                                      min_views=srde.min_views, box=box, inside=inside,
-                                     keep_proposed=anchors is not None)
+                                     keep_proposed=anchors is not None, pooled=hinges,
+                                     pairs_extended=HINGE_PAIRS_EXTENDED if hinges else 3)
     if not ranked:
         if why:
             # Evidence of a second plane that splits nothing consistently: the one-plane
@@ -773,6 +825,40 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
         return first
     return replace(first, reason=f"{first.reason} (and {len(failures) - 1} other set(s) of "
                    f"face planes failed: " + "; ".join(f.reason for f in failures[1:]) + ")")
+
+
+def _hinge_scores(context: AssignmentContext, scores: list[PlaneScore], mask: np.ndarray,
+                  min_views: int) -> list[PlaneScore]:
+    """Return the pool's well-seen planes and the distinct planes turned about chords from them.
+
+    A source is a plane of the pool (:func:`face_pool`) explaining one light's
+    highlights in ``min_views`` views. Each is turned about every chord of the outline's
+    corners (:func:`.hinges.hinge_chords`), matching candidates within the assignment's
+    tolerance and, apart, within a blob radius (cut blobs' centres stray by more than
+    the tolerance). A turned plane must explain one light's highlights in ``min_views``
+    views, as a face must; the :data:`HINGE_PLANES` explaining the most are kept.
+    """
+    rig, lights = context.rig, context.lights
+    sources = [s for s in face_pool(context, scores, keep_proposed=True)
+               if (s.matched >= 0).sum(axis=1).max() >= min_views]
+    chords = hinge_chords(mask, outline_corners(mask))
+    tolerances = tuple(sorted({context.tolerance_px,
+                               max(context.tolerance_px, context.blob_radius_px)}))
+    found: list[PlaneScore] = []
+    for source in sources:
+        source_uv = np.concatenate([uv for _, _, uv in _mirror_points(rig, lights, source)])
+        for chord in chords:
+            for plane, _ in hinge_plane(rig, lights, mask, source.plane, chord, source_uv,
+                                        context.cands, tolerances):
+                score = context.score(plane, near_outline=True)
+                if score is not None and (score.matched >= 0).sum(axis=1).max() >= min_views \
+                        and all(context.plane_gap_px(score.plane, other.plane) > SAME_PLANE_PX
+                                for other in (*sources, *found)):
+                    found.append(score)
+    found.sort(key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
+    _log.debug("faces: %d plane(s) turned about %d chord(s) from %d source(s)", len(found),
+               len(chords), len(sources))
+    return sources + found[:HINGE_PLANES]
 
 
 def _same_faces(context: AssignmentContext, a: SRDEResult, b: SRDEResult) -> bool:

@@ -1,0 +1,285 @@
+"""Hinge planes: a face's plane from its neighbour's plane and the edge they share.
+
+A face whose highlights are cut by the outline on one side and by its edge with a
+neighbour on the other has blob centres pixels off its light's: no plane proposed from
+them lies near the face. Its neighbour's plane may be known well, and the edge the two
+share is in the image: where the outline of the object turns at both ends of the edge
+(a row of flat faces has its outline bent at every edge's ends). The edge on the
+neighbour's plane is a 3-D line, and the face's plane is one of the planes through it,
+one angle about the line to find. Each light's mirror image across those planes runs
+round a circle about the line; the angle is the one whose mirror images land on the
+most candidates, in every view at once, on the far side of the edge. Centres a few
+pixels off still fix one angle well where they cannot fix a plane's three parameters.
+
+:func:`outline_corners` finds where the outline turns; :func:`hinge_chords` the pairs of
+corners an edge can join; :func:`hinge_plane` the plane through one of them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from ..geometry import CameraRig, Plane
+
+__all__ = [
+    "HINGE_MIN_ANGLE_DEG",
+    "hinge_chords",
+    "hinge_plane",
+    "outline_corners",
+]
+
+#: Tolerance (pixels) of the polygon the outline is simplified to: straight stretches of
+#: the pixel outline stray from their line by about a pixel.
+OUTLINE_POLYGON_PX = 1.5
+
+#: Contour pixels (each end) left out of the line fitted to one side of the polygon:
+#: the pixel outline rounds off near a corner.
+SIDE_TRIM_PX = 2
+
+#: A refined corner (two sides' lines crossed) farther than this from the polygon's
+#: vertex is not kept: the sides are nearly parallel there (pixels).
+CORNER_MOVE_PX = 3.0
+
+#: Faces meeting at less than this angle (degrees) are one plane to the highlights.
+HINGE_MIN_ANGLE_DEG = 5.0
+
+# Angles about the edge tried first (degrees): both ways up to grazing, then the best
+# refined on a finer grid around it.
+_COARSE_STEP_DEG = 0.25
+_FINE_HALF_WIDTH_DEG = 0.5
+_FINE_STEPS = 201
+
+# A chord is inside the mask when these fractions along it are (its ends lie on the
+# outline, where rounding can put them a pixel out).
+_CHORD_SAMPLES = np.linspace(0.1, 0.9, 17)
+
+
+def outline_corners(mask: np.ndarray) -> np.ndarray:
+    """Where the object's outline turns, to a fraction of a pixel, ``(M, 2)`` float.
+
+    The outer outline of the mask's largest part, simplified to a polygon
+    (:data:`OUTLINE_POLYGON_PX`); each vertex is then where the lines fitted to its two
+    sides cross (a polygon's vertex is an outline pixel, up to a couple of pixels from the
+    true corner along the bend), unless they cross far from it.
+
+    Parameters
+    ----------
+    mask : numpy.ndarray, (H, W) bool
+
+    Returns
+    -------
+    numpy.ndarray, (M, 2)
+        Corners ``(u, v)`` in pixels, in order round the outline; empty if the mask
+        has no part with three corners.
+    """
+    contours, _ = cv2.findContours(mask.view(np.uint8), cv2.RETR_EXTERNAL,
+                                   cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return np.zeros((0, 2))
+    contour = max(contours, key=cv2.contourArea).reshape(-1, 2)
+    polygon = cv2.approxPolyDP(contour.reshape(-1, 1, 2), OUTLINE_POLYGON_PX, True).reshape(-1, 2)
+    if len(polygon) < 3:
+        return np.zeros((0, 2))
+    # Each vertex's place on the contour (approxPolyDP returns points of it).
+    index = [int(np.flatnonzero((contour == p).all(axis=1))[0]) for p in polygon]
+    lines = [_side_line(contour, index[i], index[(i + 1) % len(index)])
+             for i in range(len(index))]
+    corners = polygon.astype(np.float64)
+    for i in range(len(polygon)):
+        crossing = _crossing(lines[i - 1], lines[i])
+        if crossing is not None and np.hypot(*(crossing - corners[i])) <= CORNER_MOVE_PX:
+            corners[i] = crossing
+    return corners
+
+
+def _side_line(contour: np.ndarray, start: int, end: int):
+    """Line ``(point, direction)`` fitted to the contour from ``start`` to ``end``."""
+    n = len(contour)
+    count = (end - start) % n + 1
+    points = contour[(start + np.arange(count)) % n]
+    if count > 2 * SIDE_TRIM_PX + 2:
+        points = points[SIDE_TRIM_PX:count - SIDE_TRIM_PX]
+    if len(points) < 2:
+        return None
+    vx, vy, x0, y0 = cv2.fitLine(points.astype(np.float32), cv2.DIST_L2, 0, 0.01, 0.01).ravel()
+    return np.array([x0, y0], dtype=np.float64), np.array([vx, vy], dtype=np.float64)
+
+
+def _crossing(a, b) -> np.ndarray | None:
+    """Where two lines ``(point, direction)`` cross; None if either is missing or parallel."""
+    if a is None or b is None:
+        return None
+    (p, d), (q, e) = a, b
+    det = d[0] * (-e[1]) - d[1] * (-e[0])
+    if abs(det) < 1e-9:
+        return None
+    s = ((q[0] - p[0]) * (-e[1]) - (q[1] - p[1]) * (-e[0])) / det
+    return p + s * d
+
+
+def hinge_chords(mask: np.ndarray, corners: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pairs of outline corners an edge between two faces can join, as ``(p0, p1)``.
+
+    Corners not next to each other round the outline whose chord runs inside the mask.
+    """
+    m = len(corners)
+    height, width = mask.shape
+    chords = []
+    for i in range(m):
+        for j in range(i + 2, m):
+            if i == 0 and j == m - 1:
+                continue  # neighbours round the outline
+            p0, p1 = corners[i], corners[j]
+            along = p0 + _CHORD_SAMPLES[:, None] * (p1 - p0)
+            u = np.clip(np.rint(along[:, 0]).astype(np.intp), 0, width - 1)
+            v = np.clip(np.rint(along[:, 1]).astype(np.intp), 0, height - 1)
+            if mask[v, u].all():
+                chords.append((p0, p1))
+    return chords
+
+
+def hinge_plane(rig: CameraRig, lights_m: np.ndarray, mask: np.ndarray, source: Plane,
+                chord: tuple[np.ndarray, np.ndarray], source_uv: np.ndarray,
+                candidates_uv: list[np.ndarray], tolerances_px: tuple[float, ...]
+                ) -> list[tuple[Plane, int]]:
+    """Return the planes through a chord's line on ``source`` that explain most candidates.
+
+    The chord's ends, seen in the reference view, lie on ``source`` at a 3-D line; the
+    planes through it are ``source`` turned about it. For each angle (both ways from
+    :data:`HINGE_MIN_ANGLE_DEG` to grazing), every light in front of the plane is
+    mirrored across it and its image in every view matched to that view's nearest
+    candidate, counted when within the tolerance and reflected on the object, on the far
+    side of the chord from ``source``'s own highlights (their reference mirror points
+    ``source_uv`` ``(M, 2)``). The angle with the most candidates (then the least squared
+    distance) is found on a coarse grid with the widest tolerance, then, for each
+    tolerance, on a fine grid around it. (Turning the plane by a tenth of a degree moves a
+    virtual light a metre away by about 3 mm, several pixels: only a wide tolerance
+    keeps a coarse grid from stepping over the answer.)
+
+    Parameters
+    ----------
+    rig : CameraRig
+    lights_m : numpy.ndarray, (K, 3), metres
+    mask : numpy.ndarray, (H, W) bool
+        The object in the reference view.
+    source : Plane
+        The neighbouring face's plane.
+    chord : (numpy.ndarray, numpy.ndarray)
+        The edge's ends ``(u, v)`` in the reference view, pixels.
+    source_uv : numpy.ndarray, (M, 2)
+        Where ``source``'s explained highlights reflect, seen from the reference camera.
+    candidates_uv : list of N numpy.ndarray, each (m_j, 2)
+        Every view's highlight candidates, pixels.
+    tolerances_px : tuple of float
+        Distances within which a candidate explains a predicted highlight.
+
+    Returns
+    -------
+    list of (Plane, int)
+        Per tolerance whose best angle explains a candidate: the plane and the
+        candidates it explains. Empty when the chord's ends miss ``source`` or
+        ``source``'s highlights lie on both sides of it.
+    """
+    p0, p1 = (np.asarray(p, dtype=np.float64) for p in chord)
+    normal_px = np.array([p0[1] - p1[1], p1[0] - p0[0]])
+    sides = np.sign((np.asarray(source_uv, dtype=np.float64) - p0) @ normal_px)
+    if sides.size == 0 or not (np.all(sides > 0) or np.all(sides < 0)):
+        return []
+    center = rig.reference_center_m
+    rays = rig.rays(np.stack([p0, p1]))
+    along = rays @ source.n
+    if np.any(np.abs(along) < 1e-12):
+        return []
+    t = (source.offset_m - center @ source.n) / along
+    if np.any(t <= 0.0):
+        return []
+    ends = center + t[:, None] * rays
+    direction = ends[1] - ends[0]
+    direction /= np.linalg.norm(direction)
+    turn = np.cross(direction, source.n)
+    turn /= np.linalg.norm(turn)
+    scene = _HingeScene(rig, np.atleast_2d(lights_m), mask, ends[0], source.n, turn, p0,
+                        normal_px, -sides[0], candidates_uv)
+    coarse = np.radians(np.concatenate([
+        np.arange(-90.0 + _COARSE_STEP_DEG, -HINGE_MIN_ANGLE_DEG + 1e-9, _COARSE_STEP_DEG),
+        np.arange(HINGE_MIN_ANGLE_DEG, 90.0 - 1e-9, _COARSE_STEP_DEG)]))
+    count, cost = scene.explained(coarse, max(tolerances_px))
+    best = _best(count, cost)
+    if count[best] == 0:
+        return []
+    half = math.radians(_FINE_HALF_WIDTH_DEG)
+    fine = np.linspace(coarse[best] - half, coarse[best] + half, _FINE_STEPS)
+    found = []
+    for tolerance_px in tolerances_px:
+        count, cost = scene.explained(fine, tolerance_px)
+        best = _best(count, cost)
+        if count[best] > 0:
+            found.append((scene.plane(fine[best]), int(count[best])))
+    return found
+
+
+def _best(count: np.ndarray, cost: np.ndarray) -> int:
+    """Index of the most candidates explained, then the least squared distance."""
+    return int(np.lexsort((cost, -count))[0])
+
+
+class _HingeScene:
+    """The planes through one 3-D line and what each angle about it explains."""
+
+    def __init__(self, rig: CameraRig, lights_m: np.ndarray, mask: np.ndarray,
+                 point_m: np.ndarray, normal: np.ndarray, turn: np.ndarray, p0: np.ndarray,
+                 normal_px: np.ndarray, far_side: float, candidates_uv) -> None:
+        self.rig, self.lights, self.mask = rig, lights_m, mask
+        self.point, self.normal, self.turn = point_m, normal, turn
+        self.p0, self.normal_px, self.far_side = p0, normal_px, far_side
+        self.cands = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in candidates_uv]
+
+    def normals(self, angles: np.ndarray) -> np.ndarray:
+        """Return unit normals ``(A, 3)`` turned by ``angles`` ``(A,)`` rad, facing the cameras."""
+        n = np.cos(angles)[:, None] * self.normal + np.sin(angles)[:, None] * self.turn
+        facing = (self.rig.reference_center_m - self.point) @ n.T
+        return np.where(facing[:, None] < 0.0, -n, n)
+
+    def plane(self, angle: float) -> Plane:
+        n = self.normals(np.array([angle]))[0]
+        return Plane(tuple(float(x) + 0.0 for x in n), float(n @ self.point))
+
+    def explained(self, angles: np.ndarray, tolerance_px: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Candidates explained ``(A,)`` int and their squared distances ``(A,)`` per angle."""
+        rig = self.rig
+        n = self.normals(angles)                                   # (A, 3)
+        offset = n @ self.point                                    # (A,)
+        height = self.lights @ n.T - offset                        # (K, A)
+        virtual = self.lights[None] - 2.0 * height.T[..., None] * n[:, None, :]  # (A, K, 3)
+        count = np.zeros(len(angles), dtype=np.intp)
+        cost = np.zeros(len(angles))
+        k = rig.intrinsics
+        for j in range(rig.n_cameras):
+            cands = self.cands[j]
+            if len(cands) == 0:
+                continue
+            c = rig.centers_m[j]
+            rel = virtual - c                                      # (A, K, 3)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv = np.stack([k.fx * rel[..., 0] / rel[..., 2] + k.cx,
+                               k.fy * rel[..., 1] / rel[..., 2] + k.cy], axis=-1)
+                # Where the segment from the camera to the virtual light meets the plane.
+                s = (offset - c @ n.T)[:, None] / np.einsum("akx,ax->ak", rel, n)
+            point = c + s[..., None] * rel                         # (A, K, 3)
+            seen = rig.project(point)                              # (A, K, 2) reference
+            gap = np.linalg.norm(uv[:, :, None, :] - cands[None, None], axis=-1).min(axis=2)
+            u = np.rint(seen[..., 0])
+            v = np.rint(seen[..., 1])
+            inside = (u >= 0) & (u < self.mask.shape[1]) & (v >= 0) & (v < self.mask.shape[0])
+            on_object = np.zeros(inside.shape, dtype=bool)
+            on_object[inside] = self.mask[v[inside].astype(np.intp), u[inside].astype(np.intp)]
+            beyond = np.sign((seen - self.p0) @ self.normal_px) == self.far_side
+            ok = (height.T > 0.0) & (rel[..., 2] > 0.0) & (s > 0.0) & (s < 1.0) & on_object \
+                & beyond & (gap <= tolerance_px)
+            count += ok.sum(axis=1)
+            cost += np.where(ok, gap * gap, 0.0).sum(axis=1)
+        return count, cost
