@@ -35,13 +35,11 @@ __all__ = [
 #: the pixel outline stray from their line by about a pixel.
 OUTLINE_POLYGON_PX = 1.5
 
-#: Contour pixels (each end) left out of the line fitted to one side of the polygon:
-#: the pixel outline rounds off near a corner.
-SIDE_TRIM_PX = 2
+#: Fraction of each side of a polygon's vertex left out when its corner is found again:
+#: the stretch searched runs between the middles of its sides, so that only one turn of
+#: the outline lies in it.
+SIDE_TRIM = 0.5
 
-#: A refined corner (two sides' lines crossed) farther than this from the polygon's
-#: vertex is not kept: the sides are nearly parallel there (pixels).
-CORNER_MOVE_PX = 3.0
 
 #: Faces meeting at less than this angle (degrees) are one plane to the highlights.
 HINGE_MIN_ANGLE_DEG = 5.0
@@ -58,12 +56,14 @@ _CHORD_SAMPLES = np.linspace(0.1, 0.9, 17)
 
 
 def outline_corners(mask: np.ndarray) -> np.ndarray:
-    """Where the object's outline turns, to a fraction of a pixel, ``(M, 2)`` float.
+    """Return where the object's outline turns, to a fraction of a pixel, ``(M, 2)`` float.
 
-    The outer outline of the mask's largest part, simplified to a polygon
-    (:data:`OUTLINE_POLYGON_PX`); each vertex is then where the lines fitted to its two
-    sides cross (a polygon's vertex is an outline pixel, up to a couple of pixels from the
-    true corner along the bend), unless they cross far from it.
+    The outer outline of the mask's largest part is simplified to a polygon
+    (:data:`OUTLINE_POLYGON_PX`). A polygon's vertex is an outline pixel: on a shallow bend,
+    a step of the pixel outline several pixels from the true corner. Each corner is found
+    again between the middles of its two sides (:data:`SIDE_TRIM`) as the split of that
+    stretch of outline into two straight lines that fit it best, and is where those lines
+    cross (the split's pixel if they are nearly parallel).
 
     Parameters
     ----------
@@ -79,42 +79,67 @@ def outline_corners(mask: np.ndarray) -> np.ndarray:
                                    cv2.CHAIN_APPROX_NONE)
     if not contours:
         return np.zeros((0, 2))
-    contour = max(contours, key=cv2.contourArea).reshape(-1, 2)
-    polygon = cv2.approxPolyDP(contour.reshape(-1, 1, 2), OUTLINE_POLYGON_PX, True).reshape(-1, 2)
-    if len(polygon) < 3:
+    contour = max(contours, key=cv2.contourArea).reshape(-1, 2).astype(np.float64)
+    polygon = cv2.approxPolyDP(contour.astype(np.int32).reshape(-1, 1, 2), OUTLINE_POLYGON_PX,
+                               True).reshape(-1, 2)
+    m, n = len(polygon), len(contour)
+    if m < 3:
         return np.zeros((0, 2))
     # Each vertex's place on the contour (approxPolyDP returns points of it).
     index = [int(np.flatnonzero((contour == p).all(axis=1))[0]) for p in polygon]
-    lines = [_side_line(contour, index[i], index[(i + 1) % len(index)])
-             for i in range(len(index))]
-    corners = polygon.astype(np.float64)
-    for i in range(len(polygon)):
-        crossing = _crossing(lines[i - 1], lines[i])
-        if crossing is not None and np.hypot(*(crossing - corners[i])) <= CORNER_MOVE_PX:
-            corners[i] = crossing
+    corners = np.empty((m, 2))
+    for i in range(m):
+        before = (index[i] - index[i - 1]) % n
+        after = (index[(i + 1) % m] - index[i]) % n
+        first = index[i] - before + int(SIDE_TRIM * before)
+        stretch = contour[np.arange(first, index[i] + after - int(SIDE_TRIM * after) + 1) % n]
+        corners[i] = _two_line_corner(stretch)
     return corners
 
 
-def _side_line(contour: np.ndarray, start: int, end: int):
-    """Line ``(point, direction)`` fitted to the contour from ``start`` to ``end``."""
-    n = len(contour)
-    count = (end - start) % n + 1
-    points = contour[(start + np.arange(count)) % n]
-    if count > 2 * SIDE_TRIM_PX + 2:
-        points = points[SIDE_TRIM_PX:count - SIDE_TRIM_PX]
-    if len(points) < 2:
-        return None
-    vx, vy, x0, y0 = cv2.fitLine(points.astype(np.float32), cv2.DIST_L2, 0, 0.01, 0.01).ravel()
-    return np.array([x0, y0], dtype=np.float64), np.array([vx, vy], dtype=np.float64)
+def _two_line_corner(points: np.ndarray) -> np.ndarray:
+    """Return the corner of a stretch of outline ``(P, 2)`` that turns once, ``(2,)``.
+
+    Every split into two runs (each of at least two points) is scored by the two
+    total-least-squares lines' squared residuals, from running sums; the best split's
+    lines are crossed.
+    """
+    count = len(points)
+    if count < 4:
+        return points[count // 2].copy()
+    x, y = points[:, 0], points[:, 1]
+    sums = [np.concatenate([[0.0], np.cumsum(v)]) for v in (np.ones(count), x, y, x * x,
+                                                               y * y, x * y)]
+
+    def residual(lo, hi):
+        k, sx, sy, sxx, syy, sxy = (s[hi] - s[lo] for s in sums)
+        cxx, cyy, cxy = sxx - sx * sx / k, syy - sy * sy / k, sxy - sx * sy / k
+        # The smaller eigenvalue of the scatter matrix: the residual of the best line.
+        return 0.5 * (cxx + cyy - np.sqrt((cxx - cyy) ** 2 + 4.0 * cxy * cxy))
+
+    split = np.arange(2, count - 1)  # first run points[:split], second points[split - 1:]
+    zero = np.zeros_like(split)
+    full = np.full_like(split, count)
+    cost = residual(zero, split) + residual(split - 1, full)
+    b = int(split[np.argmin(cost)])
+    crossing = _crossing(_line(points[:b]), _line(points[b - 1:]))
+    if crossing is None or np.hypot(*(crossing - points[b - 1])) > 0.5 * count:
+        return points[b - 1].copy()
+    return crossing
+
+
+def _line(points: np.ndarray):
+    """Total-least-squares line ``(point, direction)`` through ``points`` ``(P, 2)``."""
+    center = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - center, full_matrices=False)
+    return center, vt[0]
 
 
 def _crossing(a, b) -> np.ndarray | None:
-    """Where two lines ``(point, direction)`` cross; None if either is missing or parallel."""
-    if a is None or b is None:
-        return None
+    """Return where two lines ``(point, direction)`` cross; None if nearly parallel."""
     (p, d), (q, e) = a, b
     det = d[0] * (-e[1]) - d[1] * (-e[0])
-    if abs(det) < 1e-9:
+    if abs(det) < 1e-6:
         return None
     s = ((q[0] - p[0]) * (-e[1]) - (q[1] - p[1]) * (-e[0])) / det
     return p + s * d
