@@ -765,13 +765,16 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
     """:func:`estimate_faces` with the planes proposed from ``anchors``' candidates.
 
     ``hinges``: the pool's well-seen planes and the planes turned about the outline's
-    chords from them (:func:`_hinge_scores`) instead.
+    chords from them (:func:`_hinge_scores`) instead; only sets holding a turned plane
+    are tried (the others were the earlier tries').
     """
     context = gathered.context(srde, mask, all_lights_in_front=False)
     scores = [s for s in (context.score(p) for p in context.proposals(anchors=anchors))
               if s is not None]
+    turned: list[PlaneScore] = []
     if hinges:
-        scores = _hinge_scores(context, scores, mask, srde.min_views)
+        sources, turned = _hinge_scores(context, scores, mask, srde.min_views)
+        scores = sources + turned
     box = search_box(mask, 0)
     u0, v0, u1, v1 = box
     inside = mask[v0:v1, u0:u1]
@@ -779,6 +782,9 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
                                      min_views=srde.min_views, box=box, inside=inside,
                                      keep_proposed=anchors is not None, pooled=hinges,
                                      pairs_extended=HINGE_PAIRS_EXTENDED if hinges else 3)
+    if hinges:
+        ranked = [split for split in ranked
+                  if any(face is plane for face in split.scores for plane in turned)]
     if not ranked:
         if why:
             # Evidence of a second plane that splits nothing consistently: the one-plane
@@ -828,7 +834,7 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
 
 
 def _hinge_scores(context: AssignmentContext, scores: list[PlaneScore], mask: np.ndarray,
-                  min_views: int) -> list[PlaneScore]:
+                  min_views: int) -> tuple[list[PlaneScore], list[PlaneScore]]:
     """Return the pool's well-seen planes and the distinct planes turned about chords from them.
 
     A source is a plane of the pool (:func:`face_pool`) explaining one light's
@@ -858,7 +864,7 @@ def _hinge_scores(context: AssignmentContext, scores: list[PlaneScore], mask: np
     found.sort(key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
     _log.debug("faces: %d plane(s) turned about %d chord(s) from %d source(s)", len(found),
                len(chords), len(sources))
-    return sources + found[:HINGE_PLANES]
+    return sources, found[:HINGE_PLANES]
 
 
 def _same_faces(context: AssignmentContext, a: SRDEResult, b: SRDEResult) -> bool:

@@ -260,7 +260,12 @@ class _HingeScene:
         self.rig, self.lights, self.mask = rig, lights_m, mask
         self.point, self.normal, self.turn = point_m, normal, turn
         self.p0, self.normal_px, self.far_side = p0, normal_px, far_side
-        self.cands = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in candidates_uv]
+        cands = [np.asarray(c, dtype=np.float64).reshape(-1, 2) for c in candidates_uv]
+        # Every view's candidates in one (N, M, 2) array, padded far away, so that all
+        # views are matched in one pass.
+        self.cands = np.full((len(cands), max(1, max(len(c) for c in cands)), 2), 1e9)
+        for j, c in enumerate(cands):
+            self.cands[j, :len(c)] = c
 
     def normals(self, angles: np.ndarray) -> np.ndarray:
         """Return unit normals ``(A, 3)`` turned by ``angles`` ``(A,)`` rad, facing the cameras."""
@@ -275,36 +280,34 @@ class _HingeScene:
     def explained(self, angles: np.ndarray, tolerance_px: float
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Candidates explained ``(A,)`` int and their squared distances ``(A,)`` per angle."""
-        rig = self.rig
+        rig, k = self.rig, self.rig.intrinsics
         n = self.normals(angles)                                   # (A, 3)
         offset = n @ self.point                                    # (A,)
-        height = self.lights @ n.T - offset                        # (K, A)
-        virtual = self.lights[None] - 2.0 * height.T[..., None] * n[:, None, :]  # (A, K, 3)
-        count = np.zeros(len(angles), dtype=np.intp)
-        cost = np.zeros(len(angles))
-        k = rig.intrinsics
-        for j in range(rig.n_cameras):
-            cands = self.cands[j]
-            if len(cands) == 0:
-                continue
-            c = rig.centers_m[j]
-            rel = virtual - c                                      # (A, K, 3)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                uv = np.stack([k.fx * rel[..., 0] / rel[..., 2] + k.cx,
-                               k.fy * rel[..., 1] / rel[..., 2] + k.cy], axis=-1)
-                # Where the segment from the camera to the virtual light meets the plane.
-                s = (offset - c @ n.T)[:, None] / np.einsum("akx,ax->ak", rel, n)
-            point = c + s[..., None] * rel                         # (A, K, 3)
-            seen = rig.project(point)                              # (A, K, 2) reference
-            gap = np.linalg.norm(uv[:, :, None, :] - cands[None, None], axis=-1).min(axis=2)
-            u = np.rint(seen[..., 0])
-            v = np.rint(seen[..., 1])
-            inside = (u >= 0) & (u < self.mask.shape[1]) & (v >= 0) & (v < self.mask.shape[0])
-            on_object = np.zeros(inside.shape, dtype=bool)
-            on_object[inside] = self.mask[v[inside].astype(np.intp), u[inside].astype(np.intp)]
-            beyond = np.sign((seen - self.p0) @ self.normal_px) == self.far_side
-            ok = (height.T > 0.0) & (rel[..., 2] > 0.0) & (s > 0.0) & (s < 1.0) & on_object \
-                & beyond & (gap <= tolerance_px)
-            count += ok.sum(axis=1)
-            cost += np.where(ok, gap * gap, 0.0).sum(axis=1)
-        return count, cost
+        height = n @ self.lights.T - offset[:, None]               # (A, K)
+        virtual = self.lights[None] - 2.0 * height[..., None] * n[:, None, :]  # (A, K, 3)
+        rel = virtual[:, :, None, :] - rig.centers_m               # (A, K, N, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = k.fx * rel[..., 0] / rel[..., 2] + k.cx
+            v = k.fy * rel[..., 1] / rel[..., 2] + k.cy
+            # Where the segment from each camera to the virtual light meets the plane,
+            # seen from the reference camera.
+            s = (offset[:, None] - n @ rig.centers_m.T)[:, None, :] \
+                / np.einsum("aknx,ax->akn", rel, n)
+            point = rig.centers_m + s[..., None] * rel
+            ref = point - rig.reference_center_m
+            seen_u = k.fx * ref[..., 0] / ref[..., 2] + k.cx
+            seen_v = k.fy * ref[..., 1] / ref[..., 2] + k.cy
+        du = u[..., None] - self.cands[..., 0]                     # (A, K, N, M)
+        dv = v[..., None] - self.cands[..., 1]
+        gap2 = (du * du + dv * dv).min(axis=-1)                    # (A, K, N)
+        height_px, width_px = self.mask.shape
+        col, row = np.rint(seen_u), np.rint(seen_v)
+        inside = (col >= 0) & (col < width_px) & (row >= 0) & (row < height_px) \
+            & (ref[..., 2] > 0.0)
+        on_object = np.zeros(inside.shape, dtype=bool)
+        on_object[inside] = self.mask[row[inside].astype(np.intp), col[inside].astype(np.intp)]
+        beyond = np.sign((seen_u - self.p0[0]) * self.normal_px[0]
+                         + (seen_v - self.p0[1]) * self.normal_px[1]) == self.far_side
+        ok = (height[..., None] > 0.0) & (rel[..., 2] > 0.0) & (s > 0.0) & (s < 1.0) \
+            & on_object & beyond & (gap2 <= tolerance_px * tolerance_px)
+        return ok.sum(axis=(1, 2)), np.where(ok, gap2, 0.0).sum(axis=(1, 2))

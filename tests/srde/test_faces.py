@@ -76,6 +76,11 @@ CREDIBLE_BAR_SEED = 32018
 # px of either face, and no set of three planes splits the mask. Centred on their arcs,
 # the cut blobs propose every face's plane within 0.3 px.
 CUT_CENTRES_SEED = 33005
+# A 3-face ridge whose third face's highlights are cut by the outline and by its edge:
+# no plane proposed from its centres comes within 24 px of it, and every other try
+# fails. The middle face's plane (0.13 px off) turned about the outline's chord at
+# their edge gives it within 0.3 px, and its lobe fit within 0.002 px.
+HINGE_SEED = 33017
 # A flat object under three lights (multi_light.py's seeds 52000 +) whose blobs make
 # sets of two faces that all fail (face_split).
 FLAT_FACES_FAIL_SEED = 52300
@@ -643,6 +648,26 @@ def test_cut_highlights_centred_on_their_arcs_solve_three_faces(rig, monkeypatch
     monkeypatch.setattr(faces_module, "RECENTRED_TRY", False)
     refused = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert not refused.ok
+
+
+def test_a_face_turned_about_its_neighbour_s_edge_solves_three_faces(rig, monkeypatch):
+    _, rendering, lit = _rendered(rig, HINGE_SEED, 3, True, physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    srde = SRDE(lit, max_faces=3)
+    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+    context = gathered.context(srde, mask, all_lights_in_front=False)
+    proposed = [s for s in (context.score(p) for p in context.proposals(
+        anchors=tuple(range(rig.n_cameras)))) if s is not None]
+    faceted = faceted_scene(HINGE_SEED, rig, n_faces=3, convex=True)
+    third = faceted.scene.objects[2].plane
+    assert min(context.plane_gap_px(s.plane, third) for s in proposed) > 5.0
+    _, turned = faces_module._hinge_scores(context, proposed, mask, srde.min_views)
+    assert min(context.plane_gap_px(s.plane, third) for s in turned) < 0.3
+    result = srde.estimate(rendering.views, mask)
+    assert result.ok and len(result.faces.faces) == 3, result.reason
+    assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+    monkeypatch.setattr(faces_module, "HINGE_TRY", False)
+    assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
 
 
 def test_a_face_of_three_pieced_off_from_two_views_is_refused(rig):
