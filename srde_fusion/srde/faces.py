@@ -13,8 +13,10 @@ lines, a light) are the same, only more than one of them is the answer:
    highlights rank alike are told apart by the image (step 3): the first whose faces all
    pass is taken, two that both pass are ambiguous; when all of them fail, the sets of
    the next rank are tried the same way. When every set fails, the planes are proposed
-   again from every view's candidates, and last from candidates whose blobs cut by a
-   straight edge are centred on their arcs (:data:`RECENTRED_TRY`).
+   again from every view's candidates, then from candidates whose blobs cut by a
+   straight edge are centred on their arcs (:data:`RECENTRED_TRY`), and last the
+   well-seen planes are turned about the chords between the outline's corners, where
+   the faces' edges end (:data:`HINGE_TRY`, :mod:`.hinges`).
 2. **Split.** Two planes meet in a 3-D line whose image is the faces' edge. Along a
    reference pixel's ray a convex object (a ridge) shows the *farther* of the faces'
    planes (the ray enters the solid last through it), a concave one (a valley) the
@@ -155,7 +157,9 @@ RECENTRED_MAX_SIGMA_PX = 0.04
 
 #: When every other try fails, planes turned about the edges between faces join the
 #: pool (:mod:`.hinges`): a face whose blobs the outline and its edge both cut has
-#: centres pixels off, and no plane proposed from them comes near it.
+#: centres pixels off, and no plane proposed from them comes near it; its neighbour's
+#: plane turned about their edge (a chord between two corners of the outline) leaves
+#: one angle to find, which such centres still fix.
 HINGE_TRY = True
 
 #: Planes turned about the outline's chords that join the pool, at most.

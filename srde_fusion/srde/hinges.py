@@ -287,27 +287,33 @@ class _HingeScene:
         virtual = self.lights[None] - 2.0 * height[..., None] * n[:, None, :]  # (A, K, 3)
         rel = virtual[:, :, None, :] - rig.centers_m               # (A, K, N, 3)
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = k.fx * rel[..., 0] / rel[..., 2] + k.cx
-            v = k.fy * rel[..., 1] / rel[..., 2] + k.cy
             # Where the segment from each camera to the virtual light meets the plane,
             # seen from the reference camera.
             s = (offset[:, None] - n @ rig.centers_m.T)[:, None, :] \
                 / np.einsum("aknx,ax->akn", rel, n)
-            point = rig.centers_m + s[..., None] * rel
-            ref = point - rig.reference_center_m
+            ref = rig.centers_m + s[..., None] * rel - rig.reference_center_m
             seen_u = k.fx * ref[..., 0] / ref[..., 2] + k.cx
             seen_v = k.fy * ref[..., 1] / ref[..., 2] + k.cy
-        du = u[..., None] - self.cands[..., 0]                     # (A, K, N, M)
-        dv = v[..., None] - self.cands[..., 1]
-        gap2 = (du * du + dv * dv).min(axis=-1)                    # (A, K, N)
         height_px, width_px = self.mask.shape
         col, row = np.rint(seen_u), np.rint(seen_v)
-        inside = (col >= 0) & (col < width_px) & (row >= 0) & (row < height_px) \
-            & (ref[..., 2] > 0.0)
-        on_object = np.zeros(inside.shape, dtype=bool)
-        on_object[inside] = self.mask[row[inside].astype(np.intp), col[inside].astype(np.intp)]
-        beyond = np.sign((seen_u - self.p0[0]) * self.normal_px[0]
-                         + (seen_v - self.p0[1]) * self.normal_px[1]) == self.far_side
-        ok = (height[..., None] > 0.0) & (rel[..., 2] > 0.0) & (s > 0.0) & (s < 1.0) \
-            & on_object & beyond & (gap2 <= tolerance_px * tolerance_px)
-        return ok.sum(axis=(1, 2)), np.where(ok, gap2, 0.0).sum(axis=(1, 2))
+        ask = (height[..., None] > 0.0) & (rel[..., 2] > 0.0) & (s > 0.0) & (s < 1.0) \
+            & (ref[..., 2] > 0.0) & (col >= 0) & (col < width_px) & (row >= 0) \
+            & (row < height_px)
+        ask &= np.sign((seen_u - self.p0[0]) * self.normal_px[0]
+                       + (seen_v - self.p0[1]) * self.normal_px[1]) == self.far_side
+        a, light, view = np.nonzero(ask)
+        on_object = self.mask[row[a, light, view].astype(np.intp),
+                              col[a, light, view].astype(np.intp)]
+        a, light, view = a[on_object], light[on_object], view[on_object]
+        # Only predictions reflected on the object beyond the chord meet the candidates.
+        r = rel[a, light, view]                                    # (P, 3)
+        u = k.fx * r[:, 0] / r[:, 2] + k.cx
+        v = k.fy * r[:, 1] / r[:, 2] + k.cy
+        cands = self.cands[view]                                   # (P, M, 2)
+        du = u[:, None] - cands[..., 0]
+        dv = v[:, None] - cands[..., 1]
+        gap2 = (du * du + dv * dv).min(axis=1)
+        ok = gap2 <= tolerance_px * tolerance_px
+        count = np.bincount(a[ok], minlength=len(angles))
+        cost = np.bincount(a[ok], gap2[ok], minlength=len(angles))
+        return count, cost
