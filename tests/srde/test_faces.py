@@ -354,7 +354,7 @@ def _record(monkeypatch, name: str) -> list:
 
 
 def _record_tries(monkeypatch) -> list:
-    """Each try's ``faces._estimate_faces`` result: the reference's planes, then all views'."""
+    """Each try's ``faces._estimate_faces`` result: the reference's planes, all views', turned."""
     return _record(monkeypatch, "_estimate_faces")
 
 
@@ -440,8 +440,10 @@ def test_the_next_rank_is_tried_when_every_set_of_the_best_fails(rig, monkeypatc
         min(context.plane_gap_px(a.plane, p) for p in solved) <= 0.5 for a in s.scores)]
     assert taken and taken[0].value[0] < ranked[0].value[0]
     monkeypatch.setattr(faces_module, "RANKS_TRIED", 1)
-    # (Its cut blobs centred on their arcs, the last try, also find the right set.)
+    # (Its cut blobs centred on their arcs and its planes turned about the outline's
+    # chords, the last tries, also find the right set.)
     monkeypatch.setattr(faces_module, "RECENTRED_TRY", False)
+    monkeypatch.setattr(faces_module, "HINGE_TRY", False)
     result = srde.estimate(rendering.views, mask)
     assert result.status == "inconsistent", result.reason
 
@@ -741,8 +743,9 @@ def test_a_face_the_lobe_fit_does_not_confirm_is_read_again_away_from_the_edge(r
     tries = _record_tries(monkeypatch)
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     # Each face read once, and the set fails; the sets of the second try (every view's
-    # candidates proposing) fail too, and the first try's reason is the answer.
-    assert len(tries) == 2 and not tries[1].ok and result is tries[0]
+    # candidates proposing) fail too, planes turned about the outline's chords make no
+    # set, and the first try's reason is the answer.
+    assert len(tries) == 3 and not tries[1].ok and tries[2] is None and result is tries[0]
     assert len(read) > 2 and read[:2] == [2477, 9553]
     assert result.status == "inconsistent", result.reason
     assert "did not confirm its plane" in result.reason
