@@ -336,7 +336,7 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     pool : list of PlaneScore
         The distinct refitted planes tried, most highlights first.
     """
-    pool = list(scores) if pooled else face_pool(context, scores, keep_proposed=keep_proposed)
+    pool = list(scores) if pooled else _face_pool(context, scores, keep_proposed=keep_proposed)
     if len(pool) < 2:
         return [], "", pool
     splits: list[_Split] = []
@@ -383,14 +383,14 @@ def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_fa
     return ranked, (why if not ranked else ""), pool
 
 
-def face_pool(context: AssignmentContext, scores: list[PlaneScore], *,
+def _face_pool(context: AssignmentContext, scores: list[PlaneScore], *,
               keep_proposed: bool = False) -> list[PlaneScore]:
     """Return the distinct refitted planes that explain the most highlights, most first.
 
     At most :data:`MAX_FACE_HYPOTHESES`; with ``keep_proposed`` each proposed plane joins
     beside its refit, and twice as many are kept (:func:`choose_faces`).
     """
-    ranked = sorted(scores, key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
+    ranked = sorted(scores, key=_by_highlights, reverse=True)
     pool: list[PlaneScore] = []
     cap = 2 * MAX_FACE_HYPOTHESES if keep_proposed else MAX_FACE_HYPOTHESES
     for score in ranked:
@@ -402,6 +402,16 @@ def face_pool(context: AssignmentContext, scores: list[PlaneScore], *,
             if len(pool) == cap:
                 return pool
     return pool
+
+
+def _by_highlights(score: PlaneScore) -> tuple[int, int, float]:
+    """Sort key of the pool: explained highlights, then net support, then residual."""
+    return score.n_matched, score.key[0], score.key[2]
+
+
+def _views_of_one_light(score: PlaneScore) -> int:
+    """Return the most views in which one light's highlights are explained by ``score``."""
+    return int((score.matched >= 0).sum(axis=1).max())
 
 
 def _evaluate(context: AssignmentContext, faces: tuple[PlaneScore, ...], min_views: int, box,
@@ -841,7 +851,7 @@ def _hinge_scores(context: AssignmentContext, scores: list[PlaneScore], mask: np
                   min_views: int) -> tuple[list[PlaneScore], list[PlaneScore]]:
     """Return the pool's well-seen planes and the distinct planes turned about chords from them.
 
-    A source is a plane of the pool (:func:`face_pool`) explaining one light's
+    A source is a plane of the pool (:func:`_face_pool`) explaining one light's
     highlights in ``min_views`` views. Each is turned about every chord of the outline's
     corners (:func:`.hinges.hinge_chords`), matching candidates within the assignment's
     tolerance and, apart, within a blob radius (cut blobs' centres stray by more than
@@ -849,8 +859,8 @@ def _hinge_scores(context: AssignmentContext, scores: list[PlaneScore], mask: np
     views, as a face must; the :data:`HINGE_PLANES` explaining the most are kept.
     """
     rig, lights = context.rig, context.lights
-    sources = [s for s in face_pool(context, scores, keep_proposed=True)
-               if (s.matched >= 0).sum(axis=1).max() >= min_views]
+    sources = [s for s in _face_pool(context, scores, keep_proposed=True)
+               if _views_of_one_light(s) >= min_views]
     chords = hinge_chords(mask, outline_corners(mask))
     tolerances = tuple(sorted({context.tolerance_px,
                                max(context.tolerance_px, context.blob_radius_px)}))
@@ -861,11 +871,11 @@ def _hinge_scores(context: AssignmentContext, scores: list[PlaneScore], mask: np
             for plane, _ in hinge_plane(rig, lights, mask, source.plane, chord, source_uv,
                                         context.cands, tolerances):
                 score = context.score(plane, near_outline=True)
-                if score is not None and (score.matched >= 0).sum(axis=1).max() >= min_views \
+                if score is not None and _views_of_one_light(score) >= min_views \
                         and all(context.plane_gap_px(score.plane, other.plane) > SAME_PLANE_PX
                                 for other in (*sources, *found)):
                     found.append(score)
-    found.sort(key=lambda s: (s.n_matched, s.key[0], s.key[2]), reverse=True)
+    found.sort(key=_by_highlights, reverse=True)
     _log.debug("faces: %d plane(s) turned about %d chord(s) from %d source(s)", len(found),
                len(chords), len(sources))
     return sources, found[:HINGE_PLANES]

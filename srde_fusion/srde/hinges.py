@@ -40,7 +40,6 @@ OUTLINE_POLYGON_PX = 1.5
 #: the outline lies in it.
 SIDE_TRIM = 0.5
 
-
 #: Faces meeting at less than this angle (degrees) are one plane to the highlights.
 HINGE_MIN_ANGLE_DEG = 5.0
 
@@ -146,7 +145,7 @@ def _crossing(a, b) -> np.ndarray | None:
 
 
 def hinge_chords(mask: np.ndarray, corners: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Pairs of outline corners an edge between two faces can join, as ``(p0, p1)``.
+    """Return the pairs of outline corners an edge between two faces can join, ``(p0, p1)``.
 
     Corners not next to each other round the outline whose chord runs inside the mask.
     """
