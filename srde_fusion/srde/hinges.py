@@ -22,7 +22,7 @@ import math
 import cv2
 import numpy as np
 
-from ..geometry import CameraRig, Plane
+from ..geometry import CameraRig, Plane, plane_depth, project_points
 
 __all__ = [
     "HINGE_MIN_ANGLE_DEG",
@@ -212,15 +212,11 @@ def hinge_plane(rig: CameraRig, lights_m: np.ndarray, mask: np.ndarray, source: 
     sides = np.sign((np.asarray(source_uv, dtype=np.float64) - p0) @ normal_px)
     if sides.size == 0 or not (np.all(sides > 0) or np.all(sides < 0)):
         return []
-    center = rig.reference_center_m
-    rays = rig.rays(np.stack([p0, p1]))
-    along = rays @ source.n
-    if np.any(np.abs(along) < 1e-12):
+    ends_uv = np.stack([p0, p1])
+    depth_m = plane_depth(source, rig, ends_uv)
+    if not np.all(np.isfinite(depth_m)):
         return []
-    t = (source.offset_m - center @ source.n) / along
-    if np.any(t <= 0.0):
-        return []
-    ends = center + t[:, None] * rays
+    ends = rig.backproject(ends_uv, depth_m)
     direction = ends[1] - ends[0]
     direction /= np.linalg.norm(direction)
     turn = np.cross(direction, source.n)
@@ -279,7 +275,7 @@ class _HingeScene:
     def explained(self, angles: np.ndarray, tolerance_px: float
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Candidates explained ``(A,)`` int and their squared distances ``(A,)`` per angle."""
-        rig, k = self.rig, self.rig.intrinsics
+        rig = self.rig
         n = self.normals(angles)                                   # (A, 3)
         offset = n @ self.point                                    # (A,)
         height = n @ self.lights.T - offset[:, None]               # (A, K)
@@ -290,27 +286,21 @@ class _HingeScene:
             # seen from the reference camera.
             s = (offset[:, None] - n @ rig.centers_m.T)[:, None, :] \
                 / np.einsum("aknx,ax->akn", rel, n)
-            ref = rig.centers_m + s[..., None] * rel - rig.reference_center_m
-            seen_u = k.fx * ref[..., 0] / ref[..., 2] + k.cx
-            seen_v = k.fy * ref[..., 1] / ref[..., 2] + k.cy
+            seen = rig.project(rig.centers_m + s[..., None] * rel)  # (A, K, N, 2), NaN behind
         height_px, width_px = self.mask.shape
-        col, row = np.rint(seen_u), np.rint(seen_v)
+        col, row = np.rint(seen[..., 0]), np.rint(seen[..., 1])
         ask = (height[..., None] > 0.0) & (rel[..., 2] > 0.0) & (s > 0.0) & (s < 1.0) \
-            & (ref[..., 2] > 0.0) & (col >= 0) & (col < width_px) & (row >= 0) \
-            & (row < height_px)
-        ask &= np.sign((seen_u - self.p0[0]) * self.normal_px[0]
-                       + (seen_v - self.p0[1]) * self.normal_px[1]) == self.far_side
+            & (col >= 0) & (col < width_px) & (row >= 0) & (row < height_px)
+        ask &= np.sign((seen - self.p0) @ self.normal_px) == self.far_side
         a, light, view = np.nonzero(ask)
         on_object = self.mask[row[a, light, view].astype(np.intp),
                               col[a, light, view].astype(np.intp)]
         a, light, view = a[on_object], light[on_object], view[on_object]
         # Only predictions reflected on the object beyond the chord meet the candidates.
-        r = rel[a, light, view]                                    # (P, 3)
-        u = k.fx * r[:, 0] / r[:, 2] + k.cx
-        v = k.fy * r[:, 1] / r[:, 2] + k.cy
+        uv = project_points(rig, virtual[a, light], view)          # (P, 2)
         cands = self.cands[view]                                   # (P, M, 2)
-        du = u[:, None] - cands[..., 0]
-        dv = v[:, None] - cands[..., 1]
+        du = uv[:, None, 0] - cands[..., 0]
+        dv = uv[:, None, 1] - cands[..., 1]
         gap2 = (du * du + dv * dv).min(axis=1)
         ok = gap2 <= tolerance_px * tolerance_px
         count = np.bincount(a[ok], minlength=len(angles))

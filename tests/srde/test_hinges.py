@@ -6,16 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from srde_fusion.geometry import Plane, plane_disparity
-from srde_fusion.srde.assignment import box_corners, plane_gap_px
+from srde_fusion.geometry import Plane, plane_disparity, project_points
+from srde_fusion.srde.assignment import box_corners, plane_gap_px, reflection_points
 from srde_fusion.srde.hinges import hinge_chords, hinge_plane, outline_corners
 from srde_fusion.synthetic import default_rig
-
-
-def _rotated(v, axis, angle_rad):
-    axis = axis / np.linalg.norm(axis)
-    return (v * math.cos(angle_rad) + np.cross(axis, v) * math.sin(angle_rad)
-            + axis * float(axis @ v) * (1.0 - math.cos(angle_rad)))
+from srde_fusion.synthetic.faceted import _rotate
 
 
 class _TwoFaces:
@@ -31,14 +26,14 @@ class _TwoFaces:
                  edge_m=0.24, width_m=0.12):
         self.rig = rig
         centre = np.array([0.01, -0.02, depth_m])
-        normal_a = _rotated(np.array([0.0, 0.0, -1.0]), np.array([0.3, 1.0, 0.0]),
-                            math.radians(tilt_deg))
+        tilt_axis = np.array([0.3, 1.0, 0.0]) / math.hypot(0.3, 1.0)
+        normal_a = _rotate(np.array([0.0, 0.0, -1.0]), tilt_axis, math.radians(tilt_deg))
         edge_dir = np.cross(normal_a, np.array([1.0, 0.0, 0.0]))
         edge_dir /= np.linalg.norm(edge_dir)
         across_a = np.cross(normal_a, edge_dir)  # in A, away from the edge
         if across_a[0] > 0:
             across_a = -across_a
-        normal_b = _rotated(normal_a, edge_dir, math.radians(angle_deg))
+        normal_b = _rotate(normal_a, edge_dir, math.radians(angle_deg))
         across_b = np.cross(edge_dir, normal_b)
         if across_b @ across_a > 0:
             across_b = -across_b
@@ -72,14 +67,13 @@ class _TwoFaces:
     def highlights_uv(self, plane, light):
         """The light's highlight in every view ``(N, 2)`` as ``plane`` mirrors it."""
         virtual = plane.mirror(self.lights_m[light])
-        return np.stack([self.rig.project(virtual, j) for j in range(self.rig.n_cameras)])
+        return project_points(self.rig, virtual, np.arange(self.rig.n_cameras))
 
     def mirror_points_uv(self, plane, light):
         """Where ``plane`` reflects the light towards each camera, seen from the reference."""
-        virtual = plane.mirror(self.lights_m[light])
-        toward = virtual - self.rig.centers_m
-        t = (plane.offset_m - self.rig.centers_m @ plane.n) / (toward @ plane.n)
-        return self.rig.project(self.rig.centers_m + t[:, None] * toward)
+        points, _ = reflection_points(plane, plane.mirror(self.lights_m[light]),
+                                      self.rig.centers_m)
+        return self.rig.project(points)
 
     def seen_beyond_edge(self, plane, light):
         """Views whose mirror point of the light lies on the object beyond the edge from A."""
