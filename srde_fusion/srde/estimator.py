@@ -57,6 +57,7 @@ from .faces import MAX_FACES, estimate_faces
 from .highlight import HighlightDetection, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
+from .refine.radius import refine_plane_and_radius
 from .result import SRDEResult
 from .search import BaselineSearch
 
@@ -509,7 +510,7 @@ class SRDE:
 
     def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None,
                 light=None, refine=None, modelled_lights=(), modelled_centers=None,
-                window_centers=None) -> SRDEResult:
+                window_centers=None, fit_radius=False) -> SRDEResult:
         """Check the virtual light and the plane, refine it (given views); disparity.
 
         ``light``: the light ``point`` is the virtual light of (one of several); the
@@ -519,6 +520,8 @@ class SRDE:
         ``(M, N, 2)``: their highlights, which the refinement's windows go around too.
         ``window_centers`` ``(N, 2)``: where the refinement's windows go around ``light``'s
         highlight (NaN: no window in that view); the used ``centers`` by default.
+        ``fit_radius``: if the rig does not know ``light``'s radius, the refinement fits it
+        too (:func:`~.refine.radius.refine_plane_and_radius`); a known one is used as is.
         """
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}
@@ -557,17 +560,24 @@ class SRDE:
                       and not any(np.array_equal(m, x) for x in modelled_lights)]
             radius_m = next((r for m, r in zip(self.lights_m, self.light_radii_m, strict=True)
                              if np.array_equal(m, light)), None)
-            refinement = refine_plane(views, rig, light, mask, plane,
-                                      centers_uv=(np.where(used[:, None], centers, np.nan)
-                                                  if window_centers is None
-                                                  else window_centers),
-                                      lobe=self.refine_lobe,
-                                      other_lights_m=np.array(others) if others else None,
-                                      modelled_lights_m=(np.array(modelled_lights)
-                                                         if len(modelled_lights) else None),
-                                      light_radius_m=radius_m,
-                                      modelled_centers_uv=modelled_centers,
-                                      pixel_samples=self.refine_pixels)
+            options = dict(centers_uv=(np.where(used[:, None], centers, np.nan)
+                                       if window_centers is None else window_centers),
+                           lobe=self.refine_lobe,
+                           other_lights_m=np.array(others) if others else None,
+                           modelled_lights_m=(np.array(modelled_lights)
+                                              if len(modelled_lights) else None),
+                           modelled_centers_uv=modelled_centers,
+                           pixel_samples=self.refine_pixels)
+            if fit_radius and radius_m is None:
+                search = refine_plane_and_radius(views, rig, light, mask, plane, **options)
+                refinement = search.refinement
+                if refinement.ok:
+                    notes = (*notes, f"refinement: the light's radius is not known; fitted "
+                             f"{search.light_radius_m * 1000:.1f} mm (photometric cost "
+                             f"{refinement.cost_final:.3g}, as a point {search.point_cost:.3g})")
+            else:
+                refinement = refine_plane(views, rig, light, mask, plane,
+                                          light_radius_m=radius_m, **options)
             if refinement.ok:
                 plane = refinement.plane
                 point = plane.mirror(light)

@@ -11,7 +11,7 @@ import pytest
 from srde_fusion.errors import SceneError, SRDEError
 from srde_fusion.fusion import DEFAULT_BORDER_CHECK, border_band, fuse, read_estimate, textured_mask
 from srde_fusion.fusion.checks import border_stats, nearest_face
-from srde_fusion.geometry import Plane, plane_depth, plane_disparity
+from srde_fusion.geometry import Plane, RigLight, plane_depth, plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.srde import faces as faces_module
 from srde_fusion.srde import lights as lights_module
@@ -149,6 +149,10 @@ UNCONFIRMED_OTHER_LIGHT_FACE = (82011, 2, False, 0)
 # one-plane path answered it with its geometric plane (its lobe fit refused), 0.4 and 2.4
 # px off the two faces, one light's highlights explained.
 UNCONFIRMED_ONE_PLANE_SEED = 81009
+# A 3-face ridge whose end face (face 0) is measured in two views: as a point light its
+# lamp (6.9 mm, not in the rig) tilted the face 0.33 px off; with the radius fitted in
+# the second reading, 0.018 px.
+RADIUS_SEED = 113001
 # Faces alone (seeds 91000+) whose own light's plane, from clean centres, leaves its lobe
 # fit nothing to improve (refused as "does not improve", 0.05 % above its start's cost):
 # the other light's confirmed plane, 10.9 and 1.9 px off, then won unopposed (the first
@@ -670,6 +674,39 @@ def test_a_face_turned_about_its_neighbour_s_edge_solves_three_faces(rig, monkey
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
     monkeypatch.setattr(faces_module, "HINGE_TRY", False)
     assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
+
+
+def test_a_lamp_radius_the_rig_does_not_know_is_fitted_on_a_face_seen_in_few_views(
+        rig, monkeypatch):
+    faceted, rendering, lit = _rendered(rig, RADIUS_SEED, 3, True, physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert result.ok and len(result.faces.faces) == 3, result.reason
+    epes = _face_epes(result.disparity, rendering, 3)
+    assert max(epes) <= FACE_EPE_PX
+    # The end face, its light measured in two of nine views, says what radius it fitted:
+    # the lamp's, to within a fifth.
+    end = min(result.faces.faces, key=lambda f: np.mean(np.abs(
+        plane_disparity(f.plane, rig)[rendering.instance_mask == 1]
+        - rendering.disparity_px[rendering.instance_mask == 1])))
+    assert np.count_nonzero(end.used_views) == 2
+    fitted = [n for n in end.notes if n.startswith("refinement: the light's radius is not known")]
+    assert len(fitted) == 1, end.notes
+    radius_mm = float(fitted[0].split("fitted ")[1].split(" mm")[0])
+    assert radius_mm == pytest.approx(1000 * faceted.scene.lights[end.light].radius_m, rel=0.2)
+    # As a point light, the same face came out 0.33 px off.
+    monkeypatch.setattr(faces_module, "FIT_RADIUS", False)
+    point = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert point.ok
+    assert _face_epes(point.disparity, rendering, 3)[0] > 0.2
+    # A rig that knows the lamps' radii uses them as they are.
+    known = rig.with_lights([RigLight(light.position_m, light.radius_m)
+                             for light in faceted.scene.lights])
+    monkeypatch.setattr(faces_module, "FIT_RADIUS", True)
+    told = SRDE(known, max_faces=3).estimate(rendering.views, mask)
+    assert told.ok
+    assert not any("radius is not known" in n for f in told.faces.faces for n in f.notes)
+    assert max(_face_epes(told.disparity, rendering, 3)) <= FACE_EPE_PX
 
 
 def test_a_face_of_three_pieced_off_from_two_views_is_refused(rig):

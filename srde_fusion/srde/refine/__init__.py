@@ -14,11 +14,14 @@ from __future__ import annotations
 from .lobes import DEFAULT_LOBE, LOBES
 from .model import LobeFit
 from .plane import PlaneRefinement, refine_plane
+from .radius import RadiusFit, refine_plane_and_radius
 
 __all__ = [
     "LOBES",
     "DEFAULT_LOBE",
     "LobeFit",
     "PlaneRefinement",
+    "RadiusFit",
     "refine_plane",
+    "refine_plane_and_radius",
 ]
