@@ -59,11 +59,15 @@ def test_the_radius_the_fit_prefers_is_the_lamp_s(end_face):
     assert _epe(case, point.plane) > 0.15
     assert _epe(case, search.refinement.plane) < 0.05
     assert search.light_radius_m == pytest.approx(case.radius_m, rel=0.15)
-    # The grid starts at a point light, whose fit is the one refine_plane makes, and
-    # the answer is the cheapest fit tried.
+    # The grid starts at a point light, whose fit is the one refine_plane makes, and goes
+    # up until the cost rises; then the parabolas' vertices. The answer is the cheapest.
     height_m = float(case.plane.signed_distance(case.light))
-    assert search.radii_m[:len(RADIUS_ANGLES_RAD)] == pytest.approx(
-        [height_m * a for a in RADIUS_ANGLES_RAD])
+    grid = [r for r in search.radii_m if any(
+        abs(r - height_m * a) < 1e-12 for a in RADIUS_ANGLES_RAD)]
+    assert grid == pytest.approx([height_m * a for a in RADIUS_ANGLES_RAD[:len(grid)]])
+    assert len(grid) < len(RADIUS_ANGLES_RAD)  # 6.9 mm here: the fourth radius, 11 mm, rose
+    costs = dict(zip(search.radii_m, search.costs, strict=True))
+    assert costs[grid[-1]] > min(costs[r] for r in grid[:-1])
     assert search.point_cost == point.cost_final
     assert search.refinement.cost_final == min(search.costs)
     assert search.refinement.cost_final < 0.6 * search.point_cost

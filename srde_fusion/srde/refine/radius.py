@@ -15,8 +15,8 @@ The fit's own cost says which radius it is: over the radius, on the same samples
 has its minimum at the lamp's (there: 4.7e-6 for a point, 2.0e-6 at the true radius,
 3.2e-6 at 1.25 times it). :func:`refine_plane_and_radius` therefore refits the plane for
 a grid of radii, each the light's distance from the plane times an angle of
-:data:`RADIUS_ANGLES_RAD` (continued while its largest is the cheapest), takes the
-cheapest fit, and fits again at the vertex of the parabola through the cheapest radius
+:data:`RADIUS_ANGLES_RAD`, in ascending order until the cost rises, takes the cheapest
+fit, and fits again at the vertex of the parabola through the cheapest radius
 and its neighbours, a few times over.
 """
 
@@ -41,11 +41,11 @@ __all__ = [
     "refine_plane_and_radius",
 ]
 
-#: Radii tried first, as angles the lamp's radius subtends from the plane (its radius over
-#: its distance from the plane), radians; 0 is a point light. The benchmarks' lamps
-#: subtend 0.004-0.03 rad. While the largest is the cheapest, the grid goes on by
-#: :data:`RADIUS_GROWTH` up to :data:`MAX_RADIUS_ANGLE_RAD` (a 5 cm diffuser 0.5 m away
-#: subtends 0.1 rad).
+#: The grid of radii, as angles the lamp's radius subtends from the plane (its radius
+#: over its distance from the plane), radians; 0 is a point light. The benchmarks' lamps
+#: subtend 0.004-0.03 rad. Beyond the last the grid goes on by :data:`RADIUS_GROWTH` up to
+#: :data:`MAX_RADIUS_ANGLE_RAD` (a 5 cm diffuser 0.5 m away subtends 0.1 rad). Radii are
+#: tried in ascending order until the cost rises.
 RADIUS_ANGLES_RAD = (0.0, 0.008, 0.016, 0.026, 0.04)
 
 #: Factor between further angles of the grid beyond its last.
@@ -128,14 +128,18 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
                                  light_radius_m=radius_m if radius_m > 0.0 else None, **options))
         costs.append(_cost(fits[-1]))
 
-    for angle in angles_rad:
-        fit_at(min(height_m * angle, MAX_LIGHT_RADIUS_M))
-    angle = angles_rad[-1] * RADIUS_GROWTH
-    # (A lamp larger than the grid: on while the largest radius is the cheapest.)
-    while int(np.argmin(costs)) == len(costs) - 1 and math.isfinite(costs[-1]) \
-            and angle <= MAX_RADIUS_ANGLE_RAD and height_m * angle <= MAX_LIGHT_RADIUS_M:
+    angles = list(angles_rad)
+    while angles[-1] * RADIUS_GROWTH <= MAX_RADIUS_ANGLE_RAD:
+        angles.append(angles[-1] * RADIUS_GROWTH)
+    for angle in angles:
+        if height_m * angle > MAX_LIGHT_RADIUS_M:
+            break
         fit_at(height_m * angle)
-        angle *= RADIUS_GROWTH
+        if len(costs) > 1 and costs[-1] > min(costs[:-1]):
+            # Past the cheapest radius: the cost rises steeply above the lamp's, and a
+            # disc many lobe widths across is slow to fit (seconds where the others take
+            # tens of milliseconds).
+            break
     for _ in range(VERTEX_STEPS):
         # The parabola through the cheapest radius and its neighbours on either side.
         order = np.argsort(radii)
