@@ -40,6 +40,9 @@ sets, each first run with the code of its time: ``--seed0 71000 --name faceted_7
 ``--seed0 81000 --name faceted_81000``, ``--seed0 91000 --name faceted_91000`` (each then
 shaped a rule), ``--seed0 101000 --name faceted_101000`` (run only after them) and
 ``--seed0 111000 --name faceted_111000`` (first run when fusion learnt the highlights).
+``--lamp-radii`` gives the rig every lamp's radius, as a ``rig.json`` with the lamps
+measured would (by default the rig knows positions only, and faces seen in few views
+fit the radius).
 """
 
 from __future__ import annotations
@@ -56,7 +59,7 @@ from fusion_eval import sgbm_backbone  # the fusion benchmark's SGBM (run from t
 from results_files import write_results
 
 from srde_fusion.fusion import fuse
-from srde_fusion.geometry import plane_disparity
+from srde_fusion.geometry import RigLight, plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.synthetic import default_rig, render
 from srde_fusion.synthetic.faceted import faceted_scene
@@ -101,10 +104,14 @@ def timed(fn):
     return out, time.perf_counter() - start
 
 
-def run_scene(rig, seed: int, n_faces: int, convex: bool) -> dict:
+def run_scene(rig, seed: int, n_faces: int, convex: bool, lamp_radii: bool = False) -> dict:
     faceted = faceted_scene(seed, rig, n_faces=n_faces, convex=convex)
     rendering = render(faceted.scene, rig, physics=Physics.faithful(), supersample=2)
-    lit_rig = rig.with_lights(rig_lights(faceted.scene))
+    lights = rig_lights(faceted.scene)
+    if lamp_radii:  # the lamps' radii measured and written into rig.json
+        lights = [RigLight(light.position_m, radius_m=lamp.radius_m)
+                  for light, lamp in zip(lights, faceted.scene.lights, strict=True)]
+    lit_rig = rig.with_lights(lights)
     mask = rendering.instance_mask > 0
     truth = rendering.disparity_px
     parts = [rendering.instance_mask == k + 1 for k in range(n_faces)]
@@ -248,6 +255,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed0", type=int, default=SEED0,
                         help=f"first seed (default {SEED0}; scene i of kind k: seed0 + 1000 k + i)")
     parser.add_argument("--name", default=NAME, help=f"results file name (default {NAME})")
+    parser.add_argument("--lamp-radii", action="store_true",
+                        help="the rig knows every lamp's radius (rig.json's radius_m)")
     parser.add_argument("--tables-only", action="store_true",
                         help="rewrite the tables from the results folder's JSON records")
     args = parser.parse_args(argv)
@@ -257,7 +266,8 @@ def main(argv: list[str] | None = None) -> int:
         records = json.loads((args.out / f"{args.name}.json").read_text())["records"]
     for kind, (_, n_faces, convex) in enumerate(KINDS if not args.tables_only else ()):
         for i in range(args.scenes):
-            record = run_scene(rig, args.seed0 + 1000 * kind + i, n_faces, convex)
+            record = run_scene(rig, args.seed0 + 1000 * kind + i, n_faces, convex,
+                               args.lamp_radii)
             records.append(record)
             print(f"{n_faces} faces {'ridge' if convex else 'valley'} seed {record['seed']}: "
                   f"{record['status']} epe {np.round(record['epe'], 4).tolist()} found "
@@ -269,7 +279,8 @@ def main(argv: list[str] | None = None) -> int:
     md = ["# Faceted objects", "",
           __doc__.split("\n\n", 1)[1].split("\n\nRun:")[0].replace("\n", " "), "",
           f"{len(records)} scenes (seeds {args.seed0} + 1000 kind + i). Machine: "
-          f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}.",
+          f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}."
+          + (" The rig knows every lamp's radius (`--lamp-radii`)." if args.lamp_radii else ""),
           "", "Per-face EPE and wrong split over the objects solved with faces; the target is "
           f"per-face EPE <= {TARGET_PX} px.", "", *table, "", f"Statuses: {statuses}.", ""]
     write_results(args.out, args.name, md, {"numbers": numbers, "records": records},

@@ -65,7 +65,7 @@ def test_the_radius_the_fit_prefers_is_the_lamp_s(end_face):
     grid = [r for r in search.radii_m if any(
         abs(r - height_m * a) < 1e-12 for a in RADIUS_ANGLES_RAD)]
     assert grid == pytest.approx([height_m * a for a in RADIUS_ANGLES_RAD[:len(grid)]])
-    assert len(grid) < len(RADIUS_ANGLES_RAD)  # 6.9 mm here: the fourth radius, 11 mm, rose
+    assert len(grid) == 3  # 0, 5.2 and 10.3 mm: the third costs more than the second
     costs = dict(zip(search.radii_m, search.costs, strict=True))
     assert costs[grid[-1]] > min(costs[r] for r in grid[:-1])
     assert search.point_cost == point.cost_final

@@ -6,8 +6,8 @@ the lobe's fitted width absorbs the disc's extent. Where the highlight is seen i
 of the array's views this costs the plane next to nothing, but where few views see it
 (a face of a faceted object lit in two to four views) the point light's lobe cannot
 take the disc's shape in every view at once, and the plane tilts to make up for it. On
-the end face of a three-face ridge seen in four views (lamp radius 6.9 mm, 0.42 m
-away), the fit from the true plane, with the true highlights and the face's true
+the end face of a three-face ridge seen in four views (lamp radius 6.9 mm, 0.64 m
+from its plane), the fit from the true plane, with the true highlights and the face's true
 mask, ended 0.23 px off as a point light and 0.03 px off with the lamp's radius; a
 radius 25 % off ended 0.09-0.18 px off.
 
