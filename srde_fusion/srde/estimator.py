@@ -572,9 +572,12 @@ class SRDE:
                 search = refine_plane_and_radius(views, rig, light, mask, plane, **options)
                 refinement = search.refinement
                 if refinement.ok:
+                    point_fit = (f"as a point {search.point_cost:.3g}"
+                                 if math.isfinite(search.point_cost) else
+                                 "a point light's fit was refused")
                     notes = (*notes, f"refinement: the light's radius is not known; fitted "
                              f"{search.light_radius_m * 1000:.1f} mm (photometric cost "
-                             f"{refinement.cost_final:.3g}, as a point {search.point_cost:.3g})")
+                             f"{refinement.cost_final:.3g}, {point_fit})")
             else:
                 refinement = refine_plane(views, rig, light, mask, plane,
                                           light_radius_m=radius_m, **options)
