@@ -59,7 +59,7 @@ from fusion_eval import sgbm_backbone  # the fusion benchmark's SGBM (run from t
 from results_files import write_results
 
 from srde_fusion.fusion import fuse
-from srde_fusion.geometry import RigLight, plane_disparity
+from srde_fusion.geometry import plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.synthetic import default_rig, render
 from srde_fusion.synthetic.faceted import faceted_scene
@@ -107,11 +107,7 @@ def timed(fn):
 def run_scene(rig, seed: int, n_faces: int, convex: bool, lamp_radii: bool = False) -> dict:
     faceted = faceted_scene(seed, rig, n_faces=n_faces, convex=convex)
     rendering = render(faceted.scene, rig, physics=Physics.faithful(), supersample=2)
-    lights = rig_lights(faceted.scene)
-    if lamp_radii:  # the lamps' radii measured and written into rig.json
-        lights = [RigLight(light.position_m, radius_m=lamp.radius_m)
-                  for light, lamp in zip(lights, faceted.scene.lights, strict=True)]
-    lit_rig = rig.with_lights(lights)
+    lit_rig = rig.with_lights(rig_lights(faceted.scene, radii=lamp_radii))
     mask = rendering.instance_mask > 0
     truth = rendering.disparity_px
     parts = [rendering.instance_mask == k + 1 for k in range(n_faces)]

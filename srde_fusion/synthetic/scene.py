@@ -548,12 +548,15 @@ class Rendering:
         return [self.instance_mask == k for k in range(1, len(self.planes) + 1)]
 
 
-def rig_lights(scene: Scene) -> tuple[RigLight, ...]:
-    """Return the scene's light positions as a rig knows them (no radius, no name).
+def rig_lights(scene: Scene, *, radii: bool = False) -> tuple[RigLight, ...]:
+    """Return the scene's lights as a rig knows them: positions, no name.
 
     ``rig.with_lights(rig_lights(scene))`` is the rig that knows every light.
+    ``radii``: the rig also knows each lamp's radius (a ``rig.json`` with the lamps
+    measured); by default it does not.
     """
-    return tuple(RigLight(light.position_m) for light in scene.lights)
+    return tuple(RigLight(light.position_m, radius_m=light.radius_m if radii else None)
+                 for light in scene.lights)
 
 
 def check_rig(rig: Any) -> CameraRig:

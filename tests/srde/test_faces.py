@@ -11,7 +11,7 @@ import pytest
 from srde_fusion.errors import SceneError, SRDEError
 from srde_fusion.fusion import DEFAULT_BORDER_CHECK, border_band, fuse, read_estimate, textured_mask
 from srde_fusion.fusion.checks import border_stats, nearest_face
-from srde_fusion.geometry import Plane, RigLight, plane_depth, plane_disparity
+from srde_fusion.geometry import Plane, plane_depth, plane_disparity
 from srde_fusion.srde import SRDE
 from srde_fusion.srde import faces as faces_module
 from srde_fusion.srde import lights as lights_module
@@ -700,8 +700,7 @@ def test_a_lamp_radius_the_rig_does_not_know_is_fitted_on_a_face_seen_in_few_vie
     assert point.ok
     assert _face_epes(point.disparity, rendering, 3)[0] > 0.2
     # A rig that knows the lamps' radii uses them as they are.
-    known = rig.with_lights([RigLight(light.position_m, light.radius_m)
-                             for light in faceted.scene.lights])
+    known = rig.with_lights(rig_lights(faceted.scene, radii=True))
     monkeypatch.setattr(faces_module, "FIT_RADIUS", True)
     told = SRDE(known, max_faces=3).estimate(rendering.views, mask)
     assert told.ok
