@@ -125,6 +125,8 @@ def run_scene(rig, seed: int, n_faces: int, convex: bool, lamp_radii: bool = Fal
     record["single_epe"] = [face_epe(single.disparity, truth, p) if single.ok else float("nan")
                             for p in parts]
     found = [False] * n_faces
+    views = [0] * n_faces
+    radius_notes = [""] * n_faces
     wrong_split = float("nan")
     if result.ok and result.faces is not None:
         labels = np.zeros(mask.shape, np.uint8)
@@ -139,7 +141,12 @@ def run_scene(rig, seed: int, n_faces: int, convex: bool, lamp_radii: bool = Fal
             face = result.faces.faces[match[k] - 1]
             gap = np.abs(plane_disparity(face.plane, rig)[p] - truth[p])
             found[k] = bool(np.max(gap) <= FOUND_PX)
-    record.update(found=found, wrong_split_pct=wrong_split)
+            views[k] = int(np.count_nonzero(face.used_views))
+            radius_notes[k] = next((n for n in face.notes if "radius is not known" in n), "")
+    # Per true face: the views that measured its light, and what the refinement said
+    # about the light's radius (fitted, kept a point light, or nothing: not searched).
+    record.update(found=found, wrong_split_pct=wrong_split, face_views=views,
+                  radius_notes=radius_notes)
     # Each lit face alone, as a mask of one flat object would hold it (every light known):
     # the one-plane path must give the face's plane or a reasoned failure.
     face_masks = []

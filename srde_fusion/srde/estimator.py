@@ -57,7 +57,7 @@ from .faces import MAX_FACES, estimate_faces
 from .highlight import HighlightDetection, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
-from .refine.radius import refine_plane_and_radius
+from .refine.radius import RadiusFit, refine_plane_and_radius
 from .result import SRDEResult
 from .search import BaselineSearch
 
@@ -572,12 +572,7 @@ class SRDE:
                 search = refine_plane_and_radius(views, rig, light, mask, plane, **options)
                 refinement = search.refinement
                 if refinement.ok:
-                    point_fit = (f"as a point {search.point_cost:.3g}"
-                                 if math.isfinite(search.point_cost) else
-                                 "a point light's fit was refused")
-                    notes = (*notes, f"refinement: the light's radius is not known; fitted "
-                             f"{search.light_radius_m * 1000:.1f} mm (photometric cost "
-                             f"{refinement.cost_final:.3g}, {point_fit})")
+                    notes = (*notes, _radius_note(search))
             else:
                 refinement = refine_plane(views, rig, light, mask, plane,
                                           light_radius_m=radius_m, **options)
@@ -690,6 +685,20 @@ def _mask_uv(mask: np.ndarray) -> np.ndarray:
     """Pixel coordinates ``(u, v)`` of the mask's pixels in row-major order, ``(M, 2)``."""
     vv, uu = np.nonzero(mask)
     return np.stack([uu, vv], axis=1).astype(np.float64)
+
+
+def _radius_note(search: RadiusFit) -> str:
+    """Say which radius the refinement took for a light the rig gives none, and why."""
+    point = (f"as a point {search.point_cost:.3g}" if math.isfinite(search.point_cost)
+             else "a point light's fit was refused")
+    if search.light_radius_m > 0.0:
+        return (f"refinement: the light's radius is not known; fitted "
+                f"{search.light_radius_m * 1000:.1f} mm (photometric cost "
+                f"{search.refinement.cost_final:.3g}, {point})")
+    cheapest = min(search.costs)
+    return (f"refinement: the light's radius is not known; kept a point light (the cheapest "
+            f"radius, {search.cheapest_radius_m * 1000:.1f} mm, gave photometric cost "
+            f"{cheapest:.3g}, {point})")
 
 
 def _rms_residual(rig, point, centers, used) -> float:

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from srde_fusion.errors import SRDEError
 from srde_fusion.geometry import Plane, plane_disparity
 from srde_fusion.srde.refine import refine_plane, refine_plane_and_radius
 from srde_fusion.srde.refine.radius import RADIUS_ANGLES_RAD, _parabola_vertex
@@ -82,3 +83,23 @@ def test_a_start_with_the_light_behind_it_is_one_refused_fit(end_face):
     assert not search.refinement.ok
     assert search.radii_m == (0.0,) and search.light_radius_m == 0.0
     assert math.isinf(search.point_cost)
+
+
+def test_a_radius_that_hardly_lowers_the_cost_is_not_taken(end_face):
+    case = end_face
+    # Here the lamp's radius saves 58 % of the point light's cost: asked for more, the
+    # search keeps the point fit and still says which radius was cheapest.
+    search = refine_plane_and_radius(case.views, case.rig, case.light, case.mask, case.plane,
+                                     centers_uv=case.centers, min_gain=0.9)
+    assert search.light_radius_m == 0.0
+    assert search.refinement.cost_final == search.point_cost
+    assert search.cheapest_radius_m == pytest.approx(case.radius_m, rel=0.15)
+    assert min(search.costs) < 0.6 * search.point_cost
+
+
+@pytest.mark.parametrize("min_gain", [-0.1, 1.0, float("nan"), "0.1", True])
+def test_a_minimum_gain_that_is_not_a_fraction_is_refused(end_face, min_gain):
+    case = end_face
+    with pytest.raises(SRDEError, match=r"min_gain: expected a fraction in \[0, 1\), got"):
+        refine_plane_and_radius(case.views, case.rig, case.light, case.mask, case.plane,
+                                min_gain=min_gain)

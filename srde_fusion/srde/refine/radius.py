@@ -18,6 +18,12 @@ a grid of radii, each the light's distance from the plane times an angle of
 :data:`RADIUS_ANGLES_RAD`, in ascending order until the cost rises, takes the cheapest
 fit, and fits again at the vertex of the parabola through the cheapest radius
 and its neighbours, a few times over.
+
+A radius is taken only where it pays: if the cheapest radius lowers the point light's
+cost by less than :data:`MIN_COST_GAIN`, the radius is not identifiable from these
+samples and the point fit stands. On a valley's face seen in three views the cost was
+0.7 % lower at 22.8 mm than as a point (the lamp's radius was 7.4 mm) and that radius
+moved the plane from 0.21 to 0.23 px off; on the end face above it was 58 % lower.
 """
 
 from __future__ import annotations
@@ -27,12 +33,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...errors import SRDEError
 from ...geometry import Plane
 from ...geometry.rig import MAX_LIGHT_RADIUS_M
 from .plane import PlaneRefinement, refine_plane
 
 __all__ = [
     "MAX_RADIUS_ANGLE_RAD",
+    "MIN_COST_GAIN",
     "RADIUS_ANGLES_RAD",
     "RADIUS_GROWTH",
     "VERTEX_STEPS",
@@ -59,6 +67,11 @@ MAX_RADIUS_ANGLE_RAD = 0.2
 #: one parabola over the coarse grid lands wide of it.
 VERTEX_STEPS = 3
 
+#: The fraction of the point light's cost a radius must save to be taken: below it the
+#: cost is flat over the radius, which the samples then do not fix, and the point fit
+#: stands.
+MIN_COST_GAIN = 0.05
+
 #: A vertex this close to a radius already tried (relative) ends the search.
 VERTEX_TOLERANCE = 0.03
 
@@ -70,8 +83,9 @@ class RadiusFit:
     Parameters
     ----------
     refinement : PlaneRefinement
-        The cheapest refined fit (the point light's fit, whatever its status, if no
-        radius gave a refined one).
+        The fit taken: the cheapest refined one, unless it saves less than
+        :data:`MIN_COST_GAIN` of the point light's cost; then (or if no radius gave a
+        refined fit) the point light's, whatever its status.
     light_radius_m : float
         The radius of that fit, metres (0: a point light).
     radii_m : tuple of float
@@ -91,10 +105,15 @@ class RadiusFit:
         """The point light's cost (the first radius tried)."""
         return self.costs[0]
 
+    @property
+    def cheapest_radius_m(self) -> float:
+        """The radius of the cheapest fit, metres, whether or not it was taken."""
+        return self.radii_m[int(np.argmin(self.costs))]
+
 
 def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane: Plane, *,
                             angles_rad: tuple[float, ...] = RADIUS_ANGLES_RAD,
-                            **options) -> RadiusFit:
+                            min_gain: float = MIN_COST_GAIN, **options) -> RadiusFit:
     """:func:`~.plane.refine_plane` with the light's radius fitted too.
 
     Parameters
@@ -104,6 +123,9 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
     angles_rad : tuple of float
         The grid, as angles subtended from the initial plane (see
         :data:`RADIUS_ANGLES_RAD`), ascending, the first 0.
+    min_gain : float
+        The fraction of the point light's cost the cheapest radius must save to be
+        taken (:data:`MIN_COST_GAIN`); 0 takes the cheapest fit.
     **options
         :func:`~.plane.refine_plane`'s other options, but ``light_radius_m``.
 
@@ -113,6 +135,9 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
         Every fit starts from ``initial_plane`` with the same windows, so their costs
         compare.
     """
+    if isinstance(min_gain, bool) or not (isinstance(min_gain, (int, float))
+                                          and 0.0 <= min_gain < 1.0):
+        raise SRDEError(f"min_gain: expected a fraction in [0, 1), got {min_gain!r}")
     light = np.asarray(light_m, dtype=np.float64)
     height_m = float(initial_plane.signed_distance(light))
     if not height_m > 0.0:  # refine_plane says why such a start is refused
@@ -153,8 +178,8 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
             break
         fit_at(r)
     best = int(np.argmin(costs))
-    if not math.isfinite(costs[best]):
-        best = 0
+    if not math.isfinite(costs[best]) or costs[best] > (1.0 - min_gain) * costs[0]:
+        best = 0  # no radius refined, or one the cost hardly prefers to a point
     return RadiusFit(fits[best], radii[best], tuple(radii), tuple(costs))
 
 
