@@ -11,8 +11,9 @@ lines, a light) are the same, only more than one of them is the answer:
    views. A plane that explains no highlight of its own is not a face. With one plane
    the object is a single plane and the caller takes its usual path. Sets that the
    highlights rank alike are told apart by the image (step 3): the first whose faces all
-   pass is taken, two that both pass are ambiguous; when all of them fail, the sets of
-   the next rank are tried the same way. When every set fails, the planes are proposed
+   pass is taken, two that both pass are ambiguous (:data:`AMBIGUITY_FINAL`); when all
+   of them fail, the sets of the next rank are tried the same way. When every set fails,
+   the planes are proposed
    again from every view's candidates, then from candidates whose blobs cut by a
    straight edge are centred on their arcs (:data:`RECENTRED_TRY`), and last the
    well-seen planes are turned about the chords between the outline's corners, where
@@ -33,8 +34,9 @@ lines, a light) are the same, only more than one of them is the answer:
    off its highlight centres' stands only when the image prefers it decisively and the
    move holds when the face is read without the band by the edge), and
    the mask is split again with the refined planes; each face is read once more on its
-   new part (a face whose light the rig knows no radius for, measured in few views, with
-   the lamp's radius fitted too: :data:`FIT_RADIUS`), and the mask split again; the
+   new part (a face whose light the rig knows no radius for with the lamp's radius fitted
+   too, where it lowers the lobe fit's cost enough: :data:`FIT_RADIUS`), and the mask
+   split again; the
    disparity is each face's plane on its part, pieced together, so fusion (which reads
    the disparity map) carries the edge. Two
    sets whose faces end on the same planes are one answer.
@@ -151,6 +153,16 @@ FINAL_PLANES_EXPLAIN = True
 #: (the one-plane path's own refusal, ``UNEXPLAINED_RATIO``), or none if all are.
 #: Measured against a plane that path refuses itself, right splits were dropped.
 CREDIBLE_BAR = True
+
+#: Two sets of faces that both pass in the first try leave the object ``ambiguous``, and
+#: the later tries are not asked: they propose from other candidates and may rank one of
+#: the two alone first, which would pick it without evidence against the other. (On a
+#: ridge whose valley set also passed once its faces' lamp radius was fitted, the every-
+#: view try took the valley set, 1.1-1.9 px off.)
+AMBIGUITY_FINAL = True
+
+#: Start of the reason of an object two sets of faces explain alike.
+_TWO_SETS = "faces: two sets of"
 
 #: When every other try fails, the faces are tried once more with each blob cut by a
 #: straight chord (a face's edge, a straight stretch of the outline) centred on the
@@ -712,6 +724,8 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     result = _estimate_faces(srde, views, mask, gathered, anchors=None)
     if result is None or result.ok:
         return result
+    if AMBIGUITY_FINAL and result.status == "ambiguous" and result.reason.startswith(_TWO_SETS):
+        return result
     # Sets of face planes were tried and failed. The reference view may see a face's
     # blob cut by the outline or the edge (its centre pulled by pixels) where the other
     # views see it whole: the planes its candidates propose then miss that face or start
@@ -845,7 +859,7 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
             elif _same_faces(context, solved[1], result):
                 continue  # the same faces, reached from another set's starting planes
             else:
-                return srde._failed("ambiguous", f"faces: two sets of {len(split.scores)} "
+                return srde._failed("ambiguous", f"{_TWO_SETS} {len(split.scores)} "
                                     f"planes split the mask with the same support "
                                     f"({split.value[0]} highlights on their own faces; "
                                     f"{solved[0].rule} and {split.rule}) and the image "

@@ -153,6 +153,10 @@ UNCONFIRMED_ONE_PLANE_SEED = 81009
 # lamp (6.9 mm, not in the rig) tilted the face 0.33 px off; with the radius fitted in
 # the second reading, 0.018 px.
 RADIUS_SEED = 113001
+
+#: A 2-face ridge (benchmarks/faceted.py seeds 81000 +) whose valley set also passes
+#: once its faces' lamp radii are fitted (24.5 mm for 3-7 mm lamps).
+BOTH_SETS_PASS_SEED = 81000
 # Faces alone (seeds 91000+) whose own light's plane, from clean centres, leaves its lobe
 # fit nothing to improve (refused as "does not improve", 0.05 % above its start's cost):
 # the other light's confirmed plane, 10.9 and 1.9 px off, then won unopposed (the first
@@ -694,6 +698,11 @@ def test_a_lamp_radius_the_rig_does_not_know_is_fitted_on_a_face_seen_in_few_vie
     assert len(fitted) == 1, end.notes
     radius_mm = float(fitted[0].split("fitted ")[1].split(" mm")[0])
     assert radius_mm == pytest.approx(1000 * faceted.scene.lights[end.light].radius_m, rel=0.2)
+    # Every face's second reading searched the radius, and each says what it took: a
+    # fitted radius, or a point light where no radius saved MIN_COST_GAIN of its cost.
+    for face in result.faces.faces:
+        said = [n for n in face.notes if n.startswith("refinement: the light's radius is not")]
+        assert len(said) == 1 and ("; fitted " in said[0] or "; kept a point light" in said[0])
     # As a point light, the same face came out 0.33 px off.
     monkeypatch.setattr(faces_module, "FIT_RADIUS", False)
     point = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
@@ -706,6 +715,20 @@ def test_a_lamp_radius_the_rig_does_not_know_is_fitted_on_a_face_seen_in_few_vie
     assert told.ok
     assert not any("radius is not known" in n for f in told.faces.faces for n in f.notes)
     assert max(_face_epes(told.disparity, rendering, 3)) <= FACE_EPE_PX
+
+
+def test_two_sets_that_both_pass_leave_the_object_ambiguous(rig, monkeypatch):
+    _, rendering, lit = _rendered(rig, BOTH_SETS_PASS_SEED, 2, True, physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert result.status == "ambiguous", result.reason
+    assert "ridge and valley" in result.reason and "the image confirms both" in result.reason
+    # Asked again from every view's candidates, the valley set ranks alone first, and
+    # passes: a guess, 1.1-1.9 px off.
+    monkeypatch.setattr(faces_module, "AMBIGUITY_FINAL", False)
+    guessed = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert guessed.ok and guessed.faces.rule == "valley"
+    assert min(_face_epes(guessed.disparity, rendering, 2)) > 1.0
 
 
 def test_a_face_of_three_pieced_off_from_two_views_is_refused(rig):
