@@ -57,7 +57,7 @@ from .faces import MAX_FACES, estimate_faces
 from .highlight import HighlightDetection, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
-from .refine.radius import RadiusFit, refine_plane_and_radius
+from .refine.radius import MIN_COST_GAIN, RadiusFit, refine_plane_and_radius
 from .result import SRDEResult
 from .search import BaselineSearch
 
@@ -695,10 +695,13 @@ def _radius_note(search: RadiusFit) -> str:
         return (f"refinement: the light's radius is not known; fitted "
                 f"{search.light_radius_m * 1000:.1f} mm (photometric cost "
                 f"{search.refinement.cost_final:.3g}, {point})")
-    cheapest = min(search.costs)
+    if search.cheapest_radius_m == 0.0:
+        return (f"refinement: the light's radius is not known; kept a point light (every "
+                f"radius tried cost more; photometric cost {search.point_cost:.3g})")
+    saved = 1.0 - min(search.costs) / search.point_cost
     return (f"refinement: the light's radius is not known; kept a point light (the cheapest "
-            f"radius, {search.cheapest_radius_m * 1000:.1f} mm, gave photometric cost "
-            f"{cheapest:.3g}, {point})")
+            f"radius, {search.cheapest_radius_m * 1000:.1f} mm, saved {saved:.1%} of the point "
+            f"light's photometric cost {search.point_cost:.3g}; {MIN_COST_GAIN:.0%} needed)")
 
 
 def _rms_residual(rig, point, centers, used) -> float:
