@@ -13,11 +13,10 @@ lines, a light) are the same, only more than one of them is the answer:
    highlights rank alike are told apart by the image (step 3): the first whose faces all
    pass is taken, two that both pass are ambiguous (:data:`AMBIGUITY_FINAL`); when all
    of them fail, the sets of the next rank are tried the same way. When every set fails,
-   the planes are proposed
-   again from every view's candidates, then from candidates whose blobs cut by a
-   straight edge are centred on their arcs (:data:`RECENTRED_TRY`), and last the
-   well-seen planes are turned about the chords between the outline's corners, where
-   the faces' edges end (:data:`HINGE_TRY`, :mod:`.hinges`).
+   the planes are proposed again from every view's candidates, then from candidates
+   whose blobs cut by a straight edge are centred on their arcs (:data:`RECENTRED_TRY`),
+   and last the well-seen planes are turned about the chords between the outline's
+   corners, where the faces' edges end (:data:`HINGE_TRY`, :mod:`.hinges`).
 2. **Split.** Two planes meet in a 3-D line whose image is the faces' edge. Along a
    reference pixel's ray a convex object (a ridge) shows the *farther* of the faces'
    planes (the ray enters the solid last through it), a concave one (a valley) the
@@ -36,10 +35,9 @@ lines, a light) are the same, only more than one of them is the answer:
    the mask is split again with the refined planes; each face is read once more on its
    new part (a face whose light the rig knows no radius for with the lamp's radius fitted
    too, where it lowers the lobe fit's cost enough: :data:`FIT_RADIUS`), and the mask
-   split again; the
-   disparity is each face's plane on its part, pieced together, so fusion (which reads
-   the disparity map) carries the edge. Two
-   sets whose faces end on the same planes are one answer.
+   split again; the disparity is each face's plane on its part, pieced together, so
+   fusion (which reads the disparity map) carries the edge. Two sets whose faces end on
+   the same planes are one answer.
 
 The split is geometric only; the image is not used to move the edge.
 """
