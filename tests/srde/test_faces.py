@@ -153,11 +153,9 @@ UNCONFIRMED_ONE_PLANE_SEED = 81009
 # lamp (6.9 mm, not in the rig) tilted the face 0.33 px off; with the radius fitted in
 # the second reading, 0.018 px.
 RADIUS_SEED = 113001
-
-#: A 2-face ridge (benchmarks/faceted.py seeds 81000 +) whose valley set also passes
-#: once its faces' lamp radii are fitted (24.5 mm for lamps of 2.8 and 7.4 mm).
+# A 2-face ridge (benchmarks/faceted.py seeds 81000 +) whose valley set also passes once
+# its faces' lamp radii are fitted (24.5 mm for lamps of 2.8 and 7.4 mm).
 BOTH_SETS_PASS_SEED = 81000
-
 # Faces alone (seeds 91000+) whose own light's plane, from clean centres, leaves its lobe
 # fit nothing to improve (refused as "does not improve", 0.05 % above its start's cost):
 # the other light's confirmed plane, 10.9 and 1.9 px off, then won unopposed (the first
