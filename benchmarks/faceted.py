@@ -41,8 +41,8 @@ sets, each first run with the code of its time: ``--seed0 71000 --name faceted_7
 shaped a rule), ``--seed0 101000 --name faceted_101000`` (run only after them) and
 ``--seed0 111000 --name faceted_111000`` (first run when fusion learnt the highlights).
 ``--lamp-radii`` gives the rig every lamp's radius, as a ``rig.json`` with the lamps
-measured would (by default the rig knows positions only, and faces seen in few views
-fit the radius).
+measured would (by default the rig knows positions only, and each face's second reading
+fits the radius).
 """
 
 from __future__ import annotations

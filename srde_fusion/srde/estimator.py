@@ -698,10 +698,9 @@ def _radius_note(search: RadiusFit) -> str:
     if search.cheapest_radius_m == 0.0:
         return (f"refinement: the light's radius is not known; kept a point light (every "
                 f"radius tried cost more; photometric cost {search.point_cost:.3g})")
-    saved = 1.0 - min(search.costs) / search.point_cost
     return (f"refinement: the light's radius is not known; kept a point light (the cheapest "
-            f"radius, {search.cheapest_radius_m * 1000:.1f} mm, saved {saved:.1%} of the point "
-            f"light's photometric cost {search.point_cost:.3g}; {MIN_COST_GAIN:.0%} needed)")
+            f"radius, {search.cheapest_radius_m * 1000:.1f} mm, saved {search.saving:.1%} of the "
+            f"point light's photometric cost {search.point_cost:.3g}; {MIN_COST_GAIN:.0%} needed)")
 
 
 def _rms_residual(rig, point, centers, used) -> float:

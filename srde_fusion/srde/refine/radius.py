@@ -110,6 +110,11 @@ class RadiusFit:
         """The radius of the cheapest fit, metres, whether or not it was taken."""
         return self.radii_m[int(np.argmin(self.costs))]
 
+    @property
+    def saving(self) -> float:
+        """The fraction of the point light's cost the cheapest fit saves (see ``min_gain``)."""
+        return _saving(self.costs)
+
 
 def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane: Plane, *,
                             angles_rad: tuple[float, ...] = RADIUS_ANGLES_RAD,
@@ -178,9 +183,20 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
             break
         fit_at(r)
     best = int(np.argmin(costs))
-    if not math.isfinite(costs[best]) or costs[best] > (1.0 - min_gain) * costs[0]:
+    if not _saving(costs) >= min_gain:
         best = 0  # no radius refined, or one the cost hardly prefers to a point
     return RadiusFit(fits[best], radii[best], tuple(radii), tuple(costs))
+
+
+def _saving(costs) -> float:
+    """Return the fraction ``1 - min(costs) / costs[0]`` of the point light's cost saved.
+
+    1 if only the point light's fit was refused, NaN if every fit was.
+    """
+    cheapest = min(costs)
+    if cheapest == costs[0]:
+        return 0.0 if math.isfinite(cheapest) else math.nan
+    return 1.0 - cheapest / costs[0]
 
 
 def _cost(fit: PlaneRefinement) -> float:
