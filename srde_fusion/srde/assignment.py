@@ -384,11 +384,14 @@ class _Context:
 
     def __init__(self, rig: CameraRig, lights: np.ndarray, mask: np.ndarray, cands, lit,
                  tolerance_px: float, object_depth_m, min_views: int,
-                 blob_radius_px: float, boxes=None, *, all_lights_in_front: bool = True
-                 ) -> None:
+                 blob_radius_px: float, boxes=None, *, all_lights_in_front: bool = True,
+                 near_outline: bool = False) -> None:
         # One plane per object has every light in front of it; a face of a faceted
         # object may turn its back on the other faces' lights (they then predict nothing).
         self.all_lights_in_front = all_lights_in_front
+        # Every score lets predictions near the outline take candidates (score's
+        # near_outline), ranking included: the faces' last try (faces.NEAR_OUTLINE_TRY).
+        self.near_outline = near_outline
         self.rig = rig
         self.lit = lit
         self.boxes = boxes
@@ -626,6 +629,7 @@ class _Context:
         """
         if plane is None:
             return None
+        near_outline = near_outline or self.near_outline
         uv, on_object, near_edge = self.predict(plane)
         n_lights, n_views = on_object.shape
         matched = np.full((n_lights, n_views), -1)

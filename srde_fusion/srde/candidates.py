@@ -121,8 +121,10 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     u0, v0, u1, v1 = box
     lum = luminance(image[v0:v1, u0:u1], config.encoding)
     inside = region[v0:v1, u0:u1]
-    background = (region_background(lum[inside], float(lum[inside].max()), config.min_contrast)
-                  if object_region else median(lum[inside]))
+    if object_region:
+        background = region_background(lum[inside], float(lum[inside].max()), config.min_contrast)
+    else:
+        background = median(lum[inside], overwrite=True)
     # Peaks are looked for where something is bright: no peak (smoothed luminance above
     # background + min_contrast) lies farther than the blur's reach from a pixel above
     # that level, so twice the reach plus the peak radius around those pixels gives the
@@ -168,8 +170,7 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     if len(kept) > 1:
         vv, uu = _nonzero(candidates)
         nearest = np.full(lum.shape, -1, dtype=np.intp)
-        nearest[vv, uu] = np.argmin(np.stack([(uu - where[i][0]) ** 2 + (vv - where[i][1]) ** 2
-                                              for i in kept]), axis=0)
+        nearest[vv, uu] = _nearest(uu, vv, where[kept])
     found = []
     for rank, i in enumerate(kept):
         level = background + BLOB_LEVEL * (tops[i] - background)
@@ -182,23 +183,37 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
         pu, pv = (int(round(c)) for c in where[i])
         if aw == 0:
             continue
-        above_box = np.ascontiguousarray(above[ay:ay + ah, ax:ax + aw])
-        count, parts = cv2.connectedComponents(above_box.view(np.uint8), connectivity=8)
-        on_blob = 0 <= pv < above.shape[0] and 0 <= pu < above.shape[1] and above[pv, pu]
-        label = parts[pv - ay, pu - ax] if on_blob else 0
-        if label == 0:  # the smoothed peak sits beside its pixels: take the largest part
-            if count <= 1:
-                continue
-            label = _largest_label(parts, count)
-        blob = parts == label
-        # The light-weighted centroid over the blob's box (zero off the blob).
+        fill = above[ay:ay + ah, ax:ax + aw].astype(np.uint8)
+        if 0 <= pv < above.shape[0] and 0 <= pu < above.shape[1] and above[pv, pu]:
+            # The component of the peak's pixel: filled from it, 1 -> 2.
+            area, _, _, (x, y, bw, bh) = cv2.floodFill(fill, None, (pu - ax, pv - ay), 2,
+                                                       flags=8)
+            blob = fill == 2
+        else:  # the smoothed peak sits beside its pixels: take the largest part
+            count, parts = cv2.connectedComponents(fill, connectivity=8)
+            blob = parts == _largest_label(parts, count)
+            x, y, bw, bh = cv2.boundingRect(blob.view(np.uint8))
+            area = cv2.countNonZero(blob.view(np.uint8))
+        # The light-weighted centroid over the box of the pixels above the level (zero
+        # off the blob).
         weights = np.where(blob, lum[ay:ay + ah, ax:ax + aw] - level, 0.0)
         center = weighted_centroid(weights) + np.array([ax + u0, ay + v0], dtype=np.float64)
-        x, y, bw, bh = cv2.boundingRect(blob.view(np.uint8))
         bbox = (x + ax + u0, y + ay + v0, x + ax + bw + u0, y + ay + bh + v0)
-        found.append(HighlightDetection(True, center, cv2.countNonZero(blob.view(np.uint8)),
-                                        bbox, float(tops[i] - background), "", float(level)))
+        found.append(HighlightDetection(True, center, int(area), bbox,
+                                        float(tops[i] - background), "", float(level)))
     return found
+
+
+def _nearest(uu: np.ndarray, vv: np.ndarray, peaks: np.ndarray) -> np.ndarray:
+    """Index of the nearest of ``peaks`` ``(K, 2)`` to each pixel, the first on ties."""
+    best = (uu - peaks[0, 0]) ** 2 + (vv - peaks[0, 1]) ** 2
+    index = np.zeros(uu.shape, dtype=np.intp)
+    for k in range(1, len(peaks)):
+        d = (uu - peaks[k, 0]) ** 2 + (vv - peaks[k, 1]) ** 2
+        closer = d < best
+        best = np.where(closer, d, best)
+        index[closer] = k
+    return index
 
 
 def _label_maxima(labels: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

@@ -15,8 +15,9 @@ lines, a light) are the same, only more than one of them is the answer:
    of them fail, the sets of the next rank are tried the same way. When every set fails,
    the planes are proposed again from every view's candidates, then from candidates
    whose blobs cut by a straight edge are centred on their arcs (:data:`RECENTRED_TRY`),
-   and last the well-seen planes are turned about the chords between the outline's
-   corners, where the faces' edges end (:data:`HINGE_TRY`, :mod:`.hinges`).
+   then the well-seen planes are turned about the chords between the outline's
+   corners, where the faces' edges end (:data:`HINGE_TRY`, :mod:`.hinges`), and last
+   highlights predicted near the outline take candidates too (:data:`NEAR_OUTLINE_TRY`).
 2. **Split.** Two planes meet in a 3-D line whose image is the faces' edge. Along a
    reference pixel's ray a convex object (a ridge) shows the *farther* of the faces'
    planes (the ray enters the solid last through it), a concave one (a valley) the
@@ -183,6 +184,16 @@ RECENTRED_MAX_SIGMA_PX = 0.04
 #: plane turned about their edge (a chord between two corners of the outline) leaves
 #: one angle to find, which such centres still fix.
 HINGE_TRY = True
+
+#: When every other try fails, the faces are tried once more with highlights predicted
+#: near the outline (within a blob radius) taking candidates, as everywhere else, in
+#: the ranking too. They take none otherwise, lest a blob the outline cuts, its centre
+#: pulled inwards, count for a wrong plane; but an end face of a row, small and lit near
+#: the object's outline, then has no plane that explains two of its highlights, though
+#: its blobs are whole and their centres within the tolerance of its plane's prediction
+#: (a cut blob's centre, pulled by more than the tolerance, still matches nothing). The
+#: faces' checks and refinement decide as in every try.
+NEAR_OUTLINE_TRY = True
 
 #: Planes turned about the outline's chords that join the pool, at most.
 HINGE_PLANES = 16
@@ -752,7 +763,24 @@ def _later_tries(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, 
     recentred = _recentred_try(srde, views, mask, gathered)
     if recentred is not None:
         return recentred
-    return _hinge_try(srde, views, mask, gathered)
+    hinged = _hinge_try(srde, views, mask, gathered)
+    if hinged is not None:
+        return hinged
+    return _near_outline_try(srde, views, mask, gathered)
+
+
+def _near_outline_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
+                      ) -> SRDEResult | None:
+    """Return the faces with predictions near the outline matched, if ok.
+
+    (:data:`NEAR_OUTLINE_TRY`.) Every view's candidates propose planes, as in the second
+    try. None when no set of faces passes: the caller's failure stands.
+    """
+    if not NEAR_OUTLINE_TRY:
+        return None
+    again = _estimate_faces(srde, views, mask, gathered,
+                            anchors=tuple(range(srde.rig.n_cameras)), near_outline=True)
+    return again if again is not None and again.ok else None
 
 
 def _hinge_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
@@ -798,15 +826,17 @@ def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
 
 
 def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
-                    anchors: tuple[int, ...] | None, *, hinges: bool = False
-                    ) -> SRDEResult | None:
+                    anchors: tuple[int, ...] | None, *, hinges: bool = False,
+                    near_outline: bool = False) -> SRDEResult | None:
     """:func:`estimate_faces` with the planes proposed from ``anchors``' candidates.
 
     ``hinges``: the pool's well-seen planes and the planes turned about the outline's
     chords from them (:func:`_hinge_scores`) instead; only sets holding a turned plane
-    are tried (the others were the earlier tries').
+    are tried (the others were the earlier tries'). ``near_outline``: highlights
+    predicted near the outline take candidates in every score (:data:`NEAR_OUTLINE_TRY`).
     """
-    context = gathered.context(srde, mask, all_lights_in_front=False)
+    context = gathered.context(srde, mask, all_lights_in_front=False,
+                               near_outline=near_outline)
     scores = [s for s in (context.score(p) for p in context.proposals(anchors=anchors))
               if s is not None]
     turned: list[PlaneScore] = []

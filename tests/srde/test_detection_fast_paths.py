@@ -33,8 +33,10 @@ from srde_fusion.srde.candidates import (
     SEPARATING_DIP,
     _dips,
     _label_maxima,
+    _nearest,
     _nonzero,
     _separated_peaks,
+    find_candidates,
 )
 from srde_fusion.srde.config import DetectorConfig
 from srde_fusion.srde.estimator import _in_box, _mask_box, _plane_disparity_in_box
@@ -68,6 +70,18 @@ def test_median_is_numpys_median(n, seed, few_values):
     if few_values:  # many ties, as 8-bit luminance has
         values = np.round(values * 4).astype(np.float32) / 4
     assert median(values) == float(np.median(values))
+
+
+@given(st.integers(1, 400), st.integers(0, 2 ** 31), st.booleans())
+def test_median_in_place_is_numpys_median(n, seed, few_values):
+    rng = np.random.default_rng(seed)
+    values = rng.random(n, dtype=np.float32)
+    if few_values:
+        values = np.round(values * 4).astype(np.float32) / 4
+    want = float(np.median(values))
+    copy = values.copy()
+    assert median(copy, overwrite=True) == want
+    np.testing.assert_array_equal(np.sort(copy), np.sort(values))  # reordered, not changed
 
 
 def test_median_of_values_with_nan_is_nan():
@@ -397,3 +411,42 @@ def test_eroded_on_the_masks_box_is_the_whole_frame_eroded(seed, radius, square)
               else cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side)))
     want = cv2.erode(mask.view(np.uint8), kernel).view(bool)
     np.testing.assert_array_equal(eroded(mask, kernel), want)
+
+
+@given(st.integers(0, 2 ** 31), st.integers(1, 6), st.booleans())
+def test_nearest_peak_is_the_first_argmin(seed, n_peaks, on_grid):
+    rng = np.random.default_rng(seed)
+    vv, uu = np.nonzero(rng.random((23, 31)) < 0.6)
+    peaks = rng.uniform(-3.0, 34.0, (n_peaks, 2))
+    if on_grid:  # peaks on pixel centres and repeated: ties go to the first peak
+        peaks = np.round(peaks)[rng.integers(0, n_peaks, n_peaks)]
+    want = np.argmin(np.stack([(uu - p[0]) ** 2 + (vv - p[1]) ** 2 for p in peaks]), axis=0)
+    np.testing.assert_array_equal(_nearest(uu, vv, peaks), want)
+
+
+@given(st.integers(0, 2 ** 31), st.integers(1, 4))
+def test_each_candidates_blob_is_its_component_above_its_level(seed, n_blobs):
+    """A candidate's blob (area, box, centre) is the component above its level it sits in.
+
+    Blobs apart from each other on a noisy background; each is read from its peak.
+    """
+    rng = np.random.default_rng(seed)
+    h, w = 60, 120
+    vv, uu = np.mgrid[0:h, 0:w]
+    image = 0.05 + 0.01 * rng.random((h, w))
+    for b in range(n_blobs):  # 30 px apart, at most 4.7 px to half maximum
+        cu, cv = 15.0 + 30.0 * b + rng.uniform(-3, 3), rng.uniform(20, h - 20)
+        s = rng.uniform(1.5, 4.0)
+        image += rng.uniform(0.3, 0.9) * np.exp(-((uu - cu) ** 2 + (vv - cv) ** 2) / (2 * s * s))
+    image = np.clip(image, 0.0, 1.0).astype(np.float32)
+    found = find_candidates(image, np.ones((h, w), bool), DetectorConfig(encoding="linear"))
+    assert len(found) == n_blobs
+    for d in found:
+        above = image > d.level
+        _, parts = cv2.connectedComponents(above.view(np.uint8), connectivity=8)
+        blob = parts == parts[int(round(d.center_uv[1])), int(round(d.center_uv[0]))]
+        x, y, bw, bh = cv2.boundingRect(blob.view(np.uint8))
+        assert d.area_px == int(blob.sum())
+        assert d.bbox == (x, y, x + bw, y + bh)
+        weights = np.where(blob, image - np.float32(d.level), 0.0)[y:y + bh, x:x + bw]
+        np.testing.assert_allclose(d.center_uv, weighted_centroid(weights) + [x, y], atol=1e-9)

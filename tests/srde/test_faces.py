@@ -81,6 +81,10 @@ CUT_CENTRES_SEED = 33005
 # fails. The middle face's plane (0.13 px off) turned about the outline's chord at
 # their edge gives it within 0.3 px, and its lobe fit within 0.002 px.
 HINGE_SEED = 33017
+# A 3-face ridge whose end face, small and lit near the object's outline, has blobs whole
+# but predicted within a blob radius of the outline: its own plane explains none of its
+# highlights unless those predictions take candidates (faces.NEAR_OUTLINE_TRY).
+NEAR_OUTLINE_SEED = 83000
 # A flat object under three lights (multi_light.py's seeds 52000 +) whose blobs make
 # sets of two faces that all fail (face_split).
 FLAT_FACES_FAIL_SEED = 52300
@@ -676,6 +680,28 @@ def test_a_face_turned_about_its_neighbour_s_edge_solves_three_faces(rig, monkey
     assert result.ok and len(result.faces.faces) == 3, result.reason
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
     monkeypatch.setattr(faces_module, "HINGE_TRY", False)
+    assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
+
+
+def test_an_end_face_lit_near_the_outline_is_solved_by_the_last_try(rig, monkeypatch):
+    faceted, rendering, lit = _rendered(rig, NEAR_OUTLINE_SEED, 3, True,
+                                        physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    srde = SRDE(lit, max_faces=3)
+    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+    end_face = faceted.scene.objects[0].plane
+    own = []
+    for near_outline in (False, True):
+        context = gathered.context(srde, mask, all_lights_in_front=False,
+                                   near_outline=near_outline)
+        own.append(int((context.score(end_face, at_least=0).matched[0] >= 0).sum()))
+    assert own[0] < srde.min_views <= own[1], own
+    tries = _record(monkeypatch, "_near_outline_try")
+    result = srde.estimate(rendering.views, mask)
+    assert result.ok and len(result.faces.faces) == 3, result.reason
+    assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+    assert len(tries) == 1 and tries[0] is not None and tries[0].ok
+    monkeypatch.setattr(faces_module, "NEAR_OUTLINE_TRY", False)
     assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
 
 
