@@ -625,7 +625,8 @@ class _Context:
         """Score what ``plane`` explains; None if it explains fewer than ``at_least``.
 
         ``near_outline``: predictions near the outline take candidates too (to ask whether
-        a plane could explain the same centres, not to rank it).
+        a plane could explain the same centres, not to rank it); always in a context made
+        with ``near_outline`` (the faces' last try, ranking included).
         """
         if plane is None:
             return None

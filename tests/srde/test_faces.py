@@ -85,6 +85,9 @@ HINGE_SEED = 33017
 # but predicted within a blob radius of the outline: its own plane explains none of its
 # highlights unless those predictions take candidates (faces.NEAR_OUTLINE_TRY).
 NEAR_OUTLINE_SEED = 83000
+# A valley whose faces both have their own highlights away from the outline, which that
+# try solved with a face 0.34 px off (5.7 % of the mask on the wrong face).
+NEAR_OUTLINE_WRONG_SEED = 52005
 # A flat object under three lights (multi_light.py's seeds 52000 +) whose blobs make
 # sets of two faces that all fail (face_split).
 FLAT_FACES_FAIL_SEED = 52300
@@ -703,6 +706,18 @@ def test_an_end_face_lit_near_the_outline_is_solved_by_the_last_try(rig, monkeyp
     assert len(tries) == 1 and tries[0] is not None and tries[0].ok
     monkeypatch.setattr(faces_module, "NEAR_OUTLINE_TRY", False)
     assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
+
+
+def test_the_near_outline_try_answers_only_for_a_face_that_needs_it(rig, monkeypatch):
+    _, rendering, lit = _rendered(rig, NEAR_OUTLINE_WRONG_SEED, 2, False,
+                                  physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    tries = _record(monkeypatch, "_near_outline_try")
+    assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
+    assert tries == [None]
+    monkeypatch.setattr(faces_module, "_own_light_views", lambda context, face: 0)
+    taken = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert taken.ok and max(_face_epes(taken.disparity, rendering, 2)) > 0.3
 
 
 def test_a_lamp_radius_the_rig_does_not_know_is_fitted_on_a_face_seen_in_few_views(
