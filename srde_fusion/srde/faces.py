@@ -185,20 +185,19 @@ RECENTRED_MAX_SIGMA_PX = 0.04
 #: one angle to find, which such centres still fix.
 HINGE_TRY = True
 
-#: When every other try fails, the faces are tried once more with highlights predicted
-#: near the outline (within a blob radius) taking candidates, as everywhere else, in
-#: the ranking too. They take none otherwise, lest a blob the outline cuts, its centre
-#: pulled inwards, count for a wrong plane; but an end face of a row, small and lit near
-#: the object's outline, then has no plane that explains two of its highlights, though
-#: its blobs are whole and their centres within the tolerance of its plane's prediction
-#: (a cut blob's centre, pulled by more than the tolerance, still matches nothing). The
-#: faces' checks and refinement decide as in every try, and the answer is taken only if
-#: one of its faces has its own light's highlights in fewer than ``min_views`` views
-#: without those near the outline: the face the try is for. (A valley whose two faces
-#: had theirs in three and two views was otherwise solved with a face 0.34 px off, its
-#: start fitted to centres near the outline 0.31 px off and 5.7 % of the mask on the
-#: wrong face; four right objects like it, every face seen away from the outline, stay
-#: refused with it.)
+#: When every other try fails, the faces are tried once more with the highlights predicted
+#: within a blob radius of the outline taking candidates as the others do, in the ranking
+#: too. Elsewhere they take none, lest a blob the outline cuts, its centre pulled inwards,
+#: count for a wrong plane; but the end face of a row, small and lit near the object's
+#: outline, may then have no plane that explains two of its highlights, though its blobs
+#: are whole and their centres within the tolerance of its plane's predictions (a cut
+#: blob's centre, pulled by more than the tolerance, still matches nothing). The faces'
+#: checks and refinement decide as in every try, and the answer is taken only if one of
+#: its faces has its own light's highlights in fewer than ``min_views`` views without
+#: those near the outline: the face the try is for. (A valley whose two faces had theirs
+#: in three and two views was otherwise solved with a face 0.34 px off, its start fitted
+#: to centres near the outline 0.31 px off, 5.7 % of the mask on the wrong face; four
+#: right objects like it, every face seen away from the outline, stay refused with it.)
 NEAR_OUTLINE_TRY = True
 
 #: Planes turned about the outline's chords that join the pool, at most.
