@@ -354,6 +354,12 @@ def test_three_faces_are_solved_within_the_target(rig, seed):
     _three_faces_within_the_target(rig, seed)
 
 
+def _faces_context(srde, rendering, mask, **options):
+    """The faces' assignment context on a render's candidates (``options`` to the context)."""
+    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+    return gathered.context(srde, mask, all_lights_in_front=False, **options)
+
+
 def _record(monkeypatch, name: str) -> list:
     """Record what each call of ``faces.<name>`` returns, in the list returned."""
     returned = []
@@ -670,8 +676,7 @@ def test_a_face_turned_about_its_neighbour_s_edge_solves_three_faces(rig, monkey
     _, rendering, lit = _rendered(rig, HINGE_SEED, 3, True, physics=Physics.faithful())
     mask = rendering.instance_mask > 0
     srde = SRDE(lit, max_faces=3)
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
-    context = gathered.context(srde, mask, all_lights_in_front=False)
+    context = _faces_context(srde, rendering, mask)
     proposed = [s for s in (context.score(p) for p in context.proposals(
         anchors=tuple(range(rig.n_cameras)))) if s is not None]
     faceted = faceted_scene(HINGE_SEED, rig, n_faces=3, convex=True)
@@ -687,25 +692,20 @@ def test_a_face_turned_about_its_neighbour_s_edge_solves_three_faces(rig, monkey
 
 
 def test_an_end_face_lit_near_the_outline_is_solved_by_the_last_try(rig, monkeypatch):
-    faceted, rendering, lit = _rendered(rig, NEAR_OUTLINE_SEED, 3, True,
-                                        physics=Physics.faithful())
+    tries = _record(monkeypatch, "_near_outline_try")
+    _, rendering, lit = _three_faces_within_the_target(rig, NEAR_OUTLINE_SEED)
+    assert len(tries) == 1 and tries[0] is not None and tries[0].ok
+    # The end face's own plane explains fewer than min_views of its highlights unless
+    # those predicted near the outline take candidates.
     mask = rendering.instance_mask > 0
     srde = SRDE(lit, max_faces=3)
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
-    end_face = faceted.scene.objects[0].plane
-    own = []
-    for near_outline in (False, True):
-        context = gathered.context(srde, mask, all_lights_in_front=False,
-                                   near_outline=near_outline)
-        own.append(int((context.score(end_face, at_least=0).matched[0] >= 0).sum()))
+    end_face = faceted_scene(NEAR_OUTLINE_SEED, rig, n_faces=3, convex=True).scene.objects[0]
+    own = [int((_faces_context(srde, rendering, mask, near_outline=near_outline)
+                .score(end_face.plane, at_least=0).matched[0] >= 0).sum())
+           for near_outline in (False, True)]
     assert own[0] < srde.min_views <= own[1], own
-    tries = _record(monkeypatch, "_near_outline_try")
-    result = srde.estimate(rendering.views, mask)
-    assert result.ok and len(result.faces.faces) == 3, result.reason
-    assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
-    assert len(tries) == 1 and tries[0] is not None and tries[0].ok
     monkeypatch.setattr(faces_module, "NEAR_OUTLINE_TRY", False)
-    assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
+    assert not srde.estimate(rendering.views, mask).ok
 
 
 def test_the_near_outline_try_answers_only_for_a_face_that_needs_it(rig, monkeypatch):
