@@ -804,8 +804,8 @@ def _own_light_views(context: AssignmentContext, face: FaceResult) -> int:
     Scored as ``context`` scores (predictions near the outline taking no candidate
     unless it was made with ``near_outline``).
     """
-    score = context.score(face.plane, at_least=0)
-    return 0 if score is None else int(np.count_nonzero(score.matched[face.light] >= 0))
+    matched = context.score(face.plane, at_least=0).matched  # (at_least=0: always a score)
+    return int(np.count_nonzero(matched[face.light] >= 0))
 
 
 def _hinge_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
