@@ -16,8 +16,9 @@ lines, a light) are the same, only more than one of them is the answer:
    the planes are proposed again from every view's candidates, then from candidates
    whose blobs cut by a straight edge are centred on their arcs (:data:`RECENTRED_TRY`),
    then the well-seen planes are turned about the chords between the outline's
-   corners, where the faces' edges end (:data:`HINGE_TRY`, :mod:`.hinges`), and last
-   highlights predicted near the outline take candidates too (:data:`NEAR_OUTLINE_TRY`).
+   corners, where the faces' edges end (:data:`HINGE_TRY`, :mod:`.hinges`), then
+   highlights predicted near the outline take candidates too (:data:`NEAR_OUTLINE_TRY`),
+   and last they do so among the recentred candidates (:data:`RECENTRED_NEAR_OUTLINE_TRY`).
 2. **Split.** Two planes meet in a 3-D line whose image is the faces' edge. Along a
    reference pixel's ray a convex object (a ridge) shows the *farther* of the faces'
    planes (the ray enters the solid last through it), a concave one (a valley) the
@@ -199,6 +200,18 @@ HINGE_TRY = True
 #: to centres near the outline 0.31 px off, 5.7 % of the mask on the wrong face; four
 #: right objects like it, every face seen away from the outline, stay refused with it.)
 NEAR_OUTLINE_TRY = True
+
+#: When every other try fails, the recentred candidates (:data:`RECENTRED_TRY`) are tried
+#: once more with the predictions near the outline taking candidates
+#: (:data:`NEAR_OUTLINE_TRY`): a face lit near the outline has the blobs there cut by it,
+#: and their centroids, pulled inwards by pixels, match nothing; centred on their arcs
+#: they are the highlights' centres again, which is what the outline rule guards
+#: against. The recentred try's limit on the faces' standard errors
+#: (:data:`RECENTRED_MAX_SIGMA_PX`) holds, and the try runs only with both of those
+#: tries on. No face need lack highlights away from the outline, as the near-outline
+#: try asks: on a valley whose faces had theirs in four and three views, the cut blobs
+#: recentred put its face 0.12 px off, not the near-outline try's 0.34 px.
+RECENTRED_NEAR_OUTLINE_TRY = True
 
 #: Planes turned about the outline's chords that join the pool, at most.
 HINGE_PLANES = 16
@@ -756,9 +769,11 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
 
 def _later_tries(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, *,
                  cut_only: bool = False) -> SRDEResult | None:
-    """Return the faces from every view's candidates, else from recentred ones (ok or None).
+    """Return the faces from every view's candidates, else from the last tries (ok or None).
 
-    ``cut_only``: the recentred try alone (:func:`_recentred_try`).
+    In order: recentred candidates, turned planes, predictions near the outline matched,
+    and those matched among recentred candidates. ``cut_only``: the last tries alone,
+    without every view's candidates (:func:`_recentred_try` first).
     """
     if not cut_only:
         again = _estimate_faces(srde, views, mask, gathered,
@@ -771,7 +786,12 @@ def _later_tries(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, 
     hinged = _hinge_try(srde, views, mask, gathered)
     if hinged is not None:
         return hinged
-    return _near_outline_try(srde, views, mask, gathered)
+    near_outline = _near_outline_try(srde, views, mask, gathered)
+    if near_outline is not None:
+        return near_outline
+    if RECENTRED_NEAR_OUTLINE_TRY and NEAR_OUTLINE_TRY:
+        return _recentred_try(srde, views, mask, gathered, near_outline=True)
+    return None
 
 
 def _near_outline_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
@@ -824,13 +844,14 @@ def _hinge_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     return again if again is not None and again.ok else None
 
 
-def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
-                   ) -> SRDEResult | None:
+def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, *,
+                   near_outline: bool = False) -> SRDEResult | None:
     """Return the faces from candidates whose cut blobs are centred on their arcs, if ok.
 
     (:data:`RECENTRED_TRY`.) None when no blob is cut, no set of faces passes, or a
     face's standard error exceeds :data:`RECENTRED_MAX_SIGMA_PX` (or no refinement
-    gave one): the caller's failure stands.
+    gave one): the caller's failure stands. ``near_outline``: predictions near the
+    outline take candidates too (:data:`RECENTRED_NEAR_OUTLINE_TRY`).
     """
     if not RECENTRED_TRY:
         return None
@@ -838,7 +859,7 @@ def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     if recentred is None:
         return None
     again = _estimate_faces(srde, views, mask, recentred,
-                            anchors=tuple(range(srde.rig.n_cameras)))
+                            anchors=tuple(range(srde.rig.n_cameras)), near_outline=near_outline)
     if again is None or not again.ok:
         return None
     # (Without the refinement nothing pins a face down beyond its recentred centres.)
