@@ -39,7 +39,9 @@ were drawn from those two sets: ``--scenes 20 --seed0 61000 --name faceted_new``
 sets, each first run with the code of its time: ``--seed0 71000 --name faceted_71000``,
 ``--seed0 81000 --name faceted_81000``, ``--seed0 91000 --name faceted_91000`` (each then
 shaped a rule), ``--seed0 101000 --name faceted_101000`` (run only after them) and
-``--seed0 111000 --name faceted_111000`` (first run when fusion learnt the highlights).
+``--seed0 111000 --name faceted_111000`` (first run when fusion learnt the highlights);
+``--seed0 141000 --name faceted_141000`` first ran with the faces' last try (cut blobs
+recentred and matched near the outline).
 ``--lamp-radii`` gives the rig every lamp's radius, as a ``rig.json`` with the lamps
 measured would (by default the rig knows positions only, and each face's second reading
 fits the radius).
