@@ -741,8 +741,8 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     ``gathered``: :func:`~.candidates.gather_candidates` for the object's search region
     (None: no candidate, so no faces). ``every_view``: the second try only (below), for
     an object the one-plane path could not solve either; an ``ok`` result or None.
-    ``cut_only`` (with ``every_view``): only the last try, cut blobs centred on their
-    arcs (:data:`RECENTRED_TRY`), for an object whose centres no plane explains.
+    ``cut_only`` (with ``every_view``): only the last tries, from cut blobs centred on
+    their arcs on (:func:`_later_tries`), for an object whose centres no plane explains.
     """
     if gathered is None:
         return None
@@ -761,8 +761,8 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     # extra planes also widen the sets a right split competes with (first, they lost
     # four objects the reference's planes solve, gaining one). An object that shows one
     # plane (None) is tried again only when the one-plane path fails too (SRDE.estimate):
-    # tried here, a flat object with max_faces=3 took three times as long. Last, blobs
-    # cut by a face's edge are centred on their arcs (RECENTRED_TRY).
+    # tried here, a flat object with max_faces=3 took three times as long. Last come the
+    # tries from blobs cut by a face's edge centred on their arcs on (_later_tries).
     later = _later_tries(srde, views, mask, gathered)
     return result if later is None else later
 

@@ -891,6 +891,7 @@ def test_a_face_the_lobe_fit_does_not_confirm_is_read_again_away_from_the_edge(r
     assert result.status == "inconsistent", result.reason
     assert "did not confirm its plane" in result.reason
 
+
 def test_a_move_that_does_not_hold_away_from_the_edge_is_refused(rig, monkeypatch):
     _, rendering, lit = _rendered(rig, EDGE_PULLED_SEED, 3, True, physics=Physics.faithful())
     mask = rendering.instance_mask > 0
