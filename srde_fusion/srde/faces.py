@@ -789,9 +789,11 @@ def _later_tries(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, 
                                 anchors=tuple(range(srde.rig.n_cameras)))
         if again is not None and again.ok:
             return again
-    recentred = _recentred_try(srde, views, mask, gathered)
-    if recentred is not None:
-        return recentred
+    # (The cut blobs are read again once, for both tries that use them.)
+    recentred = gathered.recentred(views, srde.config.encoding) if RECENTRED_TRY else None
+    solved = _recentred_try(srde, views, mask, recentred)
+    if solved is not None:
+        return solved
     hinged = _hinge_try(srde, views, mask, gathered)
     if hinged is not None:
         return hinged
@@ -799,7 +801,7 @@ def _later_tries(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, 
     if near_outline is not None:
         return near_outline
     if RECENTRED_NEAR_OUTLINE_TRY and NEAR_OUTLINE_TRY:
-        return _recentred_try(srde, views, mask, gathered, near_outline=True)
+        return _recentred_try(srde, views, mask, recentred, near_outline=True)
     return None
 
 
@@ -853,18 +855,17 @@ def _hinge_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     return again if again is not None and again.ok else None
 
 
-def _recentred_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, *,
-                   near_outline: bool = False) -> SRDEResult | None:
+def _recentred_try(srde: SRDE, views, mask: np.ndarray, recentred: ViewCandidates | None,
+                   *, near_outline: bool = False) -> SRDEResult | None:
     """Return the faces from candidates whose cut blobs are centred on their arcs, if ok.
 
-    (:data:`RECENTRED_TRY`.) None when no blob is cut, no set of faces passes, or a
-    face's standard error exceeds :data:`RECENTRED_MAX_SIGMA_PX` (or no refinement
-    gave one): the caller's failure stands. ``near_outline``: predictions near the
-    outline take candidates too (:data:`RECENTRED_NEAR_OUTLINE_TRY`).
+    (:data:`RECENTRED_TRY`.) ``recentred``: the candidates so centred
+    (:meth:`~.candidates.ViewCandidates.recentred`; None when no blob is cut or the try
+    is off). None when there are none, no set of faces passes, or a face's standard
+    error exceeds :data:`RECENTRED_MAX_SIGMA_PX` (or no refinement gave one): the
+    caller's failure stands. ``near_outline``: predictions near the outline take
+    candidates too (:data:`RECENTRED_NEAR_OUTLINE_TRY`).
     """
-    if not RECENTRED_TRY:
-        return None
-    recentred = gathered.recentred(views, srde.config.encoding)
     if recentred is None:
         return None
     again = _estimate_faces(srde, views, mask, recentred,
@@ -1092,14 +1093,15 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
             # face is read without that band.
             off_edge_px = _off_edge_gap_px(srde, views, face_mask, score, f, chosen, labels,
                                            box, gathered, face, moved_px, context)
-            if off_edge_px is None and sigma_px > UNCHECKED_MOVE_MAX_SIGMA_PX:
-                return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
-                                    f"photometric refinement moved its plane by {moved_px:.2f} "
-                                    f"px, nothing read away from the faces' edge confirms the "
-                                    f"move, and its standard error ({sigma_px:.3f} px) is more "
-                                    f"than {UNCHECKED_MOVE_MAX_SIGMA_PX:g} px",
-                                    plane=face.plane)
-            if off_edge_px is not None and off_edge_px > OFF_EDGE_PX:
+            if off_edge_px is None:
+                if sigma_px > UNCHECKED_MOVE_MAX_SIGMA_PX:
+                    return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
+                                        f"photometric refinement moved its plane by "
+                                        f"{moved_px:.2f} px, nothing read away from the faces' "
+                                        f"edge confirms the move, and its standard error "
+                                        f"({sigma_px:.3f} px) is more than "
+                                        f"{UNCHECKED_MOVE_MAX_SIGMA_PX:g} px", plane=face.plane)
+            elif off_edge_px > OFF_EDGE_PX:
                 return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
                                     f"photometric refinement moved its plane by {moved_px:.2f} "
                                     f"px, but read without the band where the faces' edge lies "

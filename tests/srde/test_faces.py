@@ -365,10 +365,15 @@ def test_three_faces_are_solved_within_the_target(rig, seed):
     _three_faces_within_the_target(rig, seed)
 
 
+def _gathered(srde, rendering, mask):
+    """Every view's highlight candidates of a render, as ``SRDE.estimate`` gathers them."""
+    return gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+
+
 def _faces_context(srde, rendering, mask, **options):
     """The faces' assignment context on a render's candidates (``options`` to the context)."""
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
-    return gathered.context(srde, mask, all_lights_in_front=False, **options)
+    return _gathered(srde, rendering, mask).context(srde, mask, all_lights_in_front=False,
+                                                    **options)
 
 
 def _record(monkeypatch, name: str) -> list:
@@ -397,7 +402,7 @@ def _without_same_centres(monkeypatch) -> None:
 
 def _ranked_sets(srde, rendering, mask):
     """The sets of face planes ``choose_faces`` ranks for ``mask``, and their context."""
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+    gathered = _gathered(srde, rendering, mask)
     context = gathered.context(srde, mask, all_lights_in_front=False)
     scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
     u0, v0, u1, v1 = box = search_box(mask, 0)
@@ -660,7 +665,7 @@ def test_cut_highlights_centred_on_their_arcs_solve_three_faces(rig, monkeypatch
     _, rendering, lit = _rendered(rig, CUT_CENTRES_SEED, 3, True, physics=Physics.faithful())
     mask = rendering.instance_mask > 0
     srde = SRDE(lit, max_faces=3)
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+    gathered = _gathered(srde, rendering, mask)
     recentred = gathered.recentred(rendering.views, srde.config.encoding)
     # Cut blobs move, each onto the true highlight nearest to it (some lights' mirror
     # points lie just off the object, their blobs' near part on it).
@@ -753,7 +758,7 @@ def test_cut_blobs_recentred_and_matched_near_the_outline_solve_the_faces(rig, m
     assert len(tries) == 2 and tries[0] is None and tries[1] is result
     # Each face's own plane explains more of its own light's highlights with both: cut
     # blobs recentred and predictions near the outline matched.
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+    gathered = _gathered(srde, rendering, mask)
     recentred = gathered.recentred(rendering.views, srde.config.encoding)
     for k, face in enumerate(faceted.scene.objects):
         own = {(cut, near): int((candidates.context(srde, mask, all_lights_in_front=False,
@@ -1014,7 +1019,7 @@ def test_centres_another_light_explains_near_the_outline_leave_the_light_open(
     # ... and the face's own light's plane through the same centres explains them all once
     # the predictions near the outline count (within 3 px of the face: centres near the
     # outline are pulled).
-    gathered = gather_candidates(srde, srde.backend.prepare(rendering.views), srde._erode(mask))
+    gathered = _gathered(srde, rendering, mask)
     context = gathered.context(srde, mask)
     best = context.score(geometric.lights.plane, at_least=1)
     same = context.same_centres_other_light(best)
