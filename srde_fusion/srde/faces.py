@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import dataclass, field, replace
 from itertools import combinations
 from typing import TYPE_CHECKING
@@ -141,6 +142,18 @@ SECOND_READING = True
 #: cut, so faces seen in most views gain too (one in five views went from 0.045 to
 #: 0.002 px); the search is up to eight more fits of the face.
 FIT_RADIUS = True
+
+#: A face whose first reading (its lamp a point) fails a check of its lobe fit is read
+#: again with the lamp's radius fitted before its set is refused (when the rig does not
+#: know the radius). The point light's tilt or loose fit is what fails such faces: an end
+#: face of a three-face ridge seen in three views of one column, its centres' plane
+#: 0.07 px off, was moved 0.78 px by the point light's fit and came within 0.02 px with
+#: the lamp's true radius (0.04 px with the radius fitted).
+RADIUS_RETRY = True
+
+# How a face's lobe fit fails where a point light's tilt or loose fit shows.
+_MOVED = "the photometric refinement moved its plane by"
+_UNCERTAIN = "the photometric refinement leaves its plane uncertain"
 
 #: A face's refined plane, not only its start plane, explains the reference view's
 #: highlights of the face's own light: a start proposed from other views' centres can
@@ -1015,7 +1028,6 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     """
     rig, lights = srde.rig, srde.lights_m
     rule, edge_px = split.rule, gathered.blob_radius_px
-    tolerance_px = 2.0 * srde.max_residual_px
     # Each face's plane refitted to its own highlights alone (those away from the edge
     # when there are two or more: the edge may pull a cut blob's centre; never those on
     # another face), and the mask split again by the refitted planes.
@@ -1039,81 +1051,23 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     modelled_by_face = []
     parts = _face_parts(labels, box, mask.shape, len(chosen))
     for f, (score, face_mask) in enumerate(zip(chosen, parts, strict=True)):
-        result, face, modelled = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
-                                             gathered)
-        if result.ok and srde.refine and not face.refinement:
-            # The planes that drew the edge may be a pixel off, the edge then some pixels
-            # off, and the face's windows hold its neighbour's shading: read the face once
-            # more without the band where its plane and a neighbour's are within
-            # RETRY_EDGE_PX of each other (where the edge may lie).
-            narrow, again = _read_off_edge(srde, views, face_mask, score, f, chosen, labels,
-                                           box, gathered, RETRY_EDGE_PX)
-            if again is not None and again[0].ok and again[1].refinement:
-                (result, face, modelled), face_mask = again, narrow
-        if not result.ok:
-            return srde._failed(result.status, f"face {f + 1} of {len(chosen)}: {result.reason}",
-                                plane=result.plane)
-        if srde.refine and not face.refinement:
-            # A face's highlights are few and may lie near its edge: without the image's
-            # confirmation its plane from the centres alone is not trusted.
-            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
-                                f"photometric refinement did not confirm its plane "
-                                f"({face.refinement.reason})", plane=face.plane)
-        sigma_px = face.refinement.disparity_sigma_px if face.refinement is not None \
-            else 0.0
-        if sigma_px > MAX_FACE_SIGMA_PX:
-            # The lobe fit does not pin the face down: another plane SAME_PLANE_PX away
-            # would fit within three standard errors.
-            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
-                                f"photometric refinement leaves its plane uncertain by "
-                                f"{sigma_px:.2f} px (standard error over the object; limit "
-                                f"{MAX_FACE_SIGMA_PX:g} px)", plane=face.plane)
-        moved_px = context.plane_gap_px(face.refinement.initial_plane, face.plane) \
-            if face.refinement is not None else 0.0
-        if moved_px > SAME_PLANE_PX and lobes_prefer(
-                srde, views, face_mask, face.light, modelled, face.used_views, face.plane,
-                face.refinement.initial_plane):
-            # Centres pulled by the faces' edge or a clipped top can put the start a pixel
-            # off; the lobe fit that lands on a plane explaining the face's images
-            # decisively better than its start, on both planes' samples, stands.
-            face = replace(face, notes=(*face.notes, f"refinement: moved the plane by "
-                                        f"{moved_px:.2f} px from its highlight centres' plane, "
-                                        f"which explains the images at least "
-                                        f"{DECISIVE_COST_RATIO:g}x worse"))
-        elif moved_px > SAME_PLANE_PX:
-            # The image and the highlight centres disagree about the face: a plane pieced
-            # from the wrong highlights, or windows the edge cuts, that the lobe fit bent.
-            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
-                                f"photometric refinement moved its plane by {moved_px:.2f} px "
-                                f"over the object (limit {SAME_PLANE_PX:g} px)",
-                                plane=face.plane)
-        if moved_px > SAME_PLANE_PX:
-            # A start that far off put the edge where the face's part may hold its
-            # neighbour's shading, which can pull the fit too: the move must hold when the
-            # face is read without that band.
-            off_edge_px = _off_edge_gap_px(srde, views, face_mask, score, f, chosen, labels,
-                                           box, gathered, face, moved_px, context)
-            if off_edge_px is None:
-                if sigma_px > UNCHECKED_MOVE_MAX_SIGMA_PX:
-                    return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
-                                        f"photometric refinement moved its plane by "
-                                        f"{moved_px:.2f} px, nothing read away from the faces' "
-                                        f"edge confirms the move, and its standard error "
-                                        f"({sigma_px:.3f} px) is more than "
-                                        f"{UNCHECKED_MOVE_MAX_SIGMA_PX:g} px", plane=face.plane)
-            elif off_edge_px > OFF_EDGE_PX:
-                return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: the "
-                                    f"photometric refinement moved its plane by {moved_px:.2f} "
-                                    f"px, but read without the band where the faces' edge lies "
-                                    f"if the planes are that far off, it lands "
-                                    f"{off_edge_px:.2f} px from there (limit {OFF_EDGE_PX:g} "
-                                    f"px): the move rests on pixels by the edge",
-                                    plane=face.plane)
-        miss_px = _worst_miss_px(rig, lights[face.light], face)
-        if miss_px > tolerance_px:
-            return srde._failed("inconsistent", f"face {f + 1} of {len(chosen)}: its refined "
-                                f"plane misses its own highlights by up to {miss_px:.1f} px "
-                                f"(limit {tolerance_px:g} px)", plane=face.plane)
+        result, face, modelled = _checked_face(srde, views, face_mask, score, f, chosen, labels,
+                                               box, gathered, context)
+        if face is None and RADIUS_RETRY \
+                and _without_face(result.reason).startswith((_MOVED, _UNCERTAIN)) \
+                and _radius_unknown(srde, score, f, labels, box, gathered):
+            # Seen in few views, a point light's lobe cannot take the lamp's disc in every
+            # view at once, and the plane tilts or loosens instead: the face is read again
+            # with the lamp's radius fitted (as its second reading below does for every
+            # face) before the set is refused.
+            again = _checked_face(srde, views, face_mask, score, f, chosen, labels, box,
+                                  gathered, context, fit_radius=True)
+            if again[1] is None:
+                return replace(result, reason=f"{result.reason} (read again with the lamp's "
+                               f"radius fitted: {_without_face(again[0].reason)})")
+            result, face, modelled = again
+        if face is None:
+            return result
         results.append(result)
         faces.append(face)
         modelled_by_face.append(modelled)
@@ -1188,6 +1142,99 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
                       srde.method, notes, first.detections, first.refinement,
                       faces=Faces(rule, labels, tuple(faces)))
 
+
+def _checked_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, f: int,
+                  chosen: list[PlaneScore], labels: np.ndarray, box, gathered,
+                  context: AssignmentContext, *, fit_radius: bool = False):
+    """Solve face ``f`` of a set on its part and check its lobe fit.
+
+    Returns ``(SRDEResult, FaceResult, modelled)`` as :func:`_solve_face` does, or, when
+    a check fails, ``(failure, None, [])``, the failure naming the face. ``fit_radius``:
+    the refinement fits the lamp's radius too (where the rig does not know it).
+    """
+    rig, lights = srde.rig, srde.lights_m
+    tolerance_px = 2.0 * srde.max_residual_px
+
+    def failed(status: str, reason: str, plane):
+        return (srde._failed(status, f"face {f + 1} of {len(chosen)}: {reason}", plane=plane),
+                None, [])
+
+    result, face, modelled = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
+                                         gathered, fit_radius=fit_radius)
+    if result.ok and srde.refine and not face.refinement:
+        # The planes that drew the edge may be a pixel off, the edge then some pixels
+        # off, and the face's windows hold its neighbour's shading: read the face once
+        # more without the band where its plane and a neighbour's are within
+        # RETRY_EDGE_PX of each other (where the edge may lie).
+        narrow, again = _read_off_edge(srde, views, face_mask, score, f, chosen, labels,
+                                       box, gathered, RETRY_EDGE_PX, fit_radius=fit_radius)
+        if again is not None and again[0].ok and again[1].refinement:
+            (result, face, modelled), face_mask = again, narrow
+    if not result.ok:
+        return failed(result.status, result.reason, result.plane)
+    if srde.refine and not face.refinement:
+        # A face's highlights are few and may lie near its edge: without the image's
+        # confirmation its plane from the centres alone is not trusted.
+        return failed("inconsistent", f"the photometric refinement did not confirm its plane "
+                      f"({face.refinement.reason})", face.plane)
+    sigma_px = face.refinement.disparity_sigma_px if face.refinement is not None else 0.0
+    if sigma_px > MAX_FACE_SIGMA_PX:
+        # The lobe fit does not pin the face down: another plane SAME_PLANE_PX away
+        # would fit within three standard errors.
+        return failed("inconsistent", f"{_UNCERTAIN} by {sigma_px:.2f} px (standard error "
+                      f"over the object; limit {MAX_FACE_SIGMA_PX:g} px)", face.plane)
+    moved_px = context.plane_gap_px(face.refinement.initial_plane, face.plane) \
+        if face.refinement is not None else 0.0
+    if moved_px > SAME_PLANE_PX and lobes_prefer(
+            srde, views, face_mask, face.light, modelled, face.used_views, face.plane,
+            face.refinement.initial_plane):
+        # Centres pulled by the faces' edge or a clipped top can put the start a pixel
+        # off; the lobe fit that lands on a plane explaining the face's images
+        # decisively better than its start, on both planes' samples, stands.
+        face = replace(face, notes=(*face.notes, f"refinement: moved the plane by "
+                                    f"{moved_px:.2f} px from its highlight centres' plane, "
+                                    f"which explains the images at least "
+                                    f"{DECISIVE_COST_RATIO:g}x worse"))
+    elif moved_px > SAME_PLANE_PX:
+        # The image and the highlight centres disagree about the face: a plane pieced
+        # from the wrong highlights, or windows the edge cuts, that the lobe fit bent.
+        return failed("inconsistent", f"{_MOVED} {moved_px:.2f} px over the object (limit "
+                      f"{SAME_PLANE_PX:g} px)", face.plane)
+    if moved_px > SAME_PLANE_PX:
+        # A start that far off put the edge where the face's part may hold its
+        # neighbour's shading, which can pull the fit too: the move must hold when the
+        # face is read without that band.
+        off_edge_px = _off_edge_gap_px(srde, views, face_mask, score, f, chosen, labels,
+                                       box, gathered, face, moved_px, context,
+                                       fit_radius=fit_radius)
+        if off_edge_px is None:
+            if sigma_px > UNCHECKED_MOVE_MAX_SIGMA_PX:
+                return failed("inconsistent", f"{_MOVED} {moved_px:.2f} px, nothing read away "
+                              f"from the faces' edge confirms the move, and its standard "
+                              f"error ({sigma_px:.3f} px) is more than "
+                              f"{UNCHECKED_MOVE_MAX_SIGMA_PX:g} px", face.plane)
+        elif off_edge_px > OFF_EDGE_PX:
+            return failed("inconsistent", f"{_MOVED} {moved_px:.2f} px, but read without the "
+                          f"band where the faces' edge lies if the planes are that far off, "
+                          f"it lands {off_edge_px:.2f} px from there (limit {OFF_EDGE_PX:g} "
+                          f"px): the move rests on pixels by the edge", face.plane)
+    miss_px = _worst_miss_px(rig, lights[face.light], face)
+    if miss_px > tolerance_px:
+        return failed("inconsistent", f"its refined plane misses its own highlights by up to "
+                      f"{miss_px:.1f} px (limit {tolerance_px:g} px)", face.plane)
+    return result, face, modelled
+
+
+def _radius_unknown(srde: SRDE, score: PlaneScore, f: int, labels: np.ndarray, box,
+                    gathered) -> bool:
+    """Whether the rig does not know the radius of the lamp that fixes face ``f``."""
+    main, _, _ = _face_light(srde, score, f + 1, labels, box, gathered)
+    return srde.light_radii_m[main] is None
+
+
+def _without_face(reason: str) -> str:
+    """Return a face's failure reason without its leading "face f of n: "."""
+    return re.sub(r"^face \d+ of \d+: ", "", reason)
 
 def _face_parts(labels: np.ndarray, box, shape: tuple[int, int], n_faces: int
                 ) -> list[np.ndarray]:
@@ -1316,17 +1363,18 @@ def _worst_miss_px(rig, light_m: np.ndarray, face: FaceResult) -> float:
 
 def _off_edge_gap_px(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, f: int,
                      chosen: list[PlaneScore], labels: np.ndarray, box, gathered,
-                     face: FaceResult, moved_px: float, context: AssignmentContext
-                     ) -> float | None:
+                     face: FaceResult, moved_px: float, context: AssignmentContext, *,
+                     fit_radius: bool = False) -> float | None:
     """How far the face's lobe fit lands from its moved plane without the edge's band, px.
 
     The face is read again without the pixels where its start plane and a neighbour's
     are within ``moved_px`` of each other (where the faces' edge lies if the planes are
-    that far off) and refined as before. None when nothing is left out, too little is
-    left, or that fit fails: then nothing says the move is wrong.
+    that far off) and refined as before (``fit_radius`` as :func:`_solve_face`). None
+    when nothing is left out, too little is left, or that fit fails: then nothing says
+    the move is wrong.
     """
     _, again = _read_off_edge(srde, views, face_mask, score, f, chosen, labels, box,
-                              gathered, moved_px)
+                              gathered, moved_px, fit_radius=fit_radius)
     if again is None or not again[0].ok or not again[1].refinement:
         return None
     return context.plane_gap_px(again[1].plane, face.plane)
@@ -1334,20 +1382,22 @@ def _off_edge_gap_px(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore
 
 def _read_off_edge(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, f: int,
                    chosen: list[PlaneScore], labels: np.ndarray, box, gathered,
-                   limit_px: float):
+                   limit_px: float, *, fit_radius: bool = False):
     """Solve face ``f`` again without the band where the edge lies if planes are off.
 
     The band: pixels where the face's start plane and a neighbour's are within
     ``limit_px`` of each other (:func:`_edge_band`). Returns ``(narrow, solved)``: the
     face's mask without the band, and :func:`_solve_face`'s answer on it, None when the
-    band holds none of the face's pixels or leaves fewer than :data:`MIN_FACE_PX`.
+    band holds none of the face's pixels or leaves fewer than :data:`MIN_FACE_PX`
+    (``fit_radius`` as :func:`_solve_face`).
     """
     u0, v0, u1, v1 = box
     narrow = face_mask.copy()
     narrow[v0:v1, u0:u1] &= ~_edge_band(chosen, f, srde.rig, box, limit_px)
     if not MIN_FACE_PX <= np.count_nonzero(narrow) < np.count_nonzero(face_mask):
         return narrow, None
-    return narrow, _solve_face(srde, views, narrow, score, f + 1, labels, box, gathered)
+    return narrow, _solve_face(srde, views, narrow, score, f + 1, labels, box, gathered,
+                               fit_radius=fit_radius)
 
 
 def _edge_uncertain_px(faces: list[FaceResult], disparity: list[np.ndarray],
@@ -1395,24 +1445,37 @@ def _too_small(labels: np.ndarray, inside: np.ndarray) -> str:
     return ""
 
 
+def _face_light(srde: SRDE, score: PlaneScore, label: int, labels: np.ndarray, box,
+                gathered) -> tuple[int, np.ndarray, np.ndarray]:
+    """Return the light that fixes a face's plane: the one seen on its part in most views.
+
+    Returns ``(main, own, where)``: the light's index (ties to the closest fit), the
+    ``(K, N)`` bool of each light's highlights explained on the face's own part, and
+    :func:`_highlights_by_face`'s labels of them.
+    """
+    where = _highlights_by_face(srde.rig, srde.lights_m, [score], labels, box,
+                                gathered.blob_radius_px, [label])[0]
+    own = _own(where, label) & (score.matched >= 0)
+    counts = own.sum(axis=1)
+    distance = np.where(own, score.distance_px, np.inf)
+    main = int(max(range(len(srde.lights_m)),
+                   key=lambda k: (counts[k], -float(np.min(distance[k])))))
+    return main, own, where
+
+
 def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, label: int,
-                labels: np.ndarray, box, gathered):
+                labels: np.ndarray, box, gathered, *, fit_radius: bool = False):
     """Check and refine one face on its part of the mask.
 
     Returns ``(SRDEResult, FaceResult or None, modelled)``, ``modelled`` the indices of
     the lights the refinement rendered beside the face's own.
 
     The face's light must be seen on its own part in ``srde.min_views`` views.
+    ``fit_radius``: the refinement fits the lamp's radius too, if the rig does not know it.
     """
     rig, lights = srde.rig, srde.lights_m
-    where = _highlights_by_face(rig, lights, [score], labels, box,
-                                gathered.blob_radius_px, [label])[0]
-    own = _own(where, label) & (score.matched >= 0)
-    # The light seen on this face in most views (then the closest fit) fixes its plane.
+    main, own, where = _face_light(srde, score, label, labels, box, gathered)
     counts = own.sum(axis=1)
-    distance = np.where(own, score.distance_px, np.inf)
-    main = int(max(range(len(lights)),
-                   key=lambda k: (counts[k], -float(np.min(distance[k])))))
     if counts[main] < srde.min_views:
         return srde._failed("too_few_views", f"faces: face {label} keeps its own highlights "
                             f"on its own part in {int(counts[main])} view(s) (needs "
@@ -1430,7 +1493,8 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     modelled = [k for k in np.flatnonzero(near).tolist() if np.any(_own(where[k], label))]
     result = srde._finish_on_plane(face_mask, score.plane, lights[main], used, centers,
                                    detections, (), views=views,
-                                   modelled_lights=[lights[k] for k in modelled])
+                                   modelled_lights=[lights[k] for k in modelled],
+                                   fit_radius=fit_radius)
     face = None
     if result.ok:
         face = FaceResult(label, result.plane, main, result.virtual_light_m, centers, used,

@@ -128,6 +128,10 @@ EDGE_PULLED_SEED = 53012
 # in two views, was moved 3.86 px by its lobe fit to a plane 0.66 px off the face, with a
 # standard error of 0.161 px; read without the band by the edge, its fit is not confirmed.
 UNCHECKED_MOVE_SEED = 143009
+# A 3-face ridge whose end face's light is seen in three views of one column: read with
+# its lamp a point, the face's plane moved 0.78 px from its centres' plane (0.07 px off
+# the face) to 0.38 px off; with the lamp's radius fitted it stays within the target.
+RADIUS_RETRY_SEED = 103015
 # A ridge of 22 deg (seeds first run after the rules above) whose first face's plane the
 # images pin down loosely (standard error 0.09 px) and came out 0.37 px off: the shallow
 # edge then put 6 % of the mask on the wrong face. Its planes' standard errors leave 7 %
@@ -924,6 +928,39 @@ def test_a_move_nothing_away_from_the_edge_confirms_needs_a_tight_fit(rig, monke
     monkeypatch.setattr(faces_module, "UNCHECKED_MOVE_MAX_SIGMA_PX", math.inf)
     taken = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert taken.ok and max(_face_epes(taken.disparity, rendering, 3)) > 0.5
+
+
+def test_a_face_the_point_lights_fit_tilts_is_read_again_with_the_lamps_radius(
+        rig, monkeypatch):
+    faceted, rendering, lit = _rendered(rig, RADIUS_RETRY_SEED, 3, True,
+                                        physics=Physics.faithful())
+    mask = rendering.instance_mask > 0
+    readings = []  # (radius fitted, passed, reason) of every reading of a face of a set
+    checked = faces_module._checked_face
+
+    def spy(*args, **kwargs):
+        out = checked(*args, **kwargs)
+        readings.append((kwargs.get("fit_radius", False), out[1] is not None, out[0].reason))
+        return out
+
+    monkeypatch.setattr(faces_module, "_checked_face", spy)
+    result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert result.ok, result.reason
+    assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
+    moved = [i for i, (radius, passed, reason) in enumerate(readings)
+             if not radius and not passed and "moved its plane by" in reason]
+    assert moved and readings[moved[0] + 1][:2] == (True, True)
+    # Without the second reading the set is refused on the point light's move.
+    monkeypatch.setattr(faces_module, "RADIUS_RETRY", False)
+    refused = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
+    assert refused.status == "inconsistent", refused.reason
+    assert "moved its plane by 0.78 px" in refused.reason
+    # A rig that knows the lamps' radii reads every face with them at once.
+    monkeypatch.setattr(faces_module, "RADIUS_RETRY", True)
+    readings.clear()
+    known = rig.with_lights(rig_lights(faceted.scene, radii=True))
+    assert SRDE(known, max_faces=3).estimate(rendering.views, mask).ok
+    assert readings and not any(radius for radius, _, _ in readings)
 
 
 def test_an_edge_the_planes_standard_errors_leave_open_is_refused(rig, monkeypatch):
