@@ -145,15 +145,19 @@ SECOND_READING = True
 #: 0.002 px); the search is up to eight more fits of the face.
 FIT_RADIUS = True
 
-#: A face whose first reading (its lamp a point) fails a check of its lobe fit is read
-#: again with the lamp's radius fitted before its set is refused (when the rig does not
-#: know the radius). The point light's tilt or loose fit is what fails such faces: an end
-#: face of a three-face ridge seen in three views of one column, its centres' plane
-#: 0.07 px off, was moved 0.78 px by the point light's fit and came within 0.02 px with
-#: the lamp's true radius (0.04 px with the radius fitted).
+#: A face whose first reading (its lamp a point) moves its plane off its highlight
+#: centres' by more than the checks allow is read again with the lamp's radius fitted
+#: before its set is refused (when the rig does not know the radius): the point light's
+#: tilt is what moves such faces. An end face of a three-face ridge seen in three views
+#: of one column, its centres' plane 0.07 px off, was moved 0.78 px by the point light's
+#: fit and came within 0.02 px with the lamp's true radius (0.04 px with the radius
+#: fitted). A face the point light's fit leaves loose is not read again: with the radius
+#: fitted, a wrong valley set of a ridge (111008) was pinned down by a 16.3 mm radius
+#: for lamps of 2-8 mm and taken, 2.7-4.0 px off.
 RADIUS_RETRY = True
 
-# How a face's lobe fit fails where a point light's tilt or loose fit shows.
+# How a face's lobe fit fails where a point light's tilt shows (and how it fails when it
+# does not pin the plane down).
 _MOVED = "the photometric refinement moved its plane by"
 _UNCERTAIN = "the photometric refinement leaves its plane uncertain"
 
@@ -1056,12 +1060,12 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
         result, face, modelled = _checked_face(srde, views, face_mask, score, f, chosen, labels,
                                                box, gathered, context)
         if face is None and RADIUS_RETRY \
-                and _without_face(result.reason).startswith((_MOVED, _UNCERTAIN)) \
+                and _without_face(result.reason).startswith(_MOVED) \
                 and _radius_unknown(srde, score, f, labels, box, gathered):
             # Seen in few views, a point light's lobe cannot take the lamp's disc in every
-            # view at once, and the plane tilts or loosens instead: the face is read again
-            # with the lamp's radius fitted (as its second reading below does for every
-            # face) before the set is refused.
+            # view at once, and the plane tilts instead: the face is read again with the
+            # lamp's radius fitted (as its second reading below does for every face)
+            # before the set is refused.
             again = _checked_face(srde, views, face_mask, score, f, chosen, labels, box,
                                   gathered, context, fit_radius=True)
             if again[1] is None:
@@ -1266,12 +1270,19 @@ def _read_again(srde: SRDE, views, mask: np.ndarray, faces: list[FaceResult], re
     Starts from the face's refined plane and reads the same highlights' windows, less
     the pixels within :data:`FACE_EDGE_MARGIN_PX` of another face's part. A face whose
     second reading is not confirmed, not pinned down or moves it by more than
-    ``SAME_PLANE_PX`` keeps its first. Returns the faces and their results.
+    ``SAME_PLANE_PX``, or whose part is smaller than :data:`MIN_FACE_PX`, keeps its
+    first. Returns the faces and their results.
     """
     lights = srde.lights_m
     out, read = [], []
     parts = _face_parts(labels, box, mask.shape, len(faces))
     for f, (face, face_mask) in enumerate(zip(faces, parts, strict=True)):
+        if np.count_nonzero(face_mask) < MIN_FACE_PX:
+            # The refined planes leave the face (almost) no part: nothing to read, and
+            # the split's size check refuses the set.
+            out.append(face)
+            read.append(results[f])
+            continue
         # A face tilts to make up for a lamp's unknown radius (refine/radius.py), most
         # where few views see its light: this reading fits the radius too.
         again = srde._finish_on_plane(face_mask, face.plane, lights[face.light],
