@@ -34,8 +34,8 @@ lines, a light) are the same, only more than one of them is the answer:
    the edge lies if its planes are a pixel off, and a fit that moves the face's plane
    off its highlight centres' stands only when the image prefers it decisively and the
    move holds when the face is read without the band by the edge; a face whose fit so
-   moves or leaves its plane loose, its lamp taken for a point, is read with the lamp's
-   radius fitted before its set fails: :data:`RADIUS_RETRY`), and
+   moves its plane, its lamp taken for a point, is read with the lamp's radius fitted
+   before its set fails: :data:`RADIUS_RETRY`), and
    the mask is split again with the refined planes; each face is read once more on its
    new part (a face whose light the rig knows no radius for with the lamp's radius fitted
    too, where it lowers the lobe fit's cost enough: :data:`FIT_RADIUS`), and the mask
