@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 from dataclasses import dataclass, field, replace
 from itertools import combinations
 from typing import TYPE_CHECKING
@@ -156,10 +155,7 @@ FIT_RADIUS = True
 #: for lamps of 2-8 mm and taken, 2.7-4.0 px off.
 RADIUS_RETRY = True
 
-# How a face's lobe fit fails where a point light's tilt shows (and how it fails when it
-# does not pin the plane down).
 _MOVED = "the photometric refinement moved its plane by"
-_UNCERTAIN = "the photometric refinement leaves its plane uncertain"
 
 #: A face's refined plane, not only its start plane, explains the reference view's
 #: highlights of the face's own light: a start proposed from other views' centres can
@@ -377,6 +373,42 @@ class _Split:
     labels: np.ndarray
     value: tuple[int, int]  # (own highlights less foreign ones, the planes' net support)
     explained: int = 0  # own highlights and those the faces' edge cuts, less foreign ones
+
+
+@dataclass(frozen=True, eq=False)
+class _FaceSet:
+    """One set of face planes while its faces are read: what each face's reading needs.
+
+    ``chosen``: each face's score, its plane refitted to its own highlights; ``labels``:
+    the mask split among them over ``box`` (face ``f`` is label ``f + 1``).
+    """
+
+    srde: SRDE
+    views: object
+    chosen: tuple[PlaneScore, ...]
+    labels: np.ndarray
+    box: tuple[int, int, int, int]
+    gathered: ViewCandidates
+    context: AssignmentContext
+
+
+@dataclass(frozen=True)
+class _FaceReading:
+    """One face of a set, read and checked (:func:`_checked_face`).
+
+    ``face`` is None when a check failed; ``result`` is then the failure, naming the
+    face. ``refused_by``: which check failed ("" when none did; ``"move"`` for the
+    checks on how far the lobe fit moved the plane), ``why`` its reason without the
+    face's name. ``light``: the light that fixes the face, when the face was read that
+    far (else None). ``modelled``: the lights rendered beside it.
+    """
+
+    result: SRDEResult
+    face: FaceResult | None
+    modelled: list[int]
+    refused_by: str = ""
+    why: str = ""
+    light: int | None = None
 
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
@@ -1055,28 +1087,26 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     faces: list[FaceResult] = []
     results = []
     modelled_by_face = []
+    face_set = _FaceSet(srde, views, tuple(chosen), labels, box, gathered, context)
     parts = _face_parts(labels, box, mask.shape, len(chosen))
-    for f, (score, face_mask) in enumerate(zip(chosen, parts, strict=True)):
-        result, face, modelled = _checked_face(srde, views, face_mask, score, f, chosen, labels,
-                                               box, gathered, context)
-        if face is None and RADIUS_RETRY \
-                and _without_face(result.reason).startswith(_MOVED) \
-                and _radius_unknown(srde, score, f, labels, box, gathered):
+    for f, face_mask in enumerate(parts):
+        reading = _checked_face(face_set, face_mask, f)
+        if reading.refused_by == "move" and RADIUS_RETRY \
+                and srde.light_radii_m[reading.light] is None:
             # Seen in few views, a point light's lobe cannot take the lamp's disc in every
             # view at once, and the plane tilts instead: the face is read again with the
             # lamp's radius fitted (as its second reading below does for every face)
             # before the set is refused.
-            again = _checked_face(srde, views, face_mask, score, f, chosen, labels, box,
-                                  gathered, context, fit_radius=True)
-            if again[1] is None:
-                return replace(result, reason=f"{result.reason} (read again with the lamp's "
-                               f"radius fitted: {_without_face(again[0].reason)})")
-            result, face, modelled = again
-        if face is None:
-            return result
-        results.append(result)
-        faces.append(face)
-        modelled_by_face.append(modelled)
+            again = _checked_face(face_set, face_mask, f, fit_radius=True)
+            if again.face is None:
+                return replace(reading.result, reason=f"{reading.result.reason} (read again "
+                               f"with the lamp's radius fitted: {again.why})")
+            reading = again
+        if reading.face is None:
+            return reading.result
+        results.append(reading.result)
+        faces.append(reading.face)
+        modelled_by_face.append(reading.modelled)
     # The refined planes move the edge a little: split again, and check again.
     planes = [face.plane for face in faces]
     labels = split_faces(planes, rig, box, inside, rule)
@@ -1149,51 +1179,50 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
                       faces=Faces(rule, labels, tuple(faces)))
 
 
-def _checked_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, f: int,
-                  chosen: list[PlaneScore], labels: np.ndarray, box, gathered,
-                  context: AssignmentContext, *, fit_radius: bool = False):
-    """Solve face ``f`` of a set on its part and check its lobe fit.
+def _checked_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
+                  fit_radius: bool = False) -> _FaceReading:
+    """Solve face ``f`` of a set on its part (``face_mask``) and check its lobe fit.
 
-    Returns ``(SRDEResult, FaceResult, modelled)`` as :func:`_solve_face` does, or, when
-    a check fails, ``(failure, None, [])``, the failure naming the face. ``fit_radius``:
-    the refinement fits the lamp's radius too (where the rig does not know it).
+    ``fit_radius``: the refinement fits the lamp's radius too (where the rig does not
+    know it).
     """
-    rig, lights = srde.rig, srde.lights_m
+    srde, context = face_set.srde, face_set.context
     tolerance_px = 2.0 * srde.max_residual_px
 
-    def failed(status: str, reason: str, plane):
-        return (srde._failed(status, f"face {f + 1} of {len(chosen)}: {reason}", plane=plane),
-                None, [])
+    def failed(check: str, status: str, why: str, plane, light: int | None = None):
+        result = srde._failed(status, f"face {f + 1} of {len(face_set.chosen)}: {why}",
+                              plane=plane)
+        return _FaceReading(result, None, [], check, why, light)
 
-    result, face, modelled = _solve_face(srde, views, face_mask, score, f + 1, labels, box,
-                                         gathered, fit_radius=fit_radius)
+    result, face, modelled = _solve_face(face_set, face_mask, f, fit_radius=fit_radius)
     if result.ok and srde.refine and not face.refinement:
         # The planes that drew the edge may be a pixel off, the edge then some pixels
         # off, and the face's windows hold its neighbour's shading: read the face once
         # more without the band where its plane and a neighbour's are within
         # RETRY_EDGE_PX of each other (where the edge may lie).
-        narrow, again = _read_off_edge(srde, views, face_mask, score, f, chosen, labels,
-                                       box, gathered, RETRY_EDGE_PX, fit_radius=fit_radius)
+        narrow, again = _read_off_edge(face_set, face_mask, f, RETRY_EDGE_PX,
+                                       fit_radius=fit_radius)
         if again is not None and again[0].ok and again[1].refinement:
             (result, face, modelled), face_mask = again, narrow
     if not result.ok:
-        return failed(result.status, result.reason, result.plane)
+        return failed("reading", result.status, result.reason, result.plane)
     if srde.refine and not face.refinement:
         # A face's highlights are few and may lie near its edge: without the image's
         # confirmation its plane from the centres alone is not trusted.
-        return failed("inconsistent", f"the photometric refinement did not confirm its plane "
-                      f"({face.refinement.reason})", face.plane)
+        return failed("unconfirmed", "inconsistent", f"the photometric refinement did not "
+                      f"confirm its plane ({face.refinement.reason})", face.plane, face.light)
     sigma_px = face.refinement.disparity_sigma_px if face.refinement is not None else 0.0
     if sigma_px > MAX_FACE_SIGMA_PX:
         # The lobe fit does not pin the face down: another plane SAME_PLANE_PX away
         # would fit within three standard errors.
-        return failed("inconsistent", f"{_UNCERTAIN} by {sigma_px:.2f} px (standard error "
-                      f"over the object; limit {MAX_FACE_SIGMA_PX:g} px)", face.plane)
+        return failed("uncertain", "inconsistent", f"the photometric refinement leaves its "
+                      f"plane uncertain by {sigma_px:.2f} px (standard error over the object; "
+                      f"limit {MAX_FACE_SIGMA_PX:g} px)", face.plane, face.light)
     moved_px = context.plane_gap_px(face.refinement.initial_plane, face.plane) \
         if face.refinement is not None else 0.0
     if moved_px > SAME_PLANE_PX and lobes_prefer(
-            srde, views, face_mask, face.light, modelled, face.used_views, face.plane,
-            face.refinement.initial_plane):
+            srde, face_set.views, face_mask, face.light, modelled, face.used_views,
+            face.plane, face.refinement.initial_plane):
         # Centres pulled by the faces' edge or a clipped top can put the start a pixel
         # off; the lobe fit that lands on a plane explaining the face's images
         # decisively better than its start, on both planes' samples, stands.
@@ -1204,43 +1233,33 @@ def _checked_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, f
     elif moved_px > SAME_PLANE_PX:
         # The image and the highlight centres disagree about the face: a plane pieced
         # from the wrong highlights, or windows the edge cuts, that the lobe fit bent.
-        return failed("inconsistent", f"{_MOVED} {moved_px:.2f} px over the object (limit "
-                      f"{SAME_PLANE_PX:g} px)", face.plane)
+        return failed("move", "inconsistent", f"{_MOVED} {moved_px:.2f} px over the object "
+                      f"(limit {SAME_PLANE_PX:g} px)", face.plane, face.light)
     if moved_px > SAME_PLANE_PX:
         # A start that far off put the edge where the face's part may hold its
         # neighbour's shading, which can pull the fit too: the move must hold when the
         # face is read without that band.
-        off_edge_px = _off_edge_gap_px(srde, views, face_mask, score, f, chosen, labels,
-                                       box, gathered, face, moved_px, context,
+        off_edge_px = _off_edge_gap_px(face_set, face_mask, f, face, moved_px,
                                        fit_radius=fit_radius)
         if off_edge_px is None:
             if sigma_px > UNCHECKED_MOVE_MAX_SIGMA_PX:
-                return failed("inconsistent", f"{_MOVED} {moved_px:.2f} px, nothing read away "
-                              f"from the faces' edge confirms the move, and its standard "
-                              f"error ({sigma_px:.3f} px) is more than "
-                              f"{UNCHECKED_MOVE_MAX_SIGMA_PX:g} px", face.plane)
+                return failed("move", "inconsistent", f"{_MOVED} {moved_px:.2f} px, nothing "
+                              f"read away from the faces' edge confirms the move, and its "
+                              f"standard error ({sigma_px:.3f} px) is more than "
+                              f"{UNCHECKED_MOVE_MAX_SIGMA_PX:g} px", face.plane, face.light)
         elif off_edge_px > OFF_EDGE_PX:
-            return failed("inconsistent", f"{_MOVED} {moved_px:.2f} px, but read without the "
-                          f"band where the faces' edge lies if the planes are that far off, "
-                          f"it lands {off_edge_px:.2f} px from there (limit {OFF_EDGE_PX:g} "
-                          f"px): the move rests on pixels by the edge", face.plane)
-    miss_px = _worst_miss_px(rig, lights[face.light], face)
+            return failed("move", "inconsistent", f"{_MOVED} {moved_px:.2f} px, but read "
+                          f"without the band where the faces' edge lies if the planes are "
+                          f"that far off, it lands {off_edge_px:.2f} px from there (limit "
+                          f"{OFF_EDGE_PX:g} px): the move rests on pixels by the edge",
+                          face.plane, face.light)
+    miss_px = _worst_miss_px(srde.rig, srde.lights_m[face.light], face)
     if miss_px > tolerance_px:
-        return failed("inconsistent", f"its refined plane misses its own highlights by up to "
-                      f"{miss_px:.1f} px (limit {tolerance_px:g} px)", face.plane)
-    return result, face, modelled
+        return failed("miss", "inconsistent", f"its refined plane misses its own highlights "
+                      f"by up to {miss_px:.1f} px (limit {tolerance_px:g} px)", face.plane,
+                      face.light)
+    return _FaceReading(result, face, modelled, light=face.light)
 
-
-def _radius_unknown(srde: SRDE, score: PlaneScore, f: int, labels: np.ndarray, box,
-                    gathered) -> bool:
-    """Whether the rig does not know the radius of the lamp that fixes face ``f``."""
-    main, _, _ = _face_light(srde, score, f + 1, labels, box, gathered)
-    return srde.light_radii_m[main] is None
-
-
-def _without_face(reason: str) -> str:
-    """Return a face's failure reason without its leading "face f of n: "."""
-    return re.sub(r"^face \d+ of \d+: ", "", reason)
 
 def _face_parts(labels: np.ndarray, box, shape: tuple[int, int], n_faces: int
                 ) -> list[np.ndarray]:
@@ -1374,10 +1393,8 @@ def _worst_miss_px(rig, light_m: np.ndarray, face: FaceResult) -> float:
     return float(np.max(np.linalg.norm(predicted - face.highlight_centers[views], axis=1)))
 
 
-def _off_edge_gap_px(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, f: int,
-                     chosen: list[PlaneScore], labels: np.ndarray, box, gathered,
-                     face: FaceResult, moved_px: float, context: AssignmentContext, *,
-                     fit_radius: bool = False) -> float | None:
+def _off_edge_gap_px(face_set: _FaceSet, face_mask: np.ndarray, f: int, face: FaceResult,
+                     moved_px: float, *, fit_radius: bool = False) -> float | None:
     """How far the face's lobe fit lands from its moved plane without the edge's band, px.
 
     The face is read again without the pixels where its start plane and a neighbour's
@@ -1386,16 +1403,14 @@ def _off_edge_gap_px(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore
     when nothing is left out, too little is left, or that fit fails: then nothing says
     the move is wrong.
     """
-    _, again = _read_off_edge(srde, views, face_mask, score, f, chosen, labels, box,
-                              gathered, moved_px, fit_radius=fit_radius)
+    _, again = _read_off_edge(face_set, face_mask, f, moved_px, fit_radius=fit_radius)
     if again is None or not again[0].ok or not again[1].refinement:
         return None
-    return context.plane_gap_px(again[1].plane, face.plane)
+    return face_set.context.plane_gap_px(again[1].plane, face.plane)
 
 
-def _read_off_edge(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, f: int,
-                   chosen: list[PlaneScore], labels: np.ndarray, box, gathered,
-                   limit_px: float, *, fit_radius: bool = False):
+def _read_off_edge(face_set: _FaceSet, face_mask: np.ndarray, f: int, limit_px: float, *,
+                   fit_radius: bool = False):
     """Solve face ``f`` again without the band where the edge lies if planes are off.
 
     The band: pixels where the face's start plane and a neighbour's are within
@@ -1404,13 +1419,12 @@ def _read_off_edge(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, 
     band holds none of the face's pixels or leaves fewer than :data:`MIN_FACE_PX`
     (``fit_radius`` as :func:`_solve_face`).
     """
-    u0, v0, u1, v1 = box
+    u0, v0, u1, v1 = box = face_set.box
     narrow = face_mask.copy()
-    narrow[v0:v1, u0:u1] &= ~_edge_band(chosen, f, srde.rig, box, limit_px)
+    narrow[v0:v1, u0:u1] &= ~_edge_band(face_set.chosen, f, face_set.srde.rig, box, limit_px)
     if not MIN_FACE_PX <= np.count_nonzero(narrow) < np.count_nonzero(face_mask):
         return narrow, None
-    return narrow, _solve_face(srde, views, narrow, score, f + 1, labels, box, gathered,
-                               fit_radius=fit_radius)
+    return narrow, _solve_face(face_set, narrow, f, fit_radius=fit_radius)
 
 
 def _edge_uncertain_px(faces: list[FaceResult], disparity: list[np.ndarray],
@@ -1458,16 +1472,16 @@ def _too_small(labels: np.ndarray, inside: np.ndarray) -> str:
     return ""
 
 
-def _face_light(srde: SRDE, score: PlaneScore, label: int, labels: np.ndarray, box,
-                gathered) -> tuple[int, np.ndarray, np.ndarray]:
-    """Return the light that fixes a face's plane: the one seen on its part in most views.
+def _face_light(face_set: _FaceSet, f: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """Return the light that fixes face ``f``'s plane: the one seen on its part in most views.
 
     Returns ``(main, own, where)``: the light's index (ties to the closest fit), the
     ``(K, N)`` bool of each light's highlights explained on the face's own part, and
     :func:`_highlights_by_face`'s labels of them.
     """
-    where = _highlights_by_face(srde.rig, srde.lights_m, [score], labels, box,
-                                gathered.blob_radius_px, [label])[0]
+    srde, score, label = face_set.srde, face_set.chosen[f], f + 1
+    where = _highlights_by_face(srde.rig, srde.lights_m, [score], face_set.labels,
+                                face_set.box, face_set.gathered.blob_radius_px, [label])[0]
     own = _own(where, label) & (score.matched >= 0)
     counts = own.sum(axis=1)
     distance = np.where(own, score.distance_px, np.inf)
@@ -1476,9 +1490,9 @@ def _face_light(srde: SRDE, score: PlaneScore, label: int, labels: np.ndarray, b
     return main, own, where
 
 
-def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, label: int,
-                labels: np.ndarray, box, gathered, *, fit_radius: bool = False):
-    """Check and refine one face on its part of the mask.
+def _solve_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
+                fit_radius: bool = False):
+    """Check and refine face ``f`` of a set on its part of the mask (``face_mask``).
 
     Returns ``(SRDEResult, FaceResult or None, modelled)``, ``modelled`` the indices of
     the lights the refinement rendered beside the face's own.
@@ -1486,8 +1500,9 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     The face's light must be seen on its own part in ``srde.min_views`` views.
     ``fit_radius``: the refinement fits the lamp's radius too, if the rig does not know it.
     """
+    srde, score, label, gathered = face_set.srde, face_set.chosen[f], f + 1, face_set.gathered
     rig, lights = srde.rig, srde.lights_m
-    main, own, where = _face_light(srde, score, label, labels, box, gathered)
+    main, own, where = _face_light(face_set, f)
     counts = own.sum(axis=1)
     if counts[main] < srde.min_views:
         return srde._failed("too_few_views", f"faces: face {label} keeps its own highlights "
@@ -1505,7 +1520,7 @@ def _solve_face(srde: SRDE, views, face_mask: np.ndarray, score: PlaneScore, lab
     near = near_lights(score.on_object, score.predicted_uv, main, gathered.blob_radius_px)
     modelled = [k for k in np.flatnonzero(near).tolist() if np.any(_own(where[k], label))]
     result = srde._finish_on_plane(face_mask, score.plane, lights[main], used, centers,
-                                   detections, (), views=views,
+                                   detections, (), views=face_set.views,
                                    modelled_lights=[lights[k] for k in modelled],
                                    fit_radius=fit_radius)
     face = None

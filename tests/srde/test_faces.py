@@ -497,6 +497,30 @@ def test_each_face_is_read_again_on_the_part_the_refined_planes_give_it(rig, mon
     assert max(_face_epes(first.disparity, rendering, 3)) > 0.1  # the middle face
 
 
+def test_a_face_the_refined_planes_leave_no_part_keeps_its_first_reading(rig, monkeypatch):
+    # Refined planes can give a face (almost) none of the mask; its second reading would
+    # read an empty part. It keeps its first, and the split's size check decides.
+    _, rendering, lit = _rendered(rig, SECOND_READING_SEED, 3, True, physics=Physics.faithful())
+    calls = []
+    read_again = faces_module._read_again
+
+    def spy(*args):
+        calls.append(args)
+        return read_again(*args)
+
+    monkeypatch.setattr(faces_module, "_read_again", spy)
+    assert SRDE(lit, max_faces=3).estimate(rendering.views, rendering.instance_mask > 0).ok
+    srde, views, mask, faces, results, modelled, labels, box, context = calls[-1]
+    squeezed = labels.copy()
+    kept = np.argwhere(labels == 2)[:faces_module.MIN_FACE_PX - 1]
+    squeezed[squeezed == 2] = 1
+    squeezed[tuple(kept.T)] = 2
+    out, read = read_again(srde, views, mask, faces, results, modelled, squeezed, box, context)
+    assert out[1] is faces[1] and read[1] is results[1]
+    # The third face's part is untouched: read again as in the solve.
+    _, before = read_again(srde, views, mask, faces, results, modelled, labels, box, context)
+    assert read[2] is not results[2] and read[2].plane == before[2].plane
+
 def test_two_sets_that_end_on_the_same_faces_are_one_answer(rig, monkeypatch):
     # Two sets of starting planes on SECOND_READING_SEED are both confirmed, and their
     # refined faces agree within 0.5 px: not two answers.
@@ -886,9 +910,9 @@ def test_a_face_the_lobe_fit_does_not_confirm_is_read_again_away_from_the_edge(r
     read = []
     solve = faces_module._solve_face
 
-    def spy(srde, views, face_mask, *args, **kwargs):
+    def spy(face_set, face_mask, *args, **kwargs):
         read.append(int(face_mask.sum()))
-        return solve(srde, views, face_mask, *args, **kwargs)
+        return solve(face_set, face_mask, *args, **kwargs)
 
     monkeypatch.setattr(faces_module, "_solve_face", spy)
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
@@ -956,7 +980,8 @@ def test_a_face_the_point_lights_fit_tilts_is_read_again_with_the_lamps_radius(
 
     def spy(*args, **kwargs):
         out = checked(*args, **kwargs)
-        readings.append((kwargs.get("fit_radius", False), out[1] is not None, out[0].reason))
+        readings.append((kwargs.get("fit_radius", False), out.face is not None,
+                         out.result.reason))
         return out
 
     monkeypatch.setattr(faces_module, "_checked_face", spy)
