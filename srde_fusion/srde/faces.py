@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from itertools import combinations
 from typing import TYPE_CHECKING
@@ -384,7 +385,7 @@ class _FaceSet:
     """
 
     srde: SRDE
-    views: object
+    views: Sequence[np.ndarray]  # the frame as the backend holds it (``backend.prepare``)
     chosen: tuple[PlaneScore, ...]
     labels: np.ndarray
     box: tuple[int, int, int, int]
