@@ -510,7 +510,7 @@ class SRDE:
 
     def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None,
                 light=None, refine=None, modelled_lights=(), modelled_centers=None,
-                window_centers=None, fit_radius=False) -> SRDEResult:
+                window_centers=None, fit_radius=False, radius_search=None) -> SRDEResult:
         """Check the virtual light and the plane, refine it (given views); disparity.
 
         ``light``: the light ``point`` is the virtual light of (one of several); the
@@ -521,7 +521,8 @@ class SRDE:
         ``window_centers`` ``(N, 2)``: where the refinement's windows go around ``light``'s
         highlight (NaN: no window in that view); the used ``centers`` by default.
         ``fit_radius``: if the rig does not know ``light``'s radius, the refinement fits it
-        too (:func:`~.refine.radius.refine_plane_and_radius`); a known one is used as is.
+        too (:func:`~.refine.radius.refine_plane_and_radius`, with the options
+        ``radius_search``, a dict, if given); a known radius is used as is.
         """
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}
@@ -569,10 +570,13 @@ class SRDE:
                            modelled_centers_uv=modelled_centers,
                            pixel_samples=self.refine_pixels)
             if fit_radius and radius_m is None:
-                search = refine_plane_and_radius(views, rig, light, mask, plane, **options)
+                search_options = radius_search or {}
+                search = refine_plane_and_radius(views, rig, light, mask, plane,
+                                                 **search_options, **options)
                 refinement = search.refinement
                 if refinement.ok:
-                    notes = (*notes, _radius_note(search))
+                    notes = (*notes, _radius_note(
+                        search, search_options.get("min_gain", MIN_COST_GAIN)))
             else:
                 refinement = refine_plane(views, rig, light, mask, plane,
                                           light_radius_m=radius_m, **options)
@@ -687,8 +691,11 @@ def _mask_uv(mask: np.ndarray) -> np.ndarray:
     return np.stack([uu, vv], axis=1).astype(np.float64)
 
 
-def _radius_note(search: RadiusFit) -> str:
-    """Say which radius the refinement took for a light the rig gives none, and why."""
+def _radius_note(search: RadiusFit, min_gain: float) -> str:
+    """Say which radius the refinement took for a light the rig gives none, and why.
+
+    ``min_gain``: the fraction of the point light's cost a radius had to save.
+    """
     point = (f"as a point {search.point_cost:.3g}" if math.isfinite(search.point_cost)
              else "a point light's fit was refused")
     if search.light_radius_m > 0.0:
@@ -700,7 +707,7 @@ def _radius_note(search: RadiusFit) -> str:
                 f"radius tried cost more; photometric cost {search.point_cost:.3g})")
     return (f"refinement: the light's radius is not known; kept a point light (the cheapest "
             f"radius, {search.cheapest_radius_m * 1000:.1f} mm, saved {search.saving:.1%} of the "
-            f"point light's photometric cost {search.point_cost:.3g}; {MIN_COST_GAIN:.0%} needed)")
+            f"point light's photometric cost {search.point_cost:.3g}; {min_gain:.0%} needed)")
 
 
 def _rms_residual(rig, point, centers, used) -> float:

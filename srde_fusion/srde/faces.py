@@ -146,15 +146,30 @@ SECOND_READING = True
 FIT_RADIUS = True
 
 #: A face whose first reading (its lamp a point) moves its plane off its highlight
-#: centres' by more than the checks allow is read again with the lamp's radius fitted
-#: before its set is refused (when the rig does not know the radius): the point light's
-#: tilt is what moves such faces. An end face of a three-face ridge seen in three views
-#: of one column, its centres' plane 0.07 px off, was moved 0.78 px by the point light's
-#: fit and came within 0.02 px with the lamp's true radius (0.04 px with the radius
-#: fitted). A face the point light's fit leaves loose is not read again: with the radius
-#: fitted, a wrong valley set of a ridge (111008) was pinned down by a 16.3 mm radius
-#: for lamps of 2-8 mm and taken, 2.7-4.0 px off.
+#: centres' by more than the checks allow, or leaves it loose, is read again with the
+#: lamp's radius fitted before its set is refused (when the rig does not know the
+#: radius; :data:`RETRY_GAINS`): the point light's tilt is what moves such faces. An end
+#: face of a three-face ridge seen in three views of one column, its centres' plane
+#: 0.07 px off, was moved 0.78 px by the point light's fit and came within 0.02 px with
+#: the lamp's true radius (0.04 px with the radius fitted).
 RADIUS_RETRY = True
+
+#: The fraction of the point light's photometric cost a fitted radius must save to be
+#: taken for a face the point light's fit leaves loose (its standard error above
+#: MAX_FACE_SIGMA_PX). There the radius is what pins the plane down, and a radius that
+#: merely helps can pin a wrong one: a wrong valley set of a ridge (111008) had its loose
+#: face pinned by a 16.3 mm radius for lamps of 2-8 mm that saved 71 % of the point
+#: light's cost, and was taken 2.7-4.0 px off. The right loose faces read this way
+#: (33001, 73018, 83015, 143008) saved 91-99 %.
+LOOSE_FACE_RADIUS_GAIN = 0.8
+
+#: The checks (:class:`_FaceReading`'s ``refused_by``) whose failure a reading with the
+#: lamp's radius fitted answers, and that reading's options of the radius search
+#: (:func:`~.refine.radius.refine_plane_and_radius`). A loose face's radius must save
+#: LOOSE_FACE_RADIUS_GAIN of the point light's cost measured on the same samples: where
+#: the point light's fit is refused there, nothing says how much the radius explains.
+RETRY_SEARCHES = {"move": {},
+                  "uncertain": {"min_gain": LOOSE_FACE_RADIUS_GAIN, "point_fit_needed": True}}
 
 _MOVED = "the photometric refinement moved its plane by"
 
@@ -1092,13 +1107,13 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     parts = _face_parts(labels, box, mask.shape, len(chosen))
     for f, face_mask in enumerate(parts):
         reading = _checked_face(face_set, face_mask, f)
-        if reading.refused_by == "move" and RADIUS_RETRY \
-                and srde.light_radii_m[reading.light] is None:
+        search = RETRY_SEARCHES.get(reading.refused_by) if RADIUS_RETRY else None
+        if search is not None and srde.light_radii_m[reading.light] is None:
             # Seen in few views, a point light's lobe cannot take the lamp's disc in every
-            # view at once, and the plane tilts instead: the face is read again with the
-            # lamp's radius fitted (as its second reading below does for every face)
-            # before the set is refused.
-            again = _checked_face(face_set, face_mask, f, fit_radius=True)
+            # view at once, and the plane tilts (or is left loose) instead: the face is
+            # read again with the lamp's radius fitted (as its second reading below does
+            # for every face) before the set is refused.
+            again = _checked_face(face_set, face_mask, f, radius_search=search)
             if again.face is None:
                 return replace(reading.result, reason=f"{reading.result.reason} (read again "
                                f"with the lamp's radius fitted: {again.why})")
@@ -1181,11 +1196,10 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
 
 
 def _checked_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
-                  fit_radius: bool = False) -> _FaceReading:
+                  radius_search: dict | None = None) -> _FaceReading:
     """Solve face ``f`` of a set on its part (``face_mask``) and check its lobe fit.
 
-    ``fit_radius``: the refinement fits the lamp's radius too (where the rig does not
-    know it).
+    ``radius_search``: as :func:`_solve_face`.
     """
     srde, context = face_set.srde, face_set.context
     tolerance_px = 2.0 * srde.max_residual_px
@@ -1195,14 +1209,14 @@ def _checked_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
                               plane=plane)
         return _FaceReading(result, None, [], check, why, light)
 
-    result, face, modelled = _solve_face(face_set, face_mask, f, fit_radius=fit_radius)
+    result, face, modelled = _solve_face(face_set, face_mask, f, radius_search=radius_search)
     if result.ok and srde.refine and not face.refinement:
         # The planes that drew the edge may be a pixel off, the edge then some pixels
         # off, and the face's windows hold its neighbour's shading: read the face once
         # more without the band where its plane and a neighbour's are within
         # RETRY_EDGE_PX of each other (where the edge may lie).
         narrow, again = _read_off_edge(face_set, face_mask, f, RETRY_EDGE_PX,
-                                       fit_radius=fit_radius)
+                                       radius_search=radius_search)
         if again is not None and again[0].ok and again[1].refinement:
             (result, face, modelled), face_mask = again, narrow
     if not result.ok:
@@ -1241,7 +1255,7 @@ def _checked_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
         # neighbour's shading, which can pull the fit too: the move must hold when the
         # face is read without that band.
         off_edge_px = _off_edge_gap_px(face_set, face_mask, f, face, moved_px,
-                                       fit_radius=fit_radius)
+                                       radius_search=radius_search)
         if off_edge_px is None:
             if sigma_px > UNCHECKED_MOVE_MAX_SIGMA_PX:
                 return failed("move", "inconsistent", f"{_MOVED} {moved_px:.2f} px, nothing "
@@ -1395,37 +1409,37 @@ def _worst_miss_px(rig, light_m: np.ndarray, face: FaceResult) -> float:
 
 
 def _off_edge_gap_px(face_set: _FaceSet, face_mask: np.ndarray, f: int, face: FaceResult,
-                     moved_px: float, *, fit_radius: bool = False) -> float | None:
+                     moved_px: float, *, radius_search: dict | None = None) -> float | None:
     """How far the face's lobe fit lands from its moved plane without the edge's band, px.
 
     The face is read again without the pixels where its start plane and a neighbour's
     are within ``moved_px`` of each other (where the faces' edge lies if the planes are
-    that far off) and refined as before (``fit_radius`` as :func:`_solve_face`). None
+    that far off) and refined as before (``radius_search`` as :func:`_solve_face`). None
     when nothing is left out, too little is left, or that fit fails: then nothing says
     the move is wrong.
     """
-    _, again = _read_off_edge(face_set, face_mask, f, moved_px, fit_radius=fit_radius)
+    _, again = _read_off_edge(face_set, face_mask, f, moved_px, radius_search=radius_search)
     if again is None or not again[0].ok or not again[1].refinement:
         return None
     return face_set.context.plane_gap_px(again[1].plane, face.plane)
 
 
 def _read_off_edge(face_set: _FaceSet, face_mask: np.ndarray, f: int, limit_px: float, *,
-                   fit_radius: bool = False):
+                   radius_search: dict | None = None):
     """Solve face ``f`` again without the band where the edge lies if planes are off.
 
     The band: pixels where the face's start plane and a neighbour's are within
     ``limit_px`` of each other (:func:`_edge_band`). Returns ``(narrow, solved)``: the
     face's mask without the band, and :func:`_solve_face`'s answer on it, None when the
     band holds none of the face's pixels or leaves fewer than :data:`MIN_FACE_PX`
-    (``fit_radius`` as :func:`_solve_face`).
+    (``radius_search`` as :func:`_solve_face`).
     """
     u0, v0, u1, v1 = box = face_set.box
     narrow = face_mask.copy()
     narrow[v0:v1, u0:u1] &= ~_edge_band(face_set.chosen, f, face_set.srde.rig, box, limit_px)
     if not MIN_FACE_PX <= np.count_nonzero(narrow) < np.count_nonzero(face_mask):
         return narrow, None
-    return narrow, _solve_face(face_set, narrow, f, fit_radius=fit_radius)
+    return narrow, _solve_face(face_set, narrow, f, radius_search=radius_search)
 
 
 def _edge_uncertain_px(faces: list[FaceResult], disparity: list[np.ndarray],
@@ -1492,14 +1506,16 @@ def _face_light(face_set: _FaceSet, f: int) -> tuple[int, np.ndarray, np.ndarray
 
 
 def _solve_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
-                fit_radius: bool = False):
+                radius_search: dict | None = None):
     """Check and refine face ``f`` of a set on its part of the mask (``face_mask``).
 
     Returns ``(SRDEResult, FaceResult or None, modelled)``, ``modelled`` the indices of
     the lights the refinement rendered beside the face's own.
 
     The face's light must be seen on its own part in ``srde.min_views`` views.
-    ``fit_radius``: the refinement fits the lamp's radius too, if the rig does not know it.
+    ``radius_search``: None, the lamp a point (or its radius, where the rig knows it);
+    else the refinement fits the lamp's radius too, if the rig does not know it, with
+    these options of :func:`~.refine.radius.refine_plane_and_radius` (a dict).
     """
     srde, score, label, gathered = face_set.srde, face_set.chosen[f], f + 1, face_set.gathered
     rig, lights = srde.rig, srde.lights_m
@@ -1523,7 +1539,8 @@ def _solve_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
     result = srde._finish_on_plane(face_mask, score.plane, lights[main], used, centers,
                                    detections, (), views=face_set.views,
                                    modelled_lights=[lights[k] for k in modelled],
-                                   fit_radius=fit_radius)
+                                   fit_radius=radius_search is not None,
+                                   radius_search=radius_search)
     face = None
     if result.ok:
         face = FaceResult(label, result.plane, main, result.virtual_light_m, centers, used,

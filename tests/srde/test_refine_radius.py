@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -10,6 +11,7 @@ import pytest
 
 from srde_fusion.errors import SRDEError
 from srde_fusion.geometry import Plane, plane_disparity
+from srde_fusion.srde.refine import radius as radius_module
 from srde_fusion.srde.refine import refine_plane, refine_plane_and_radius
 from srde_fusion.srde.refine.radius import RADIUS_ANGLES_RAD, _parabola_vertex
 from srde_fusion.synthetic import default_rig, render
@@ -95,6 +97,28 @@ def test_a_radius_that_hardly_lowers_the_cost_is_not_taken(end_face):
     assert search.refinement.cost_final == search.point_cost
     assert search.cheapest_radius_m == pytest.approx(case.radius_m, rel=0.15)
     assert min(search.costs) < 0.6 * search.point_cost
+
+
+def test_a_radius_can_be_held_to_a_point_fit_that_was_refined(end_face, monkeypatch):
+    case = end_face
+    refine = radius_module.refine_plane
+
+    def point_refused(*args, light_radius_m=None, **kwargs):
+        fit = refine(*args, light_radius_m=light_radius_m, **kwargs)
+        return fit if light_radius_m else dataclasses.replace(fit, status="kept_initial",
+                                                              reason="refused here")
+
+    monkeypatch.setattr(radius_module, "refine_plane", point_refused)
+    # By default a radius that refines where the point light's fit was refused saves all
+    # of its cost; held to a refined point fit, the search keeps the refused point fit.
+    search = refine_plane_and_radius(case.views, case.rig, case.light, case.mask, case.plane,
+                                     centers_uv=case.centers, min_gain=0.9)
+    assert search.refinement.ok and search.light_radius_m > 0.0
+    assert math.isinf(search.point_cost) and search.saving == 1.0
+    held = refine_plane_and_radius(case.views, case.rig, case.light, case.mask, case.plane,
+                                   centers_uv=case.centers, min_gain=0.9, point_fit_needed=True)
+    assert not held.refinement.ok and held.light_radius_m == 0.0
+    assert held.radii_m == search.radii_m
 
 
 @pytest.mark.parametrize("min_gain", [-0.1, 1.0, float("nan"), "0.1", True])

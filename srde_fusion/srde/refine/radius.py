@@ -118,7 +118,8 @@ class RadiusFit:
 
 def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane: Plane, *,
                             angles_rad: tuple[float, ...] = RADIUS_ANGLES_RAD,
-                            min_gain: float = MIN_COST_GAIN, **options) -> RadiusFit:
+                            min_gain: float = MIN_COST_GAIN, point_fit_needed: bool = False,
+                            **options) -> RadiusFit:
     """:func:`~.plane.refine_plane` with the light's radius fitted too.
 
     Parameters
@@ -131,6 +132,10 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
     min_gain : float
         The fraction of the point light's cost the cheapest radius must save to be
         taken (:data:`MIN_COST_GAIN`); 0 takes the cheapest fit.
+    point_fit_needed : bool
+        Take a radius only where the point light's fit was refined too (its saving then
+        measured); by default a radius that refines where the point light's fit was
+        refused saves all of it.
     **options
         :func:`~.plane.refine_plane`'s other options, but ``light_radius_m``.
 
@@ -183,7 +188,7 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
             break
         fit_at(r)
     best = int(np.argmin(costs))
-    if not _saving(costs) >= min_gain:
+    if not _saving(costs) >= min_gain or (point_fit_needed and not math.isfinite(costs[0])):
         best = 0  # no radius refined, or one the cost hardly prefers to a point
     return RadiusFit(fits[best], radii[best], tuple(radii), tuple(costs))
 
