@@ -34,8 +34,8 @@ lines, a light) are the same, only more than one of them is the answer:
    the edge lies if its planes are a pixel off, and a fit that moves the face's plane
    off its highlight centres' stands only when the image prefers it decisively and the
    move holds when the face is read without the band by the edge; a face whose fit so
-   moves its plane, its lamp taken for a point, is read with the lamp's radius fitted
-   before its set fails: :data:`RADIUS_RETRY`), and
+   moves its plane, or leaves it loose, its lamp taken for a point, is read with the
+   lamp's radius fitted before its set fails: :data:`RADIUS_RETRY`), and
    the mask is split again with the refined planes; each face is read once more on its
    new part (a face whose light the rig knows no radius for with the lamp's radius fitted
    too, where it lowers the lobe fit's cost enough: :data:`FIT_RADIUS`), and the mask
@@ -148,7 +148,7 @@ FIT_RADIUS = True
 #: A face whose first reading (its lamp a point) moves its plane off its highlight
 #: centres' by more than the checks allow, or leaves it loose, is read again with the
 #: lamp's radius fitted before its set is refused (when the rig does not know the
-#: radius; :data:`RETRY_GAINS`): the point light's tilt is what moves such faces. An end
+#: radius; :data:`RETRY_SEARCHES`): the point light's tilt is what moves such faces. An end
 #: face of a three-face ridge seen in three views of one column, its centres' plane
 #: 0.07 px off, was moved 0.78 px by the point light's fit and came within 0.02 px with
 #: the lamp's true radius (0.04 px with the radius fitted).
@@ -414,9 +414,10 @@ class _FaceReading:
 
     ``face`` is None when a check failed; ``result`` is then the failure, naming the
     face. ``refused_by``: which check failed ("" when none did; ``"move"`` for the
-    checks on how far the lobe fit moved the plane), ``why`` its reason without the
-    face's name. ``light``: the light that fixes the face, when the face was read that
-    far (else None). ``modelled``: the lights rendered beside it.
+    checks on how far the lobe fit moved the plane, ``"uncertain"`` for its standard
+    error; also ``"reading"``, ``"unconfirmed"``, ``"miss"``), ``why`` its reason
+    without the face's name. ``light``: the light that fixes the face, when the face was
+    read that far (else None). ``modelled``: the lights rendered beside it.
     """
 
     result: SRDEResult
