@@ -121,6 +121,13 @@ def test_a_radius_can_be_held_to_a_point_fit_that_was_refined(end_face, monkeypa
     assert held.radii_m == search.radii_m
 
 
+def test_a_point_fit_demand_that_is_not_a_bool_is_refused(end_face):
+    case = end_face
+    with pytest.raises(SRDEError, match=r"point_fit_needed: expected True or False, got 1"):
+        refine_plane_and_radius(case.views, case.rig, case.light, case.mask, case.plane,
+                                point_fit_needed=1)
+
+
 @pytest.mark.parametrize("min_gain", [-0.1, 1.0, float("nan"), "0.1", True])
 def test_a_minimum_gain_that_is_not_a_fraction_is_refused(end_face, min_gain):
     case = end_face

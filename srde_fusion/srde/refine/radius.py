@@ -148,6 +148,8 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
     if isinstance(min_gain, bool) or not (isinstance(min_gain, (int, float))
                                           and 0.0 <= min_gain < 1.0):
         raise SRDEError(f"min_gain: expected a fraction in [0, 1), got {min_gain!r}")
+    if not isinstance(point_fit_needed, bool):
+        raise SRDEError(f"point_fit_needed: expected True or False, got {point_fit_needed!r}")
     light = np.asarray(light_m, dtype=np.float64)
     height_m = float(initial_plane.signed_distance(light))
     if not height_m > 0.0:  # refine_plane says why such a start is refused
@@ -189,7 +191,9 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
         fit_at(r)
     best = int(np.argmin(costs))
     if not _saving(costs) >= min_gain or (point_fit_needed and not math.isfinite(costs[0])):
-        best = 0  # no radius refined, or one the cost hardly prefers to a point
+        # No radius refined, one the cost hardly prefers to a point, or (if asked) none
+        # whose saving a refined point fit measures.
+        best = 0
     return RadiusFit(fits[best], radii[best], tuple(radii), tuple(costs))
 
 
