@@ -510,7 +510,7 @@ class SRDE:
 
     def _finish(self, mask, point, w, used, centers, detections, notes, *, views=None,
                 light=None, refine=None, modelled_lights=(), modelled_centers=None,
-                window_centers=None, fit_radius=False, radius_search=None) -> SRDEResult:
+                window_centers=None, radius_search=None) -> SRDEResult:
         """Check the virtual light and the plane, refine it (given views); disparity.
 
         ``light``: the light ``point`` is the virtual light of (one of several); the
@@ -520,9 +520,10 @@ class SRDE:
         ``(M, N, 2)``: their highlights, which the refinement's windows go around too.
         ``window_centers`` ``(N, 2)``: where the refinement's windows go around ``light``'s
         highlight (NaN: no window in that view); the used ``centers`` by default.
-        ``fit_radius``: if the rig does not know ``light``'s radius, the refinement fits it
-        too (:func:`~.refine.radius.refine_plane_and_radius`, with the options
-        ``radius_search``, a dict, if given); a known radius is used as is.
+        ``radius_search``: a dict (possibly empty) of options of
+        :func:`~.refine.radius.refine_plane_and_radius`: if the rig does not know
+        ``light``'s radius, the refinement fits it too with them; None (the default) or
+        a known radius: the radius is not fitted (a known one is used as is).
         """
         rig = self.rig
         fail = {"centers": centers, "used": used, "detections": detections}
@@ -569,14 +570,13 @@ class SRDE:
                                               if len(modelled_lights) else None),
                            modelled_centers_uv=modelled_centers,
                            pixel_samples=self.refine_pixels)
-            if fit_radius and radius_m is None:
-                search_options = radius_search or {}
+            if radius_search is not None and radius_m is None:
                 search = refine_plane_and_radius(views, rig, light, mask, plane,
-                                                 **search_options, **options)
+                                                 **radius_search, **options)
                 refinement = search.refinement
                 if refinement.ok:
                     notes = (*notes, _radius_note(
-                        search, search_options.get("min_gain", MIN_COST_GAIN)))
+                        search, radius_search.get("min_gain", MIN_COST_GAIN)))
             else:
                 refinement = refine_plane(views, rig, light, mask, plane,
                                           light_radius_m=radius_m, **options)

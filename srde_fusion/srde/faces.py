@@ -1324,7 +1324,7 @@ def _read_again(srde: SRDE, views, mask: np.ndarray, faces: list[FaceResult], re
                                       face.used_views, face.highlight_centers,
                                       results[f].detections, (), views=views,
                                       modelled_lights=[lights[k] for k in modelled_by_face[f]],
-                                      fit_radius=FIT_RADIUS)
+                                      radius_search={} if FIT_RADIUS else None)
         refinement = again.refinement
         if (again.ok and refinement is not None and refinement.ok
                 and refinement.disparity_sigma_px <= MAX_FACE_SIGMA_PX
@@ -1540,7 +1540,6 @@ def _solve_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
     result = srde._finish_on_plane(face_mask, score.plane, lights[main], used, centers,
                                    detections, (), views=face_set.views,
                                    modelled_lights=[lights[k] for k in modelled],
-                                   fit_radius=radius_search is not None,
                                    radius_search=radius_search)
     face = None
     if result.ok:
