@@ -57,7 +57,7 @@ from .faces import MAX_FACES, estimate_faces
 from .highlight import HighlightDetection, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
-from .refine.radius import MIN_COST_GAIN, RadiusFit, refine_plane_and_radius
+from .refine.radius import MIN_COST_GAIN, RADIUS_NOTE, RadiusFit, refine_plane_and_radius
 from .result import SRDEResult
 from .search import BaselineSearch
 
@@ -699,13 +699,13 @@ def _radius_note(search: RadiusFit, min_gain: float) -> str:
     point = (f"as a point {search.point_cost:.3g}" if math.isfinite(search.point_cost)
              else "a point light's fit was refused")
     if search.light_radius_m > 0.0:
-        return (f"refinement: the light's radius is not known; fitted "
+        return (f"{RADIUS_NOTE}; fitted "
                 f"{search.light_radius_m * 1000:.1f} mm (photometric cost "
                 f"{search.refinement.cost_final:.3g}, {point})")
     if search.cheapest_radius_m == 0.0:
-        return (f"refinement: the light's radius is not known; kept a point light (every "
+        return (f"{RADIUS_NOTE}; kept a point light (every "
                 f"radius tried cost more; photometric cost {search.point_cost:.3g})")
-    return (f"refinement: the light's radius is not known; kept a point light (the cheapest "
+    return (f"{RADIUS_NOTE}; kept a point light (the cheapest "
             f"radius, {search.cheapest_radius_m * 1000:.1f} mm, saved {search.saving:.1%} of the "
             f"point light's photometric cost {search.point_cost:.3g}; {min_gain:.0%} needed)")
 

@@ -75,6 +75,7 @@ from .highlight import HighlightDetection, search_box
 from .hinges import hinge_chords, hinge_plane, outline_corners
 from .lights import DECISIVE_COST_RATIO, lobes_prefer, near_lights
 from .refine import PlaneRefinement
+from .refine.radius import RADIUS_NOTE
 from .result import SRDEResult
 
 if TYPE_CHECKING:
@@ -417,7 +418,9 @@ class _FaceReading:
     checks on how far the lobe fit moved the plane, ``"uncertain"`` for its standard
     error; also ``"reading"``, ``"unconfirmed"``, ``"miss"``), ``why`` its reason
     without the face's name. ``light``: the light that fixes the face, when the face was
-    read that far (else None). ``modelled``: the lights rendered beside it.
+    read that far (else None). ``modelled``: the lights rendered beside it. ``notes``:
+    the notes of a reading refused by a check after it was solved (its lobe fit's, such
+    as which radius a radius search took).
     """
 
     result: SRDEResult
@@ -426,6 +429,7 @@ class _FaceReading:
     refused_by: str = ""
     why: str = ""
     light: int | None = None
+    notes: tuple[str, ...] = ()
 
 
 def choose_faces(context: AssignmentContext, scores: list[PlaneScore], *, max_faces: int,
@@ -1116,8 +1120,12 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
             # for every face) before the set is refused.
             again = _checked_face(face_set, face_mask, f, radius_search=search)
             if again.face is None:
+                # Whether the search took a radius at all (a loose face's must save most
+                # of the point light's cost) is part of why the reading failed.
+                radius = "".join(f"; {note}" for note in again.notes
+                                 if note.startswith(RADIUS_NOTE))
                 return replace(reading.result, reason=f"{reading.result.reason} (read again "
-                               f"with the lamp's radius fitted: {again.why})")
+                               f"with the lamp's radius fitted: {again.why}{radius})")
             reading = again
         if reading.face is None:
             return reading.result
@@ -1206,9 +1214,10 @@ def _checked_face(face_set: _FaceSet, face_mask: np.ndarray, f: int, *,
     tolerance_px = 2.0 * srde.max_residual_px
 
     def failed(check: str, status: str, why: str, plane, light: int | None = None):
-        result = srde._failed(status, f"face {f + 1} of {len(face_set.chosen)}: {why}",
-                              plane=plane)
-        return _FaceReading(result, None, [], check, why, light)
+        failure = srde._failed(status, f"face {f + 1} of {len(face_set.chosen)}: {why}",
+                               plane=plane)
+        return _FaceReading(failure, None, [], check, why, light,
+                            result.notes if result.ok else ())
 
     result, face, modelled = _solve_face(face_set, face_mask, f, radius_search=radius_search)
     if result.ok and srde.refine and not face.refinement:

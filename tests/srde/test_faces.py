@@ -20,6 +20,7 @@ from srde_fusion.srde.assignment import AssignmentContext
 from srde_fusion.srde.candidates import gather_candidates
 from srde_fusion.srde.faces import FACE_RULES, choose_faces, split_faces
 from srde_fusion.srde.highlight import search_box
+from srde_fusion.srde.refine.radius import RADIUS_NOTE
 from srde_fusion.synthetic import default_rig, random_scene, render
 from srde_fusion.synthetic.faceted import faceted_scene
 from srde_fusion.synthetic.physics import Physics
@@ -821,7 +822,7 @@ def test_a_lamp_radius_the_rig_does_not_know_is_fitted_on_a_face_seen_in_few_vie
         plane_disparity(f.plane, rig)[rendering.instance_mask == 1]
         - rendering.disparity_px[rendering.instance_mask == 1])))
     assert np.count_nonzero(end.used_views) == 2
-    fitted = [n for n in end.notes if n.startswith("refinement: the light's radius is not known")]
+    fitted = [n for n in end.notes if n.startswith(RADIUS_NOTE)]
     assert len(fitted) == 1, end.notes
     radius_mm = float(fitted[0].split("fitted ")[1].split(" mm")[0])
     assert radius_mm == pytest.approx(1000 * faceted.scene.lights[end.light].radius_m, rel=0.2)
@@ -901,8 +902,16 @@ def test_a_loose_face_is_pinned_by_the_lamps_radius_only_where_it_explains_the_i
     wrong = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert wrong.ok and min(_face_epes(wrong.disparity, rendering, 2)) > WRONG_FACE_PX
     monkeypatch.undo()
+    splits = _record(monkeypatch, "_solve_split")
     right = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert right.ok and max(_face_epes(right.disparity, rendering, 2)) <= FACE_EPE_PX
+    # The wrong set is refused, and its reason says the radius was not taken and why
+    # (its saving, measured at 71 %, short of the bar).
+    bar = f"{faces_module.LOOSE_FACE_RADIUS_GAIN:.0%} needed"
+    short = [s.reason for s in splits if not s.ok and bar in s.reason]
+    assert short and all("read again with the lamp's radius fitted" in r and
+                         f"{RADIUS_NOTE}; kept a point light (the cheapest radius" in r
+                         for r in short), [s.reason for s in splits]
 
 
 def test_a_face_the_lobe_fit_moves_decisively_stands(rig, monkeypatch):

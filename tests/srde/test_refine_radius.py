@@ -117,8 +117,31 @@ def test_a_radius_can_be_held_to_a_point_fit_that_was_refined(end_face, monkeypa
     assert math.isinf(search.point_cost) and search.saving == 1.0
     held = refine_plane_and_radius(case.views, case.rig, case.light, case.mask, case.plane,
                                    centers_uv=case.centers, min_gain=0.9, point_fit_needed=True)
+    # Nothing could be taken after a refused point fit: the search ends there.
     assert not held.refinement.ok and held.light_radius_m == 0.0
-    assert held.radii_m == search.radii_m
+    assert held.radii_m == (0.0,) and len(search.radii_m) > 1
+
+
+def test_a_search_whose_first_fits_are_all_refused_ends(end_face, monkeypatch):
+    case = end_face
+    refine = radius_module.refine_plane
+    tried = []
+
+    def refused(*args, light_radius_m=None, **kwargs):
+        tried.append(light_radius_m or 0.0)
+        fit = refine(*args, light_radius_m=light_radius_m, **kwargs)
+        return dataclasses.replace(fit, status="kept_initial", reason="refused here")
+
+    monkeypatch.setattr(radius_module, "refine_plane", refused)
+    search = refine_plane_and_radius(case.views, case.rig, case.light, case.mask, case.plane,
+                                     centers_uv=case.centers)
+    # The point light and the grid's first radii, then no larger disc (the slow ones).
+    height_m = float(case.plane.signed_distance(case.light))
+    expected = [height_m * a for a in RADIUS_ANGLES_RAD[:radius_module.MAX_REFUSED_FITS]]
+    assert list(search.radii_m) == pytest.approx(expected)
+    assert tried == pytest.approx(expected)
+    assert not search.refinement.ok and search.light_radius_m == 0.0
+    assert all(math.isinf(c) for c in search.costs)
 
 
 def test_a_point_fit_demand_that_is_not_a_bool_is_refused(end_face):

@@ -15,9 +15,10 @@ The fit's own cost says which radius it is: over the radius, on the same samples
 has its minimum at the lamp's (there: 4.7e-6 for a point, 2.0e-6 at the true radius,
 3.2e-6 at 1.25 times it). :func:`refine_plane_and_radius` therefore refits the plane for
 a grid of radii, each the light's distance from the plane times an angle of
-:data:`RADIUS_ANGLES_RAD`, in ascending order until the cost rises, takes the cheapest
-fit, and fits again at the vertex of the parabola through the cheapest radius
-and its neighbours, a few times over.
+:data:`RADIUS_ANGLES_RAD`, in ascending order until the cost rises (or until the point
+light's fit and the grid's first radii have all been refused, :data:`MAX_REFUSED_FITS`:
+no disc then describes the highlight), takes the cheapest fit, and fits again at the
+vertex of the parabola through the cheapest radius and its neighbours, a few times over.
 
 A radius is taken only where it pays: if the cheapest radius lowers the point light's
 cost by less than :data:`MIN_COST_GAIN`, the radius is not identifiable from these
@@ -40,7 +41,9 @@ from .plane import PlaneRefinement, refine_plane
 
 __all__ = [
     "MAX_RADIUS_ANGLE_RAD",
+    "MAX_REFUSED_FITS",
     "MIN_COST_GAIN",
+    "RADIUS_NOTE",
     "RADIUS_ANGLES_RAD",
     "RADIUS_GROWTH",
     "VERTEX_STEPS",
@@ -72,8 +75,19 @@ VERTEX_STEPS = 3
 #: stands.
 MIN_COST_GAIN = 0.05
 
+#: How a result's note on a radius search begins (the estimator's, naming the radius
+#: taken or why none was).
+RADIUS_NOTE = "refinement: the light's radius is not known"
+
 #: A vertex this close to a radius already tried (relative) ends the search.
 VERTEX_TOLERANCE = 0.03
+
+#: Fits refused in a row from the point light up (the point's and the grid's first radii)
+#: that end the search: no disc tried gives a lobe that describes the highlight, and the
+#: larger discs are the slow ones to fit. (On a three-face ridge's face read on a part
+#: the refined planes redrew, every one of the grid's eight fits was refused, shape
+#: parameters at their bounds, the five largest taking 1.4-3 s each: 10 s per reading.)
+MAX_REFUSED_FITS = 3
 
 
 @dataclass(frozen=True)
@@ -134,8 +148,8 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
         taken (:data:`MIN_COST_GAIN`); 0 takes the cheapest fit.
     point_fit_needed : bool
         Take a radius only where the point light's fit was refined too (its saving then
-        measured); by default a radius that refines where the point light's fit was
-        refused saves all of it.
+        measured; a refused point fit ends the search); by default a radius that refines
+        where the point light's fit was refused saves all of it.
     **options
         :func:`~.plane.refine_plane`'s other options, but ``light_radius_m``.
 
@@ -172,6 +186,10 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
         if height_m * angle > MAX_LIGHT_RADIUS_M:
             break
         fit_at(height_m * angle)
+        if point_fit_needed and not math.isfinite(costs[0]):
+            break  # no radius can be taken: its saving has nothing to be measured against
+        if len(costs) >= MAX_REFUSED_FITS and not any(map(math.isfinite, costs)):
+            break
         if len(costs) > 1 and costs[-1] > min(costs[:-1]):
             # Past the cheapest radius: the cost rises steeply above the lamp's, and a
             # disc many lobe widths across is slow to fit (seconds where the others take
