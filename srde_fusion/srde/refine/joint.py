@@ -171,7 +171,7 @@ class JointLobeModel:
             theta_k[I_SPEC] = spec[k]
             if k > 0:
                 theta_k[I_DIFF] = 0.0
-            jac += part.reduce(part.model_slopes(theta_k, free))
+            jac += part.slopes_at_samples(theta_k, free)
         # A saturated sample above its lower bound contributes nothing, nor does its slope.
         ignored = self.intensities.censored & (model >= self.intensities.y)
         if ignored.any():

@@ -297,9 +297,16 @@ class LobeModel:
         the next call.
         """
         _, _, _, shading, lobe = self.lobe_at(theta)
-        slopes = self.model_slopes(theta, free, out=self._slopes_buffer[:len(free)])
-        jac = self.reduce(slopes, out=self._jacobian_buffer[:len(free)])
+        jac = self.slopes_at_samples(theta, free)
         return self.intensities.project_out(jac, shading, lobe, theta[I_SPEC:])
+
+    def slopes_at_samples(self, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """:meth:`model_slopes` reduced to the samples, ``(len(free), P)``.
+
+        A buffer of the model's, overwritten by the next call (as :meth:`jacobian`'s).
+        """
+        slopes = self.model_slopes(theta, free, out=self._slopes_buffer[:len(free)])
+        return self.reduce(slopes, out=self._jacobian_buffer[:len(free)])
 
     def gram(self, jac: np.ndarray) -> np.ndarray:
         """Return ``jac @ jac.T`` ``(K, K)`` for a Jacobian from :meth:`jacobian`.
