@@ -57,7 +57,7 @@ from .faces import MAX_FACES, estimate_faces
 from .highlight import HighlightDetection, search_box
 from .lights import check_lights, estimate_with_lights
 from .refine import DEFAULT_LOBE, LOBES, refine_plane
-from .refine.radius import MIN_COST_GAIN, RADIUS_NOTE, RadiusFit, refine_plane_and_radius
+from .refine.radius import RADIUS_NOTE, RadiusFit, refine_plane_and_radius
 from .result import SRDEResult
 from .search import BaselineSearch
 
@@ -575,8 +575,7 @@ class SRDE:
                                                  **radius_search, **options)
                 refinement = search.refinement
                 if refinement.ok:
-                    notes = (*notes, _radius_note(
-                        search, radius_search.get("min_gain", MIN_COST_GAIN)))
+                    notes = (*notes, _radius_note(search))
             else:
                 refinement = refine_plane(views, rig, light, mask, plane,
                                           light_radius_m=radius_m, **options)
@@ -691,23 +690,19 @@ def _mask_uv(mask: np.ndarray) -> np.ndarray:
     return np.stack([uu, vv], axis=1).astype(np.float64)
 
 
-def _radius_note(search: RadiusFit, min_gain: float) -> str:
-    """Say which radius the refinement took for a light the rig gives none, and why.
-
-    ``min_gain``: the fraction of the point light's cost a radius had to save.
-    """
+def _radius_note(search: RadiusFit) -> str:
+    """Say which radius the refinement took for a light the rig gives none, and why."""
     point = (f"as a point {search.point_cost:.3g}" if math.isfinite(search.point_cost)
              else "a point light's fit was refused")
     if search.light_radius_m > 0.0:
-        return (f"{RADIUS_NOTE}; fitted "
-                f"{search.light_radius_m * 1000:.1f} mm (photometric cost "
-                f"{search.refinement.cost_final:.3g}, {point})")
+        return (f"{RADIUS_NOTE}; fitted {search.light_radius_m * 1000:.1f} mm (photometric "
+                f"cost {search.refinement.cost_final:.3g}, {point})")
     if search.cheapest_radius_m == 0.0:
-        return (f"{RADIUS_NOTE}; kept a point light (every "
-                f"radius tried cost more; photometric cost {search.point_cost:.3g})")
-    return (f"{RADIUS_NOTE}; kept a point light (the cheapest "
-            f"radius, {search.cheapest_radius_m * 1000:.1f} mm, saved {search.saving:.1%} of the "
-            f"point light's photometric cost {search.point_cost:.3g}; {min_gain:.0%} needed)")
+        return (f"{RADIUS_NOTE}; kept a point light (every radius tried cost more; "
+                f"photometric cost {search.point_cost:.3g})")
+    return (f"{RADIUS_NOTE}; kept a point light (the cheapest radius, "
+            f"{search.cheapest_radius_m * 1000:.1f} mm, saved {search.saving:.1%} of the point "
+            f"light's photometric cost {search.point_cost:.3g}; {search.min_gain:.0%} needed)")
 
 
 def _rms_residual(rig, point, centers, used) -> float:

@@ -107,12 +107,15 @@ class RadiusFit:
     costs : tuple of float
         Each one's final photometric cost (mean squared residual, linear luminance
         squared); ``inf`` where its fit was not refined.
+    min_gain : float
+        The fraction of the point light's cost a radius had to save to be taken.
     """
 
     refinement: PlaneRefinement
     light_radius_m: float
     radii_m: tuple[float, ...]
     costs: tuple[float, ...]
+    min_gain: float = MIN_COST_GAIN
 
     @property
     def point_cost(self) -> float:
@@ -168,7 +171,7 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
     height_m = float(initial_plane.signed_distance(light))
     if not height_m > 0.0:  # refine_plane says why such a start is refused
         fit = refine_plane(views, rig, light, mask, initial_plane, **options)
-        return RadiusFit(fit, 0.0, (0.0,), (_cost(fit),))
+        return RadiusFit(fit, 0.0, (0.0,), (_cost(fit),), min_gain)
     radii: list[float] = []
     fits: list[PlaneRefinement] = []
     costs: list[float] = []
@@ -208,11 +211,9 @@ def refine_plane_and_radius(views, rig, light_m, mask: np.ndarray, initial_plane
             break
         fit_at(r)
     best = int(np.argmin(costs))
-    if not _saving(costs) >= min_gain or (point_fit_needed and not math.isfinite(costs[0])):
-        # No radius refined, one the cost hardly prefers to a point, or (if asked) none
-        # whose saving a refined point fit measures.
-        best = 0
-    return RadiusFit(fits[best], radii[best], tuple(radii), tuple(costs))
+    if not _saving(costs) >= min_gain:
+        best = 0  # no radius refined, or one the cost hardly prefers to a point
+    return RadiusFit(fits[best], radii[best], tuple(radii), tuple(costs), min_gain)
 
 
 def _saving(costs) -> float:
