@@ -19,6 +19,7 @@ from srde_fusion.geometry import CameraRig, Plane, plane_disparity, plane_from_l
 from srde_fusion.srde import SRDE
 from srde_fusion.srde.refine import LOBES, PlaneRefinement, refine_plane
 from srde_fusion.srde.refine import joint as joint_module
+from srde_fusion.srde.refine.diffuse import DiffuseLights
 from srde_fusion.srde.refine.joint import JointLobeModel
 from srde_fusion.srde.refine.layout import I_FORE, I_SPEC, I_TAIL, N_PLANE
 from srde_fusion.srde.refine.model import DEFAULT_F0, LobeModel
@@ -275,6 +276,43 @@ def test_a_far_light_gets_no_intensity_and_changes_nothing(rough_ggx):
                       "ggx", DEFAULT_F0, None)
     np.testing.assert_allclose(joint.evaluate(theta)[0], alone.evaluate(theta[:-1])[0],
                                atol=1e-12)
+
+
+def test_further_lights_diffuse_slopes_agree_with_finite_differences(rough_ggx):
+    case = rough_ggx
+    samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
+                              case["centers"])
+    model = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
+                      "gtr", DEFAULT_F0, None)
+    light = np.asarray(case["light"])
+    further = np.stack([light + [-0.3, 0.1, 0.05], light + [0.2, 0.25, -0.1]])
+    diffuse = DiffuseLights(model.reflection, further)
+    params = np.array([0.01, -0.02, 0.003])
+    weights = np.array([0.4, 1.3])
+    free = np.arange(N_PLANE)
+    slopes = diffuse.slopes(params, weights, free, np.zeros((N_PLANE, model.reflection.q.size)))
+    for index in free:
+        up, down = params.copy(), params.copy()
+        up[index] += SLOPE_STEPS[index]
+        down[index] -= SLOPE_STEPS[index]
+        expected = weights @ (diffuse.at(up) - diffuse.at(down)) / (2 * SLOPE_STEPS[index])
+        scale = np.max(np.abs(expected))
+        assert scale > 0
+        assert np.max(np.abs(slopes[index] - expected)) < SLOPE_RTOL * scale, index
+    # normalised to a median of 1 at the initial plane
+    np.testing.assert_allclose(np.median(diffuse.at(np.zeros(N_PLANE)), axis=1), 1.0)
+
+
+def test_a_light_behind_the_plane_sheds_no_diffuse_light(rough_ggx):
+    case = rough_ggx
+    samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
+                              case["centers"])
+    model = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
+                      "gtr", DEFAULT_F0, None)
+    plane = case["plane"]
+    behind = np.asarray(plane.normal) * (plane.offset_m - 0.5)  # 0.5 m beyond the plane
+    diffuse = DiffuseLights(model.reflection, behind[None])
+    assert not np.any(diffuse.at(np.zeros(N_PLANE)))
 
 
 def test_a_basis_vector_that_underflows_gets_no_coefficient():

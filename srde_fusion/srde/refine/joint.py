@@ -6,13 +6,17 @@ measures either virtual light. The image still holds the answer: the blob is the
 two lobes of the *same* surface (one roughness, one Fresnel term, one foreshortening),
 each lit by its own known light and mirrored by the *same* plane. :class:`JointLobeModel`
 renders that sum, one :class:`~.model.LobeModel` per light sharing the plane and shape
-parameters, each light with its own specular intensity; the diffuse term is the first
-light's (the fit only sees a small window, where the other lights' diffuse light is
-nearly constant and goes into the level).
+parameters, each light with its own specular intensity. Every further known light also sheds
+diffuse light on the samples, each with an intensity of its own (:mod:`~.diffuse`):
+the windows of different views lie on different parts of the surface, where another
+lamp's diffuse light is not one constant level. The same model with one part and only
+further lights' diffuse terms serves a light whose neighbours' highlights are out of
+its windows.
 
 ``theta`` is the single light's layout (see ``layout``) followed by the specular
-intensity of each further light: ``(tilt_1, tilt_2, offset_m, log_width, tail,
-foreshortening, specular_0, diffuse, level, specular_1, ..., specular_{M-1})``. All
+intensity of each further modelled light, then the diffuse intensity of each further
+light: ``(tilt_1, tilt_2, offset_m, log_width, tail, foreshortening, specular_0,
+diffuse, level, specular_1, ..., specular_{K-1}, diffuse_1, ..., diffuse_M)``. All
 intensities enter linearly and are solved in closed form at every evaluation, as for one
 light; saturated samples are one-sided as there.
 """
@@ -23,6 +27,7 @@ import math
 
 import numpy as np
 
+from .diffuse import DiffuseLights
 from .intensities import with_saturated
 from .layout import I_DIFF, I_LEVEL, I_SPEC, I_TAIL, I_WIDTH, N_PARAMS
 from .model import WIDTH_GRID, LobeFit, LobeModel
@@ -45,15 +50,23 @@ class JointLobeModel:
     Parameters
     ----------
     parts : list of LobeModel
-        One model per light, all on the same samples and initial plane, the light whose
-        highlight placed the windows first (its diffuse term is the model's, its
-        specular intensity must come out positive).
+        One model per light whose lobe is rendered, all on the same samples and initial
+        plane, the light whose highlight placed the windows first (its specular
+        intensity must come out positive).
+    diffuse_lights_m : numpy.ndarray, (M, 3), optional
+        Further lights whose diffuse light is rendered (every light but the first that
+        the rig knows, whether its lobe is rendered or not), array frame, metres.
     """
 
-    def __init__(self, parts: list[LobeModel]) -> None:
+    def __init__(self, parts: list[LobeModel], diffuse_lights_m: np.ndarray | None = None
+                 ) -> None:
         self.parts = parts
         first = parts[0]
         self.valid = first.valid and all(p.valid for p in parts)
+        self.diffuse = (DiffuseLights(first.reflection, diffuse_lights_m)
+                        if self.valid and diffuse_lights_m is not None
+                        and len(diffuse_lights_m) else None)
+        self.n_diffuse = 0 if self.diffuse is None else len(self.diffuse)
         self.intensities = first.intensities  # the observations and their clipping
         self.free_all = first.free_all
         self.free_photometric = first.free_photometric
@@ -92,28 +105,44 @@ class JointLobeModel:
 
     def start_theta(self) -> np.ndarray:
         """Parameters at the initial plane with a mid-range lobe, intensities 0."""
-        return np.concatenate([self.parts[0].start_theta(), np.zeros(self.n_lights - 1)])
+        return np.concatenate([self.parts[0].start_theta(),
+                               np.zeros(self.n_lights - 1 + self.n_diffuse)])
 
     def specular(self, theta: np.ndarray) -> np.ndarray:
-        """Each light's specular intensity ``(K,)``."""
-        return np.concatenate([[theta[I_SPEC]], theta[N_PARAMS:]])
+        """Each rendered lobe's specular intensity ``(K,)``."""
+        return np.concatenate([[theta[I_SPEC]], theta[N_PARAMS:N_PARAMS + self.n_lights - 1]])
+
+    def further_diffuse(self, theta: np.ndarray) -> np.ndarray:
+        """Each further light's diffuse intensity ``(M,)``."""
+        return theta[N_PARAMS + self.n_lights - 1:]
 
     # ------------------------------------------------------------------ the rendering
     def _lobes(self, theta: np.ndarray):
-        """Every light's lobe at the samples ``(K, P)`` and the first's shading, or Nones."""
+        """Every part's lobe at the samples ``(K, P)`` and the diffuse terms, or Nones.
+
+        The diffuse terms ``(1 + M, P)``: the first light's, then the further lights'.
+        """
         lobes = []
-        shading = None
+        diffuse = None
         for k, part in enumerate(self.parts):
             g, _, _, part_shading, lobe = part.lobe_at(theta[:N_PARAMS])
             if g is None:
                 return None, None
             if k == 0:
-                shading = part_shading
+                diffuse = part_shading.diffuse[None, :]
             lobes.append(lobe)
-        return np.stack(lobes), shading
+        if self.diffuse is not None:
+            further = self.diffuse.at(theta)
+            if further is None:
+                return None, None
+            diffuse = np.vstack([diffuse, self.parts[0].reduce(further)])
+        return np.stack(lobes), diffuse
 
     def _solve(self, lobes: np.ndarray, diffuse: np.ndarray):
-        """Intensities ``(K + 2,)`` (specular per light, diffuse, level) and the model."""
+        """Intensities ``(K + 1 + M + 1,)`` and the model.
+
+        Specular per rendered lobe, diffuse per light, level.
+        """
         solver = self.intensities
         y, k = solver.y, solver.n_unclipped
         basis = self._basis(lobes, diffuse)
@@ -134,34 +163,40 @@ class JointLobeModel:
         return coef, coef @ basis, basis
 
     def _basis(self, lobes: np.ndarray, diffuse: np.ndarray) -> np.ndarray:
-        """Return the intensities' basis ``(K + 2, P)``: each light's lobe, diffuse, 1."""
-        return np.vstack([lobes, diffuse[None, :], np.ones((1, lobes.shape[1]))])
+        """Return the intensities' basis ``(K + 1 + M + 1, P)``: lobes, diffuse terms, 1."""
+        return np.vstack([lobes, diffuse, np.ones((1, lobes.shape[1]))])
 
     def _theta_with(self, theta: np.ndarray, coef: np.ndarray) -> np.ndarray:
         out = theta.copy()
         k = self.n_lights
         out[I_SPEC] = coef[0]
-        out[N_PARAMS:] = coef[1:k]
+        out[N_PARAMS:N_PARAMS + k - 1] = coef[1:k]
         out[I_DIFF] = coef[k]
-        out[I_LEVEL] = coef[k + 1]
+        out[N_PARAMS + k - 1:] = coef[k + 1:-1]
+        out[I_LEVEL] = coef[-1]
         return out
+
+    def _coefficients(self, theta: np.ndarray) -> np.ndarray:
+        """The intensities of ``theta`` in the basis' order (:meth:`_theta_with` undone)."""
+        return np.concatenate([self.specular(theta), [theta[I_DIFF]],
+                               self.further_diffuse(theta), [theta[I_LEVEL]]])
 
     # ------------------------------------------------------------------ least squares
     def evaluate(self, theta: np.ndarray):
         """Residual at ``theta``'s plane and lobe shape with the best intensities."""
-        lobes, shading = self._lobes(theta)
+        lobes, diffuse = self._lobes(theta)
         if lobes is None:
             return np.full(self.intensities.y.shape, np.inf), theta.copy()
-        coef, model, _ = self._solve(lobes, shading.diffuse)
+        coef, model, _ = self._solve(lobes, diffuse)
         return self.intensities.residual(model), self._theta_with(theta, coef)
 
     def jacobian(self, theta: np.ndarray, free: np.ndarray) -> np.ndarray:
         """Transposed Jacobian ``(len(free), P)`` (variable projection, Kaufman's form)."""
         # ``theta`` comes from :meth:`evaluate`, its intensities already solved there.
-        lobes, shading = self._lobes(theta)
-        basis = self._basis(lobes, shading.diffuse)
+        lobes, diffuse = self._lobes(theta)
+        basis = self._basis(lobes, diffuse)
         spec = self.specular(theta)
-        model = np.concatenate([spec, theta[[I_DIFF, I_LEVEL]]]) @ basis
+        model = self._coefficients(theta) @ basis
         jac = np.zeros((len(free), len(model)))
         for k, part in enumerate(self.parts):
             if spec[k] == 0.0 and k > 0:
@@ -172,6 +207,11 @@ class JointLobeModel:
             if k > 0:
                 theta_k[I_DIFF] = 0.0
             jac += part.slopes_at_samples(theta_k, free)
+        if self.diffuse is not None:
+            main = self.parts[0]
+            points = self.diffuse.slopes(theta, self.further_diffuse(theta), free,
+                                         np.zeros((len(free), main.reflection.q.size)))
+            jac += main.reduce(points)
         # A saturated sample above its lower bound contributes nothing, nor does its slope.
         ignored = self.intensities.censored & (model >= self.intensities.y)
         if ignored.any():

@@ -491,12 +491,15 @@ class _Setup:
         main = LobeModel(samples, self.rig, self.box, self.light, plane, self.lobe, self.f0,
                          self.foreshortening, support=support, fresnel=self.fresnel,
                          light_radius_m=self.light_radius_m, disc_rings=disc_rings)
-        if self.modelled_lights is None:
+        further = [m for m in (self.modelled_lights, self.other_lights) if m is not None]
+        if not further:
             return main
+        # Every further light's diffuse light is rendered; the modelled ones' lobes too.
         return JointLobeModel([main] + [
             LobeModel(samples, self.rig, self.box, light, plane, self.lobe, self.f0,
                       self.foreshortening, support=support, fresnel=self.fresnel)
-            for light in self.modelled_lights])
+            for light in (() if self.modelled_lights is None else self.modelled_lights)],
+            diffuse_lights_m=np.vstack(further))
 
 
 @dataclass(frozen=True)
