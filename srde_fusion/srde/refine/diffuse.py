@@ -30,18 +30,23 @@ class DiffuseLights:
     Parameters
     ----------
     reflection : PlaneReflection
-        The main light's geometry of the same points (rays, camera centres, the plane's
-        parametrisation); must be valid.
+        The main light's geometry of the model's points (rays, camera centres, the
+        plane's parametrisation); must be valid.
     lights_m : numpy.ndarray, (M, 3)
         The further lights, array frame, metres.
+    reduce : callable, optional
+        The model's average over each sample's points, ``(..., S * P) -> (..., P)``
+        (:meth:`~.model.LobeModel.reduce`); the points are the samples by default.
 
     Each light's term is normalised to a median of 1 over the points at the initial
     plane, as the main light's (a light behind the initial plane keeps its raw scale;
     it lights nothing there).
     """
 
-    def __init__(self, reflection: PlaneReflection, lights_m: np.ndarray) -> None:
+    def __init__(self, reflection: PlaneReflection, lights_m: np.ndarray,
+                 reduce=None) -> None:
         self.reflection = reflection
+        self.reduce = (lambda values, out=None: values) if reduce is None else reduce
         self.lights_m = np.asarray(lights_m, dtype=np.float64).reshape(-1, 3)
         to_light = self.lights_m[:, None, :] - reflection.camera_t.T[None]   # (M, P, 3)
         self.a = np.einsum("mpi,mpi->mp", to_light, to_light)
@@ -51,7 +56,7 @@ class DiffuseLights:
         self._value: tuple | None = None
         start = self._terms(np.zeros(N_PLANE))
         if start is not None:
-            medians = np.median(start[0], axis=1)
+            medians = np.median(start[-1], axis=1)
             self.scale = np.where(medians > 0.0, 1.0 / np.where(medians > 0.0, medians, 1.0),
                                   1.0)
             self._key = None
@@ -74,19 +79,24 @@ class DiffuseLights:
             t = (c - n @ reflection.camera_t) / nk
             height = self.lights_m @ n - c                                # (M,)
             lit = height > 0.0  # a light behind the plane lights none of it
-            r2 = t * (t * reflection.q - 2.0 * self.b) + self.a            # (M, P)
+            r2 = t * reflection.q                                         # (P,)
+            r2 = r2 - 2.0 * self.b                                        # (M, P)
+            r2 *= t
+            r2 += self.a
             r = np.sqrt(r2)
-            inv_r3 = 1.0 / (r2 * r)
-            terms = np.where(lit[:, None], height[:, None] * inv_r3, 0.0)
+            inv_r3 = np.multiply(r2, r, out=r2)
+            np.reciprocal(inv_r3, out=inv_r3)
+            terms = inv_r3 * np.where(lit, height, 0.0)[:, None]
             terms *= self.scale[:, None]
-            value = (terms, n, t, nk, height, lit, r, inv_r3)
+            value = (self.reduce(terms), n, t, nk, height, lit, r, inv_r3, terms)
         self._key, self._value = key, value
         return value
 
     def at(self, plane_params: np.ndarray) -> np.ndarray | None:
-        """Each light's diffuse term ``(M, P)`` at the points for plane parameters ``(3,)``.
+        """Each light's diffuse term ``(M, P)`` for plane parameters ``(3,)``, reduced.
 
-        None if the plane is seen from behind by some point (as the main light's model).
+        Averaged over each sample's points by ``reduce``. None if the plane is seen from
+        behind by some point (as the main light's model).
         """
         value = self._terms(plane_params)
         return None if value is None else value[0]
@@ -95,15 +105,16 @@ class DiffuseLights:
                out: np.ndarray) -> np.ndarray:
         """Add the slopes of ``sum_m intensities[m] * term_m`` by ``free``'s plane parameters.
 
-        ``out`` ``(len(free), P)`` is added to (rows of shape parameters untouched) and
-        returned. ``cos_i / r^2 = h / r^3`` with ``h = n . L - c``; ``r`` moves with the
-        ray parameter ``t`` (``dr = (t q - b) / r dt``) and ``t = (c - n . C) / (n . k)``.
+        ``out`` ``(len(free), P)``, at the samples, is added to (rows of shape parameters
+        untouched) and returned. ``cos_i / r^2 = h / r^3`` with ``h = n . L - c``; ``r``
+        moves with the ray parameter ``t`` (``dr = (t q - b) / r dt``) and
+        ``t = (c - n . C) / (n . k)``.
         """
         value = self._terms(plane_params)
         planes = [(row, index) for row, index in enumerate(free) if index < N_PLANE]
         if value is None or not planes:
             return out
-        _, n, t, nk, height, lit, r, inv_r3 = value
+        _, n, t, nk, height, lit, r, inv_r3, _ = value
         weight = np.where(lit, intensities * self.scale, 0.0)                 # (M,)
         # by h: 1 / r^3 per light; by t: -3 h / r^4 dr/dt
         on_height = weight[:, None] * inv_r3                                  # (M, P)
@@ -112,13 +123,14 @@ class DiffuseLights:
         on_cam = on_t.sum(axis=0) / nk
         on_nk = -on_cam * t
         directions = self.reflection.directions(plane_params)
-        for row, index in planes:
+        points = np.zeros((len(planes), on_cam.size))
+        for slope, (_, index) in zip(points, planes, strict=True):
             dn, dc = directions[index]
             # d h = dn . L - dc; d(c - n . C) = dc - dn . C; d(n . k) = dn . k
-            slope = dc * (on_cam - on_height.sum(axis=0))
+            slope += dc * (on_cam - on_height.sum(axis=0))
             if dn.any():
                 slope += (self.lights_m @ dn) @ on_height
                 slope -= on_cam * (dn @ self.reflection.camera_t)
                 slope += on_nk * (dn @ self.reflection.ray_t)
-            out[row] += slope
+        out[[row for row, _ in planes]] += self.reduce(points)
         return out

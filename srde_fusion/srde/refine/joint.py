@@ -63,7 +63,7 @@ class JointLobeModel:
         self.parts = parts
         first = parts[0]
         self.valid = first.valid and all(p.valid for p in parts)
-        self.diffuse = (DiffuseLights(first.reflection, diffuse_lights_m)
+        self.diffuse = (DiffuseLights(first.reflection, diffuse_lights_m, first.reduce)
                         if self.valid and diffuse_lights_m is not None
                         and len(diffuse_lights_m) else None)
         self.n_diffuse = 0 if self.diffuse is None else len(self.diffuse)
@@ -135,7 +135,7 @@ class JointLobeModel:
             further = self.diffuse.at(theta)
             if further is None:
                 return None, None
-            diffuse = np.vstack([diffuse, self.parts[0].reduce(further)])
+            diffuse = np.vstack([diffuse, further])
         return np.stack(lobes), diffuse
 
     def _solve(self, lobes: np.ndarray, diffuse: np.ndarray):
@@ -177,7 +177,7 @@ class JointLobeModel:
         return out
 
     def _coefficients(self, theta: np.ndarray) -> np.ndarray:
-        """The intensities of ``theta`` in the basis' order (:meth:`_theta_with` undone)."""
+        """Return the intensities of ``theta`` in the basis' order (undo :meth:`_theta_with`)."""
         return np.concatenate([self.specular(theta), [theta[I_DIFF]],
                                self.further_diffuse(theta), [theta[I_LEVEL]]])
 
@@ -208,10 +208,7 @@ class JointLobeModel:
                 theta_k[I_DIFF] = 0.0
             jac += part.slopes_at_samples(theta_k, free)
         if self.diffuse is not None:
-            main = self.parts[0]
-            points = self.diffuse.slopes(theta, self.further_diffuse(theta), free,
-                                         np.zeros((len(free), main.reflection.q.size)))
-            jac += main.reduce(points)
+            self.diffuse.slopes(theta, self.further_diffuse(theta), free, jac)
         # A saturated sample above its lower bound contributes nothing, nor does its slope.
         ignored = self.intensities.censored & (model >= self.intensities.y)
         if ignored.any():

@@ -228,7 +228,9 @@ def refine_plane(
         Cap on the steps of each Levenberg-Marquardt stage.
     other_lights_m : array_like, (M, 3), metres, optional
         Further known lights. Their highlights (where each sampled plane puts them) are
-        left out of the fitting windows (see ``modelled_lights_m`` for rendering them).
+        left out of the fitting windows (see ``modelled_lights_m`` for rendering them);
+        their diffuse light on the samples is rendered, each with an intensity of its
+        own (:mod:`~.diffuse`), as is the modelled lights'.
     modelled_lights_m : array_like, (M, 3), metres, optional
         Further known lights whose highlights are rendered beside ``light_m``'s instead
         (:class:`~.joint.JointLobeModel`: one lobe per light on the same plane and
