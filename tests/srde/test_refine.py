@@ -278,12 +278,17 @@ def test_a_far_light_gets_no_intensity_and_changes_nothing(rough_ggx):
                                atol=1e-12)
 
 
-def test_further_lights_diffuse_slopes_agree_with_finite_differences(rough_ggx):
-    case = rough_ggx
+def _case_model(case) -> LobeModel:
+    """One light's lobe model on the case's windows around its initial plane."""
     samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
                               case["centers"])
-    model = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
-                      "gtr", DEFAULT_F0, None)
+    return LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
+                     "gtr", DEFAULT_F0, None)
+
+
+def test_further_lights_diffuse_slopes_agree_with_finite_differences(rough_ggx):
+    case = rough_ggx
+    model = _case_model(case)
     light = np.asarray(case["light"])
     further = np.stack([light + [-0.3, 0.1, 0.05], light + [0.2, 0.25, -0.1]])
     diffuse = DiffuseLights(model.reflection, further)
@@ -305,10 +310,7 @@ def test_further_lights_diffuse_slopes_agree_with_finite_differences(rough_ggx):
 
 def test_a_light_behind_the_plane_sheds_no_diffuse_light(rough_ggx):
     case = rough_ggx
-    samples = sample_windows(case["views"], case["rig"], case["mask"], case["plane"],
-                              case["centers"])
-    model = LobeModel(samples, case["rig"], (0, 0, 320, 240), case["light"], case["plane"],
-                      "gtr", DEFAULT_F0, None)
+    model = _case_model(case)
     plane = case["plane"]
     behind = np.asarray(plane.normal) * (plane.offset_m - 0.5)  # 0.5 m beyond the plane
     diffuse = DiffuseLights(model.reflection, behind[None])
