@@ -4,9 +4,9 @@ A lamp whose highlight is not in the fitting windows still lights the surface th
 its diffuse term ``cos(theta_i) / r^2`` varies over the surface, and the windows of
 different views lie on different parts of it (the highlight moves over the surface
 from view to view), so a constant level does not absorb it. Left out, it biased faces
-lit by another face's lamp: on the faceted benchmark a face fitted 0.07-0.17 px off
-(four to five standard errors) came out within 0.011 px with the other lamps' diffuse
-terms modelled, as it did on images rendered without them.
+lit by another face's lamp: on the faceted benchmark five faces refined from their true
+planes ended 0.07-0.17 px off (four to five standard errors), and 0.002-0.019 px with the
+other lamp's diffuse term modelled (0.001-0.006 px on images rendered without that lamp).
 
 Each lamp adds one basis vector to the intensities (its brightness times the surface's
 albedo is not known) and nothing to the shape of the fit. Its geometry reuses the main
