@@ -6,7 +6,7 @@ different views lie on different parts of it (the highlight moves over the surfa
 from view to view), so a constant level does not absorb it. Left out, it biased faces
 lit by another face's lamp: on the faceted benchmark five faces refined from their true
 planes ended 0.07-0.17 px off (four to five standard errors), and 0.002-0.019 px with the
-other lamp's diffuse term modelled (0.001-0.006 px on images rendered without that lamp).
+other lamp's diffuse term modelled (0.0002-0.006 px on images rendered without that lamp).
 
 Each lamp adds one basis vector to the intensities (its brightness times the surface's
 albedo is not known) and nothing to the shape of the fit. Its geometry reuses the main
