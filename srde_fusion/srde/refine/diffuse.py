@@ -70,13 +70,13 @@ class DiffuseLights:
         if self._key == key:
             return self._value
         reflection = self.reflection
-        n, c = reflection.planes(plane_params[None, :N_PLANE])
-        n, c = n[0], float(c[0])
-        nk = n @ reflection.ray_t
-        if not nk.max() < 0.0:
+        # The main light's geometry of the plane (cached there) has the rays' algebra.
+        g = reflection.at(plane_params)
+        if g is None:
             value = None
         else:
-            t = (c - n @ reflection.camera_t) / nk
+            n, t, nk = g.normal, g.t, g.nk
+            c = float(reflection.planes(plane_params[None, :N_PLANE])[1][0])
             height = self.lights_m @ n - c                                # (M,)
             lit = height > 0.0  # a light behind the plane lights none of it
             r2 = t * reflection.q                                         # (P,)
@@ -95,8 +95,8 @@ class DiffuseLights:
     def at(self, plane_params: np.ndarray) -> np.ndarray | None:
         """Each light's diffuse term ``(M, P)`` for plane parameters ``(3,)``, reduced.
 
-        Averaged over each sample's points by ``reduce``. None if the plane is seen from
-        behind by some point (as the main light's model).
+        Averaged over each sample's points by ``reduce``. None where the main light's
+        geometry is (a plane seen from behind, or with the main light behind it).
         """
         value = self._terms(plane_params)
         return None if value is None else value[0]
