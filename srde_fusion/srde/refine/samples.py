@@ -14,6 +14,7 @@ every-pixel sample is read at its centre (:data:`PIXEL_SUPPORT_POINTS`).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -259,7 +260,7 @@ def support_points(samples: HighlightSamples, rig: CameraRig, points: int
         points = min(points, PIXEL_SUPPORT_POINTS)
     if points == 1:
         return samples, np.ones(1)
-    nodes, weights = np.polynomial.legendre.leggauss(points)
+    nodes, weights = _gauss_legendre(points)
     offsets_px = 0.5 * samples.block_px * nodes  # across [-block / 2, block / 2]
     k = rig.intrinsics
     rays, group_weights = [], []
@@ -273,6 +274,17 @@ def support_points(samples: HighlightSamples, rig: CameraRig, points: int
                                 samples.view_indices, samples.half_window_px, samples.block_px,
                                 samples.outline_px, samples.every_pixel)
     return expanded, np.array(group_weights)
+
+
+@functools.lru_cache(maxsize=8)
+def _gauss_legendre(points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre nodes and weights on [-1, 1], ``(points,)`` each, read-only.
+
+    (numpy solves an eigenproblem for them on every call; every model built asks again.)
+    """
+    nodes, weights = np.polynomial.legendre.leggauss(points)
+    nodes.flags.writeable = weights.flags.writeable = False
+    return nodes, weights
 
 
 def low_quantile_of(values: np.ndarray) -> float:
