@@ -167,9 +167,7 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
     main = max((a for a in solution.assignments if a.n_views),
                key=lambda a: (a.n_views, -float(np.nanmax(a.residuals_px))))
     used = np.isfinite(main.centers_uv[:, 0])
-    notes = tuple(
-        f"light {a.light}: highlight expected on the object but not found in view(s) "
-        f"{list(a.missing_views)}" for a in solution.assignments if a.missing_views)
+    notes = tuple(_missing_note(a) for a in solution.assignments if a.missing_views)
     point = main.virtual_light_m
     w = 1.0 / (point[2] - rig.reference_center_m[2])
     detections = tuple(
@@ -338,6 +336,15 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
               f"or surface (SRDE(max_faces=2..3) splits flat faces); "
               + "; ".join(result.notes[-1:]))
     return dataclasses.replace(failed, status="inconsistent", reason=reason)
+
+
+def _missing_note(assignment: LightAssignment) -> str:
+    """Return the note on a light the plane puts on the object where it is not seen."""
+    note = (f"light {assignment.light}: highlight expected on the object but not found in "
+            f"view(s) {list(assignment.missing_views)}")
+    if assignment.n_views == 0 and np.array_equal(assignment.missing, assignment.on_object):
+        note += " (none of its highlights is seen: is the lamp switched off or hidden?)"
+    return note
 
 
 def near_lights(on_object: np.ndarray, predicted_uv: np.ndarray, main: int,
