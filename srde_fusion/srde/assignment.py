@@ -833,8 +833,7 @@ class _Context:
             status = "ambiguous"
             reason = ("lights: two different planes explain the highlights equally well; "
                       + evidence)
-        elif best.outweighed(UNEXPLAINED_RATIO) and not _dark_lights_excuse(
-                best, self.min_views):
+        elif best.outweighed(UNEXPLAINED_RATIO):
             status = "inconsistent"
             reason = (f"lights: the evidence against the best plane ({best.n_against}) is more "
                       f"than 1/{UNEXPLAINED_RATIO:g} of the "
@@ -873,37 +872,6 @@ class _Context:
         return LightsSolution(status, reason, best.plane, tuple(assignments), rms,
                               self.n_proposed, evidence, tuple(self.cands), best.blends,
                               None if rival is None else rival.plane)
-
-
-def dark_lights(score: _Score, min_views: int) -> np.ndarray:
-    """Lights that show no highlight at all where ``score``'s plane puts one, ``(K,)`` bool.
-
-    A light is dark on the plane when none of its highlights is explained or covered by
-    a blob and every one predicted on the object is missing, while two or more other
-    lights' highlights are each explained in ``min_views`` views or more. Two lights
-    seen where one plane mirrors them pin that plane down on their own; a light of the
-    rig that shows nothing where that plane puts its highlight is then a lamp switched
-    off or hidden, not evidence against the plane. (A plane that gives one light's
-    blobs to another leaves the first light's predictions missing too: with one light
-    explained, its missing highlights still count.)
-    """
-    matched_views = (score.matched >= 0).sum(axis=1)
-    silent = (matched_views == 0) & score.missing.any(axis=1) \
-        & (score.missing == score.on_object).all(axis=1)
-    if np.count_nonzero(matched_views >= min_views) < 2:
-        return np.zeros(len(silent), dtype=bool)
-    return silent
-
-
-def _dark_lights_excuse(best: _Score, min_views: int) -> bool:
-    """Whether ``best`` is outweighed only through lights that are dark on it."""
-    dark = dark_lights(best, min_views)
-    if not dark.any() or best.n_strays:
-        # (A lamp that is off shows nothing anywhere; one whose highlights another
-        # surface reflects leaves them on the object unexplained.)
-        return False
-    against = best.n_against - int(np.count_nonzero(best.missing[dark]))
-    return not against * UNEXPLAINED_RATIO > best.support
 
 
 def _same_highlights_other_light(best: _Score, rival: _Score | None) -> bool:
