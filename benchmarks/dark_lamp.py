@@ -9,6 +9,10 @@ lamp left in ``rig.json``). Every scene is estimated twice:
 * ``rig without it``: ``SRDE`` told of the k - 1 lamps that are lit, the rig as it
   should be (the bar for "costs nothing").
 
+Each ``ok`` result of the first then goes through ``fuse`` (the several-light benchmark's
+SGBM backbone, default border check): does fusion send a wrong plane back, and is the
+fused map ever worse than the backbone's own?
+
 A plane is wrong when an ``ok`` result's masked EPE exceeds 1 px; an assignment is wrong
 when an ``ok`` result gives the dark lamp a highlight, or a lit lamp a candidate that is
 not the blob nearest to its true highlight. The dark lamp's highlight is "predicted on

@@ -10,11 +10,7 @@ import pytest
 from srde_fusion.errors import LightError, SRDEError
 from srde_fusion.geometry import CameraRig, Plane, plane_disparity
 from srde_fusion.srde import SRDE, SRDE_STATUSES
-from srde_fusion.srde.assignment import (
-    AssignmentContext,
-    assign_lights,
-    fit_mirror_plane,
-)
+from srde_fusion.srde.assignment import AssignmentContext, assign_lights, fit_mirror_plane
 from srde_fusion.srde.candidates import candidate_band, find_candidates
 from srde_fusion.srde.config import DetectorConfig
 from srde_fusion.srde.lights import _settled_at_start, check_lights
