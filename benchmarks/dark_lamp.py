@@ -26,12 +26,14 @@ where a stale rig costs most. The notes of an ``ok`` result name a lamp none of 
 highlights is seen where the plane puts them on the object (``noted as switched off``).
 
 Run: ``python benchmarks/dark_lamp.py [--scenes 40]``; writes
-``benchmarks/results/dark_lamp.md`` and ``.json``.
+``benchmarks/results/dark_lamp.md`` and ``.json`` (``--tables-only`` rewrites them from
+the stored records).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 from dataclasses import replace
@@ -144,10 +146,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenes", type=int, default=40, help="scenes per number of lights")
     parser.add_argument("--out", type=Path, default=RESULTS_DIR, help="results folder")
     parser.add_argument("--name", default=NAME, help=f"results file name (default {NAME})")
+    parser.add_argument("--tables-only", action="store_true",
+                        help="rewrite the tables from the results folder's JSON records")
     args = parser.parse_args(argv)
     rig, physics = default_rig(), Physics.faithful()
     records = []
-    for k in LIGHT_COUNTS:
+    if args.tables_only:
+        records = json.loads((args.out / f"{args.name}.json").read_text())["records"]
+        args.scenes = max(sum(r["k"] == k for r in records) for k in LIGHT_COUNTS)
+    for k in LIGHT_COUNTS if not args.tables_only else ():
         for i in range(args.scenes):
             record = run_scene(rig, SEED0 + 100 * k + i, k, physics)
             records.append(record)
