@@ -891,7 +891,9 @@ def test_two_sets_that_both_pass_leave_the_object_ambiguous(rig, monkeypatch):
     mask = rendering.instance_mask > 0
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert result.status == "ambiguous", result.reason
-    assert "ridge and valley" in result.reason and "the image confirms both" in result.reason
+    # (The two sets tie: which one the ranking puts first is down to rounding.)
+    assert ("ridge and valley" in result.reason or "valley and ridge" in result.reason) \
+        and "the image confirms both" in result.reason
     # Asked again from every view's candidates, the valley set ranks alone first, and
     # passes: a guess, 1.1-1.9 px off.
     monkeypatch.setattr(faces_module, "AMBIGUITY_FINAL", False)
