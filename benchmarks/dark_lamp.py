@@ -15,15 +15,16 @@ fused map ever worse than the backbone's own?
 
 A plane is wrong when an ``ok`` result's masked EPE exceeds 1 px; an assignment is wrong
 when an ``ok`` result gives the dark lamp a highlight, or a lit lamp a candidate that is
-not the blob nearest to its true highlight. The dark lamp's highlight is "predicted on
-the object" in a scene when the lamp, lit, would put it there in some view (the same
-scene rendered with it on). SRDE takes the rig as the truth: a lamp it knows whose
-highlight the plane puts on the object is expected there, and one that is not there
-counts against the plane. With two lamps known and one dark, the one lit lamp's blobs can
-be read as the dark lamp's, on a plane that puts the lit lamp's own highlights off the
-object: nothing in the images tells the two readings apart, so these are the scenes
-where a stale rig costs most. The notes of an ``ok`` result name a lamp none of whose
-highlights is seen where the plane puts them on the object (``noted as switched off``).
+not the blob nearest to its true highlight (``multi_light.wrong_assignments``). The dark
+lamp's highlight is "predicted on the object" in a scene when the lamp, lit, would put
+it there in some view (``synthetic.highlights_on_objects``). SRDE takes the rig as the
+truth: a lamp it knows whose highlight the plane puts on the object is expected there,
+and one that is not there counts against the plane. With two lamps known and one dark,
+the one lit lamp's blobs can be read as the dark lamp's, on a plane that puts the lit
+lamp's own highlights off the object: nothing in the images tells the two readings
+apart, so these are the scenes where a stale rig costs most. The notes of an ``ok``
+result name a lamp none of whose highlights is seen where the plane puts them on the
+object (``noted as switched off``).
 
 Run: ``python benchmarks/dark_lamp.py [--scenes 40]``; writes
 ``benchmarks/results/dark_lamp.md`` and ``.json`` (``--tables-only`` rewrites them from
@@ -40,38 +41,29 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from faceted import Estimated  # fusion of a result already computed (run from this folder)
-from multi_light import SEED0, SGBM, WRONG_PLANE_PX, masked_epe
+from multi_light import (  # run from this folder
+    SEED0,
+    WRONG_PLANE_PX,
+    fused_record,
+    masked_epe,
+    wrong_assignments,
+)
 from results_files import write_results
 
-from srde_fusion.fusion import fuse
 from srde_fusion.srde import SRDE
-from srde_fusion.synthetic import RandomSceneConfig, default_rig, random_scene, render
+from srde_fusion.synthetic import (
+    RandomSceneConfig,
+    default_rig,
+    highlights_on_objects,
+    random_scene,
+    render,
+)
 from srde_fusion.synthetic.physics import Physics
 from srde_fusion.synthetic.scene import rig_lights
 
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
 NAME = "dark_lamp"
 LIGHT_COUNTS = (2, 3, 4)
-#: A lit lamp's assigned centre farther than this from its true highlight is wrong, px.
-ASSIGNED_PX = 3.0
-
-
-def wrong_assignments(result, lit_rendering, dark: int) -> int:
-    """Highlights given to the dark lamp, and lit lamps' centres off their true highlights."""
-    if result.lights is None or result.lights.plane is None:
-        return 0
-    wrong = 0
-    for a in result.lights.assignments:
-        views = np.flatnonzero(np.isfinite(a.centers_uv[:, 0]))
-        if a.light == dark:
-            wrong += len(views)
-            continue
-        truth = lit_rendering.highlight_uv_by_light[a.light, 0]
-        on = lit_rendering.highlight_on_object[a.light, 0]
-        wrong += int(sum(not on[j] or np.linalg.norm(a.centers_uv[j] - truth[j]) > ASSIGNED_PX
-                         for j in views))
-    return wrong
 
 
 def run_scene(rig, seed: int, k: int, physics: Physics) -> dict:
@@ -80,28 +72,21 @@ def run_scene(rig, seed: int, k: int, physics: Physics) -> dict:
     lit_scene = replace(scene, lights=scene.lights[:-1])  # the last lamp switched off
     rendering = render(lit_scene, rig, physics=physics, supersample=2)
     mask = rendering.object_masks[0]
-    # Where the dark lamp would put its highlight: the same scene with it on (geometry
-    # only; the images are not used).
-    predicted = render(scene, rig, supersample=1).highlight_on_object[-1, 0]
+    # Where the dark lamp would put its highlight, lit (geometry only).
+    predicted = highlights_on_objects(scene, rig)[-1, 0]
     known = rig.with_lights(lights)
     without = rig.with_lights(lights[:-1])
     result = SRDE(known).estimate(rendering.views, mask)
     bar = SRDE(without).estimate(rendering.views, mask)
-    fused = {}
-    if result.ok:  # what fusion does with the plane (SGBM backbone, default border check)
-        backbone = SGBM(*(rendering.views[j] for j in rig.stereo_pair))
-        report = fuse(backbone, rendering.views, known, [mask], Estimated(result))
-        truth = rendering.disparity_px[mask]
-        fused = {"fused_status": report.objects[0].status,
-                 "fused_epe": float(np.nanmean(np.abs(report.disparity[mask] - truth))),
-                 "backbone_epe": float(np.nanmean(np.abs(backbone[mask] - truth)))}
-    return {**fused, "seed": seed, "k": k, "dark_on_object_views": int(predicted.sum()),
+    return {"seed": seed, "k": k, "dark_on_object_views": int(predicted.sum()),
             "status": result.status, "reason": result.reason,
             "epe": masked_epe(result, known, rendering, mask),
-            "wrong": wrong_assignments(result, rendering, k - 1) if result.ok else 0,
+            "wrong": wrong_assignments(result, rendering, dark=k - 1) if result.ok else 0,
             "notes": list(result.notes),
             "without_status": bar.status, "without_epe": masked_epe(bar, without, rendering,
-                                                                   mask)}
+                                                                   mask),
+            # what fusion does with the plane (SGBM backbone, default border check)
+            **fused_record(result, known, rendering, mask, backbone_epe=True)}
 
 
 def summary_rows(records: list[dict]) -> tuple[list[str], dict]:

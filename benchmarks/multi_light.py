@@ -86,14 +86,22 @@ def masked_epe(result, rig, rendering, mask) -> float:
     return float(np.mean(np.abs(disparity - rendering.disparity_px[mask])))
 
 
-def wrong_assignments(result, rendering) -> int:
-    """Assigned candidates that are not the blob nearest to their light's true highlight."""
+def wrong_assignments(result, rendering, dark: int | None = None) -> int:
+    """Assigned candidates that are not the blob nearest to their light's true highlight.
+
+    ``dark``: a light the rig knows that ``rendering`` does not hold (switched off):
+    every candidate given to it is wrong.
+    """
     if result.lights is None or result.lights.plane is None:
         return 0
     on = rendering.highlight_on_object[:, 0, :]
     wrong = 0
     for a in result.lights.assignments:
-        for j in np.flatnonzero(np.isfinite(a.centers_uv[:, 0])):
+        views = np.flatnonzero(np.isfinite(a.centers_uv[:, 0]))
+        if a.light == dark:
+            wrong += len(views)
+            continue
+        for j in views:
             truth = rendering.highlight_uv_by_light[a.light, 0, j]
             cands = result.lights.candidates_uv[j]
             nearest = cands[np.argmin(np.linalg.norm(cands - truth, axis=1))]
@@ -114,16 +122,24 @@ def timed(fn, repeat: int = 1):
     return out, min(times)
 
 
-def fused_record(result, rig, rendering, mask) -> dict:
-    """The fused map's masked EPE and fusion's decision for an ``ok`` result."""
+def fused_record(result, rig, rendering, mask, *, backbone_epe: bool = False) -> dict:
+    """The fused map's masked EPE and fusion's decision for an ``ok`` result.
+
+    EPEs over the mask's pixels that have a disparity (the backbone's holes stay holes
+    where fusion hands them back); ``backbone_epe`` adds the backbone's own.
+    """
     if not result.ok:
         return {}
     backbone = SGBM(*(rendering.views[j] for j in rig.stereo_pair))
     fused = fuse(backbone, rendering.views, rig, [mask], Estimated(result))
     truth = rendering.disparity_px[mask]
-    return {"fused_status": fused.objects[0].status, "trimmed_px": fused.objects[0].trimmed_px,
-            "srde_map_epe": float(np.mean(np.abs(result.disparity[mask] - truth))),
-            "fused_epe": float(np.mean(np.abs(fused.disparity[mask] - truth)))}
+    record = {"fused_status": fused.objects[0].status,
+              "trimmed_px": fused.objects[0].trimmed_px,
+              "srde_map_epe": float(np.nanmean(np.abs(result.disparity[mask] - truth))),
+              "fused_epe": float(np.nanmean(np.abs(fused.disparity[mask] - truth)))}
+    if backbone_epe:
+        record["backbone_epe"] = float(np.nanmean(np.abs(backbone[mask] - truth)))
+    return record
 
 
 def correspondence_time(srde: SRDE, views, mask, repeat: int) -> float:
