@@ -149,16 +149,17 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
             return failed
         if solution.merged_blobs and solution.plane is not None \
                 and solution.status in ("too_few_views", "ambiguous", "inconsistent"):
-            result = _solve_merged(srde, views, mask, solution, failed)
+            result = _solve_merged(srde, views, mask, solution, failed, gathered)
             if not (result.ok or result.status == "ambiguous"):
                 # Neither start led the lobes to a plane: the lights alone may.
                 result = _solve_from_single_lights(srde, views, mask, solution, result,
+                                                   gathered,
                                                    why="the merged-blob fit found no plane")
         elif solution.plane is None and solution.status == "too_few_views":
-            result = _solve_from_single_lights(srde, views, mask, solution, failed)
+            result = _solve_from_single_lights(srde, views, mask, solution, failed, gathered)
         elif solution.status in ("ambiguous", "inconsistent") \
                 and solution.rival_plane is not None:
-            result = _solve_ambiguous(srde, views, mask, solution, failed)
+            result = _solve_ambiguous(srde, views, mask, solution, failed, gathered)
         else:
             return failed
         return _no_highlights_left_out(srde, mask, gathered, result, failed)
@@ -225,7 +226,8 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
                     f"plane ({refinement.reason})"))
             failed = dataclasses.replace(srde._failed("ambiguous", doubt.reason), lights=doubt)
             return _no_highlights_left_out(srde, mask, gathered,
-                                           _solve_ambiguous(srde, views, mask, doubt, failed),
+                                           _solve_ambiguous(srde, views, mask, doubt, failed,
+                                                            gathered),
                                            failed)
         explained = solution.explained_lights
         if not refinement.ok and len(explained) == 1:
@@ -256,7 +258,7 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
                       + solution.evidence)
             doubt = dataclasses.replace(solution, status="inconsistent", reason=reason)
             return _solve_merged(srde, views, mask, doubt, dataclasses.replace(
-                srde._failed("inconsistent", reason), lights=doubt))
+                srde._failed("inconsistent", reason), lights=doubt), gathered)
         if worst_px > limit_px and lobes_prefer(srde, views, mask, main.light, modelled,
                                                 main.on_object, refinement.plane,
                                                 solution.plane):
@@ -268,7 +270,7 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
                     f"{DECISIVE_COST_RATIO:g}x better than the joint plane; it stands")
             result = dataclasses.replace(result, notes=(*result.notes, note))
             return dataclasses.replace(result, lights=_solved_on(srde, mask, solution,
-                                                                 result.plane))
+                                                                 result.plane, gathered))
         if worst_px > limit_px:
             note = (f"refinement: kept the joint plane; the refined plane misses light "
                     f"highlights by up to {worst_px:.1f} px (limit {limit_px:g} px)")
@@ -417,7 +419,7 @@ def _lights_on_object(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
 
 
 def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
-                  failed: SRDEResult) -> SRDEResult:
+                  failed: SRDEResult, gathered: ViewCandidates) -> SRDEResult:
     """Solve an object whose highlights are merged blobs by one lobe per light.
 
     No blob centre measures a light, but the blobs' light does: the joint photometric
@@ -430,12 +432,12 @@ def _solve_merged(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
                                  else [])
     note = (f"lights: highlights merged in {len(solution.merged_blobs)} blob(s); a joint fit "
             f"of one lobe per light")
-    return _solve_by_lobes(srde, views, mask, solution, failed, starts,
+    return _solve_by_lobes(srde, views, mask, solution, failed, gathered, starts,
                            [present] * len(starts), note)
 
 
 def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
-                     failed: SRDEResult) -> SRDEResult:
+                     failed: SRDEResult, gathered: ViewCandidates) -> SRDEResult:
     """Decide between the best plane and its rival by their lobes.
 
     ``ambiguous``: one virtual light seen in every view is the mirror image of each light
@@ -460,8 +462,8 @@ def _solve_ambiguous(srde: SRDE, views, mask: np.ndarray, solution: LightsSoluti
             "lights: the best plane is contradicted by highlights it predicts; a joint fit of "
             "one lobe per light from it and its rival")
     # The best plane and its rival must fit; further starts only offer another light.
-    return _solve_by_lobes(srde, views, mask, solution, failed, starts, presents, note,
-                           must_fit=2)
+    return _solve_by_lobes(srde, views, mask, solution, failed, gathered, starts, presents,
+                           note, must_fit=2)
 
 
 def _same_centres_planes(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
@@ -486,7 +488,7 @@ def _same_centres_planes(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
 
 
 def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
-                              failed: SRDEResult, *,
+                              failed: SRDEResult, gathered: ViewCandidates, *,
                               why: str = "no plane explains the blob centres") -> SRDEResult:
     """Solve an object whose candidates no plane explains, from each light on its own.
 
@@ -509,7 +511,8 @@ def _solve_from_single_lights(srde: SRDE, views, mask: np.ndarray, solution: Lig
         return failed
     note = (f"lights: {why}; single-light planes of "
             f"{len(starts)} light(s) start a joint fit of one lobe per light")
-    return _solve_by_lobes(srde, views, mask, solution, failed, starts, presents, note)
+    return _solve_by_lobes(srde, views, mask, solution, failed, gathered, starts, presents,
+                           note)
 
 
 def _one_light(srde: SRDE, k: int) -> SRDE:
@@ -524,8 +527,8 @@ def _one_light(srde: SRDE, k: int) -> SRDE:
 
 
 def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolution,
-                    failed: SRDEResult, starts: list[Plane], presents: list[np.ndarray],
-                    note: str, *, must_fit: int = 0) -> SRDEResult:
+                    failed: SRDEResult, gathered: ViewCandidates, starts: list[Plane],
+                    presents: list[np.ndarray], note: str, *, must_fit: int = 0) -> SRDEResult:
     """Fit one lobe per light on one plane from several starts, and decide.
 
     ``presents[i]`` ``(K, N)`` bool: the lights start ``i`` puts on the object. Every light
@@ -611,7 +614,7 @@ def _solve_by_lobes(srde: SRDE, views, mask: np.ndarray, solution: LightsSolutio
     if not result.ok:
         return dataclasses.replace(failed, notes=(*failed.notes, note + f": {result.reason}"))
     return dataclasses.replace(result, refinement=fit,
-                               lights=_solved_on(srde, mask, solution, result.plane))
+                               lights=_solved_on(srde, mask, solution, result.plane, gathered))
 
 
 def _settled_at_start(fit) -> bool:
@@ -728,34 +731,26 @@ def _beats(costs: np.ndarray, i: int, j: int) -> bool:
     return judged
 
 
-def _solved_on(srde: SRDE, mask: np.ndarray, solution: LightsSolution,
-               plane: Plane) -> LightsSolution:
-    """Return the solution of the joint lobe fit's plane: blobs assigned on that plane.
+def _solved_on(srde: SRDE, mask: np.ndarray, solution: LightsSolution, plane: Plane,
+               gathered: ViewCandidates) -> LightsSolution:
+    """Return the solution of a plane the lobes settled: blobs assigned on that plane.
 
     The fit may end on the rival plane, or on one no hypothesis proposed; the assignment
     of the geometric hypothesis it started from then belongs to another plane. The
-    candidates are matched again to the lights' highlights this plane predicts (within
-    the assignment's tolerance); a light none of them explains keeps no centre.
+    candidates are matched again to the lights' highlights this plane predicts, with the
+    assignment's own tests (``gathered``'s brightness and blob boxes): a prediction inside
+    a blob of merged highlights, or bright beside another light's, is not missing, and
+    the merged blobs are this plane's. A light none of the candidates explains keeps no
+    centre. (Matched on the centres alone, every highlight in a merged blob read as
+    missing: on a scene of two lamps, both lit, each lamp's highlight in all nine views.)
     """
-    rig, lights = srde.rig, srde.lights_m
-    context = _plain_context(srde, mask, solution)
-    score = context.score(plane)
-    if score is not None:
-        on_plane = context.solution(score, None)
-        assignments, residual_px = on_plane.assignments, on_plane.residual_px
-        evidence = on_plane.evidence
-    else:
-        uv, on_object, _ = context.predict(plane)
-        virtual = plane.mirror(lights)
-        none = np.full((rig.n_cameras, 2), np.nan)
-        assignments = tuple(
-            LightAssignment(k, none.copy(), uv[k], on_object[k],
-                            np.zeros(rig.n_cameras, bool), np.full(rig.n_cameras, np.nan),
-                            virtual[k]) for k in range(len(lights)))
-        residual_px, evidence = math.nan, "no blob centre lies on a highlight of this plane"
+    context = gathered.context(srde, mask)
+    on_plane = context.solution(context.score(plane, at_least=0), None)
+    evidence = (on_plane.evidence if on_plane.n_observations or on_plane.merged_blobs
+                else "no blob centre lies on a highlight of this plane")
     return dataclasses.replace(
-        solution, status="ok", reason="", plane=plane, assignments=assignments,
-        residual_px=residual_px,
+        solution, status="ok", reason="", plane=plane, assignments=on_plane.assignments,
+        residual_px=on_plane.residual_px, merged_blobs=on_plane.merged_blobs,
         evidence=f"{evidence}; the plane from the joint fit of one lobe per light")
 
 

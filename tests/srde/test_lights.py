@@ -441,6 +441,23 @@ def test_merged_highlights_are_solved_by_one_lobe_per_light(seed):
                               - out.disparity_px[mask])) > 5 * epe
 
 
+def test_a_plane_the_lobes_settle_reports_no_merged_highlight_as_missing():
+    # Two lamps, both lit, whose highlights merge into one blob in every view: the
+    # joint lobe fit gives the plane. Its report matched the blobs to that plane's
+    # highlights on the centres alone and called every highlight in a merged blob
+    # missing (lamp 0 in all nine views, lamp 1 in seven), as a lamp switched off would
+    # be; with the assignment's own brightness and blob tests none is.
+    rig, scene, out, lit, mask = faithful_scene(12206, 2)
+    result = SRDE(lit).estimate(out.views, mask)
+    assert result.ok, result.reason
+    assert any("one lobe per light" in note for note in result.notes)
+    assert result.lights.plane == result.plane
+    assert all(a.on_object.sum() >= 5 and not a.missing.any()
+               for a in result.lights.assignments)
+    assert len(result.lights.merged_blobs) >= 5
+    assert all(entry["missing_views"] == [] for entry in result.lights.to_dict()["lights"])
+
+
 def test_a_joint_fit_that_subtracts_a_light_is_refused(monkeypatch):
     # Four lights; two merge into one blob in every view, and the joint lobe fit from
     # one start settles on a plane 1.25 px off, where the other lights' fitted
