@@ -163,6 +163,9 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
         else:
             return failed
         return _no_highlights_left_out(srde, mask, gathered, result, failed)
+    doubted = _if_a_lamp_is_dark(srde, mask, gathered, solution)
+    if doubted is not None:
+        return doubted
     # The light seen in most views (then with the smallest residual) carries the checks
     # and the refinement; the joint plane mirrors it onto its own virtual light.
     main = max((a for a in solution.assignments if a.n_views),
@@ -257,8 +260,9 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
                       f"{limit_px:g} px) with {len(solution.merged_blobs)} merged blob(s); "
                       + solution.evidence)
             doubt = dataclasses.replace(solution, status="inconsistent", reason=reason)
-            return _solve_merged(srde, views, mask, doubt, dataclasses.replace(
-                srde._failed("inconsistent", reason), lights=doubt), gathered)
+            return _lobes_checked(srde, mask, gathered, _solve_merged(
+                srde, views, mask, doubt, dataclasses.replace(
+                    srde._failed("inconsistent", reason), lights=doubt), gathered))
         if worst_px > limit_px and lobes_prefer(srde, views, mask, main.light, modelled,
                                                 main.on_object, refinement.plane,
                                                 solution.plane):
@@ -269,8 +273,8 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
                     f"{worst_px:.1f} px (limit {limit_px:g} px) but explains the images "
                     f"{DECISIVE_COST_RATIO:g}x better than the joint plane; it stands")
             result = dataclasses.replace(result, notes=(*result.notes, note))
-            return dataclasses.replace(result, lights=_solved_on(srde, mask, solution,
-                                                                 result.plane, gathered))
+            return _lobes_checked(srde, mask, gathered, dataclasses.replace(
+                result, lights=_solved_on(srde, mask, solution, result.plane, gathered)))
         if worst_px > limit_px:
             note = (f"refinement: kept the joint plane; the refined plane misses light "
                     f"highlights by up to {worst_px:.1f} px (limit {limit_px:g} px)")
@@ -284,6 +288,9 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
 def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
                             result: SRDEResult, failed: SRDEResult) -> SRDEResult:
     """Refuse a joint-lobe-fit plane that leaves out highlights another plane explains.
+
+    First, a plane whose reading needs a listed lamp dark where another reading explains
+    as much is ``ambiguous`` (:func:`_lobes_checked`).
 
     The lobe fit settles objects whose blob centres no plane explains cleanly; it cannot
     see highlights it does not model. If a plane hypothesis explains one light's
@@ -300,6 +307,9 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
     """
     if not result.ok:
         return result
+    checked = _lobes_checked(srde, mask, gathered, result)
+    if not checked.ok:
+        return checked
     from .faces import unexplained_plane
 
     rig = srde.rig
@@ -322,7 +332,7 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
                       "faces); " + "; ".join(result.notes[-1:]))
             return dataclasses.replace(failed, status="inconsistent", reason=reason)
         if own is None or not own.outweighed(LOBE_FIT_UNEXPLAINED_RATIO):
-            return result
+            return checked
         # The rule the centres' planes obey (10), with the lobes' benefit of the doubt:
         # a plane with more evidence against it than it explains is not the answer.
         reason = (f"lights: the joint lobe fit's plane has more evidence against it "
@@ -338,6 +348,98 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
               f"or surface (SRDE(max_faces=2..3) splits flat faces); "
               + "; ".join(result.notes[-1:]))
     return dataclasses.replace(failed, status="inconsistent", reason=reason)
+
+
+def _dark_lamps(missing: np.ndarray, matched: np.ndarray, min_views: int) -> list[int]:
+    """Lamps a reading needs dark: none of their highlights seen, ``min_views`` missing.
+
+    ``missing`` and ``matched`` ``(K, N)`` bool: where each lamp's highlight is predicted
+    on the object and not there (the view dark there), and where one is assigned.
+    """
+    return [k for k in range(len(missing))
+            if not matched[k].any() and np.count_nonzero(missing[k]) >= min_views]
+
+
+def _if_a_lamp_is_dark(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
+                       solution: LightsSolution) -> SRDEResult | None:
+    """Return ``ambiguous`` if the reading needs a lamp dark and another explains as much.
+
+    See :func:`_dark_lamp_doubt`; None if the solution's reading stands.
+    """
+    doubt = _dark_lamp_doubt(srde, mask, gathered, solution)
+    if not doubt:
+        return None
+    return dataclasses.replace(srde._failed("ambiguous", doubt), lights=dataclasses.replace(
+        solution, status="ambiguous", reason=doubt))
+
+
+def _lobes_checked(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
+                   result: SRDEResult) -> SRDEResult:
+    """Return a plane the lobes settled, unless its reading needs a lamp dark as another's.
+
+    The lobes see the blobs' light, not whether a lamp the rig lists is lit: from two
+    readings that each need a lamp dark they pick one (a listed lamp switched off, two
+    lamps: the plane that gives the lit lamp's blobs to the dark lamp was kept in 11 of
+    22 solved objects). The plane's own assignment (:func:`_solved_on`) is asked as the
+    centres' is, and a plane that stands is noted with the lamps it does not see where it
+    puts them (:func:`_missing_note`).
+    """
+    if not result.ok or result.lights is None or result.lights.plane is None:
+        return result
+    doubted = _if_a_lamp_is_dark(srde, mask, gathered, result.lights)
+    if doubted is None:
+        # The same notes on lamps not seen where the plane puts them as the centres' path.
+        missing = tuple(_missing_note(a) for a in result.lights.assignments
+                        if a.missing_views)
+        return dataclasses.replace(result, notes=(*result.notes, *missing))
+    return dataclasses.replace(doubted, notes=result.notes, refinement=result.refinement)
+
+
+def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
+                     solution: LightsSolution) -> str:
+    """Why the plane's reading of the blobs is not established by a lamp it needs dark.
+
+    A plane that gives every blob to one lamp and puts another lamp's highlight on the
+    object in ``min_views`` or more views where the view is dark reads the images as
+    that lamp switched off. The same blobs are also the image of one virtual light for
+    every other lamp, on the plane that mirrors that lamp onto it
+    (:meth:`~.assignment.AssignmentContext.other_lights_planes`). If such a plane
+    explains as many blobs (highlights and merged blobs), as that lamp's, and needs no
+    more lamps dark, the images do not say which lamp is lit: ``ambiguous`` (the reason
+    says so), never the first reading. With two lamps listed and one switched off, the
+    two readings are each other's mirror, and the one kept put the lit lamp's blobs on
+    the dark lamp in 11 of 22 solved objects, 0.39-11.4 px off
+    (``benchmarks/dark_lamp.py``). Returns "" when the reading stands.
+    """
+    explained = solution.explained_lights
+    if len(explained) != 1:
+        return ""
+    matched = np.stack([np.isfinite(a.centers_uv[:, 0]) for a in solution.assignments])
+    dark = _dark_lamps(np.stack([a.missing for a in solution.assignments]), matched,
+                       srde.min_views)
+    if not dark:
+        return ""
+    a = explained[0]
+    context = gathered.context(srde, mask)
+    support = solution.n_observations + len(solution.merged_blobs)
+    for k, plane in context.other_lights_planes(solution.plane, a):
+        score = context.score(plane, at_least=0)
+        if score is None or score.explained_lights.tolist() != [k] or score.support < support:
+            continue
+        other_dark = _dark_lamps(score.missing, score.matched >= 0, srde.min_views)
+        if len(other_dark) > len(dark):
+            continue
+        gap_px = context.plane_gap_px(plane, solution.plane)
+        views = solution.assignments[dark[0]].missing_views
+        reading = (f"light {k}'s on a plane {gap_px:.1f} px away"
+                   + (f" that needs light {other_dark} dark instead" if other_dark else
+                      " that every lamp lit explains"))
+        return (f"lights: the blobs are light {a}'s on the best plane, which puts light "
+                f"{dark}'s highlights on the object where the view is dark (view(s) "
+                f"{list(views)}: is that lamp switched off or hidden?), and {reading}: which "
+                f"lamp made them is not established (list only the lamps that are lit); "
+                f"{solution.evidence}")
+    return ""
 
 
 def _missing_note(assignment: LightAssignment) -> str:
