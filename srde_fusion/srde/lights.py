@@ -430,15 +430,15 @@ def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
         if len(other_dark) > len(dark):
             continue
         gap_px = context.plane_gap_px(plane, solution.plane)
-        views = solution.assignments[dark[0]].missing_views
+        unseen = " and ".join(f"light {d}'s highlights in view(s) "
+                              f"{list(solution.assignments[d].missing_views)}" for d in dark)
         reading = (f"light {k}'s on a plane {gap_px:.1f} px away"
-                   + (f" that needs light {other_dark} dark instead" if other_dark else
-                      " that every lamp lit explains"))
-        return (f"lights: the blobs are light {a}'s on the best plane, which puts light "
-                f"{dark}'s highlights on the object where the view is dark (view(s) "
-                f"{list(views)}: is that lamp switched off or hidden?), and {reading}: which "
-                f"lamp made them is not established (list only the lamps that are lit); "
-                f"{solution.evidence}")
+                   + (" that needs " + " and ".join(f"light {d}" for d in other_dark)
+                      + " dark instead" if other_dark else " that every lamp lit explains"))
+        return (f"lights: the blobs are light {a}'s on the best plane, which puts "
+                f"{unseen} on the object where the view is dark (is that lamp switched off "
+                f"or hidden?), and {reading}: which lamp made them is not established (list "
+                f"only the lamps that are lit); {solution.evidence}")
     return ""
 
 
