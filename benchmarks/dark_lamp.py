@@ -20,11 +20,13 @@ lamp's highlight is "predicted on the object" in a scene when the lamp, lit, wou
 it there in some view (``synthetic.highlights_on_objects``). SRDE takes the rig as the
 truth: a lamp it knows whose highlight the plane puts on the object is expected there,
 and one that is not there counts against the plane. With two lamps known and one dark,
-the one lit lamp's blobs can be read as the dark lamp's, on a plane that puts the lit
-lamp's own highlights off the object: nothing in the images tells the two readings
-apart, so these are the scenes where a stale rig costs most. The notes of an ``ok``
-result name a lamp none of whose highlights is seen where the plane puts them on the
-object (``noted as switched off``).
+the one lit lamp's blobs are one virtual light, the image of either lamp on its own
+plane, each reading putting the other lamp's highlights on the object where the view is
+dark: nothing in the images tells the two apart, so these are the scenes where a stale
+rig costs most (SRDE refuses such an object as ``ambiguous`` when both readings explain
+as much, rule 10 in ``docs/DESIGN.md``). The notes of an ``ok`` result name a lamp none
+of whose highlights is seen where the plane puts them on the object (``noted as switched
+off``).
 
 Run: ``python benchmarks/dark_lamp.py [--scenes 40]``; writes
 ``benchmarks/results/dark_lamp.md`` and ``.json`` (``--tables-only`` rewrites them from
