@@ -350,14 +350,18 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
     return dataclasses.replace(failed, status="inconsistent", reason=reason)
 
 
-def _dark_lamps(missing: np.ndarray, matched: np.ndarray, min_views: int) -> list[int]:
-    """Lamps a reading needs dark: none of their highlights seen, ``min_views`` missing.
+def _dark_lamps(on_object: np.ndarray, missing: np.ndarray, min_views: int) -> list[int]:
+    """Lamps a reading needs dark: every highlight it puts on the object missing.
 
-    ``missing`` and ``matched`` ``(K, N)`` bool: where each lamp's highlight is predicted
-    on the object and not there (the view dark there), and where one is assigned.
+    ``on_object`` and ``missing`` ``(K, N)`` bool: where each lamp's highlight is predicted
+    on the object, and where it is not there (the view dark there). A lamp needs to be
+    dark when it is missing in ``min_views`` views or more and seen in none: not assigned
+    a blob, nor bright inside a blob of merged highlights (a lamp whose highlight merges
+    with another's is lit, though no centre measures it).
     """
     return [k for k in range(len(missing))
-            if not matched[k].any() and np.count_nonzero(missing[k]) >= min_views]
+            if not np.any(on_object[k] & ~missing[k])
+            and np.count_nonzero(missing[k]) >= min_views]
 
 
 def _if_a_lamp_is_dark(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
@@ -399,9 +403,10 @@ def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
                      solution: LightsSolution) -> str:
     """Why the plane's reading of the blobs is not established by a lamp it needs dark.
 
-    A plane that gives every blob to one lamp and puts another lamp's highlight on the
-    object in ``min_views`` or more views where the view is dark reads the images as
-    that lamp switched off. The same blobs are also the image of one virtual light for
+    A plane that gives every blob to one lamp and puts another lamp's highlights on the
+    object where the view is dark, in ``min_views`` or more views and in every view
+    where it puts them there (:func:`_dark_lamps`), reads the images as that lamp
+    switched off. The same blobs are also the image of one virtual light for
     every other lamp, on the plane that mirrors that lamp onto it
     (:meth:`~.assignment.AssignmentContext.other_lights_planes`). If such a plane
     explains as many blobs (highlights and merged blobs), as that lamp's, and needs no
@@ -414,9 +419,8 @@ def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
     explained = solution.explained_lights
     if len(explained) != 1:
         return ""
-    matched = np.stack([np.isfinite(a.centers_uv[:, 0]) for a in solution.assignments])
-    dark = _dark_lamps(np.stack([a.missing for a in solution.assignments]), matched,
-                       srde.min_views)
+    dark = _dark_lamps(np.stack([a.on_object for a in solution.assignments]),
+                       np.stack([a.missing for a in solution.assignments]), srde.min_views)
     if not dark:
         return ""
     a = explained[0]
@@ -426,7 +430,7 @@ def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
         score = context.score(plane, at_least=0)
         if score is None or score.explained_lights.tolist() != [k] or score.support < support:
             continue
-        other_dark = _dark_lamps(score.missing, score.matched >= 0, srde.min_views)
+        other_dark = _dark_lamps(score.on_object, score.missing, srde.min_views)
         if len(other_dark) > len(dark):
             continue
         gap_px = context.plane_gap_px(plane, solution.plane)
