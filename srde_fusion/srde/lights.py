@@ -360,8 +360,17 @@ def _dark_lamps(on_object: np.ndarray, missing: np.ndarray, min_views: int) -> l
     with another's is lit, though no centre measures it).
     """
     return [k for k in range(len(missing))
-            if not np.any(on_object[k] & ~missing[k])
+            if _seen_nowhere(on_object[k], missing[k])
             and np.count_nonzero(missing[k]) >= min_views]
+
+
+def _seen_nowhere(on_object: np.ndarray, missing: np.ndarray) -> bool:
+    """Whether a lamp is missing in every view where the plane puts it on the object ``(N,)``.
+
+    (A view where it is assigned a blob, or bright inside a merged one, is on the object
+    and not missing.)
+    """
+    return not np.any(on_object & ~missing)
 
 
 def _if_a_lamp_is_dark(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
@@ -428,7 +437,7 @@ def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
     support = solution.n_observations + len(solution.merged_blobs)
     for k, plane in context.other_lights_planes(solution.plane, a):
         score = context.score(plane, at_least=0)
-        if score is None or score.explained_lights.tolist() != [k] or score.support < support:
+        if score.explained_lights.tolist() != [k] or score.support < support:
             continue
         other_dark = _dark_lamps(score.on_object, score.missing, srde.min_views)
         if len(other_dark) > len(dark):
@@ -450,7 +459,7 @@ def _missing_note(assignment: LightAssignment) -> str:
     """Return the note on a light the plane puts on the object where it is not seen."""
     note = (f"light {assignment.light}: highlight expected on the object but not found in "
             f"view(s) {list(assignment.missing_views)}")
-    if assignment.n_views == 0 and np.array_equal(assignment.missing, assignment.on_object):
+    if _seen_nowhere(assignment.on_object, assignment.missing):
         note += " (none of its highlights is seen: is the lamp switched off or hidden?)"
     return note
 
