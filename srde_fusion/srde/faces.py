@@ -284,6 +284,15 @@ EDGE_SIGMAS = 2.0
 #: over the whole mask (more than this count, which takes each pair's own pixels).
 MAX_OPEN_EDGE_FRACTION = 0.05
 
+#: A set whose faces fail from their planes refitted to their own highlights, where a
+#: refit moved some face's plane by more than ``SAME_PLANE_PX``, is solved once more from
+#: the set's own planes. An end face of a three-face ridge keeps two of its highlights
+#: away from the edge in few views; refitted to those alone its plane can land pixels
+#: off the one all its highlights proposed (on 73011: 0.05 -> 4.86 px), and the mask
+#: split by it gives the middle face a strip of its neighbours, where its lobe fit fails.
+#: The faces' checks and refinement decide as for every set.
+SET_PLANES_RETRY = True
+
 #: Largest standard error of a refined face's disparity over the object, px: three times
 #: it stays within SAME_PLANE_PX, so another plane is told apart. (A face whose lobe fit
 #: moved it off its highlight centres' plane may stand, so the fit's own certainty must
@@ -396,7 +405,8 @@ class _Split:
 class _FaceSet:
     """One set of face planes while its faces are read: what each face's reading needs.
 
-    ``chosen``: each face's score, its plane refitted to its own highlights; ``labels``:
+    ``chosen``: each face's score, its plane refitted to its own highlights or the set's
+    own (:data:`SET_PLANES_RETRY`); ``labels``:
     the mask split among them over ``box`` (face ``f`` is label ``f + 1``).
     """
 
@@ -1084,13 +1094,15 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     """Solve each face of one set of face planes and piece the faces together.
 
     An ``ok`` result whose ``faces`` holds every face, or the first check that failed.
+    Each face starts from its plane refitted to its own highlights; when that fails and
+    a refit moved some face's plane, the set's own planes are tried too
+    (:data:`SET_PLANES_RETRY`).
     """
     rig, lights = srde.rig, srde.lights_m
-    rule, edge_px = split.rule, gathered.blob_radius_px
+    edge_px = gathered.blob_radius_px
     # Each face's plane refitted to its own highlights alone (those away from the edge
     # when there are two or more: the edge may pull a cut blob's centre; never those on
     # another face), and the mask split again by the refitted planes.
-    chosen = []
     where = _highlights_by_face(rig, lights, list(split.scores), split.labels, box, edge_px)
     # Every highlight a face's plane explains off the other faces' parts is that face's,
     # whether or not its fit uses it (near the edge its centre may be pulled); the fits'
@@ -1098,12 +1110,41 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     theirs = [replace(score, matched=np.where(_own(w, f + 1) | (w == CUT_BY_EDGE),
                                               score.matched, -1))
               for f, (score, w) in enumerate(zip(split.scores, where, strict=True))]
+    owns, refitted = [], []
     for f, (score, w) in enumerate(zip(split.scores, where, strict=True)):
         strict = np.where(w == f + 1, score.matched, -1)
         own = replace(score, matched=strict if np.count_nonzero(strict >= 0) >= 2
                       else np.where(_own(w, f + 1), score.matched, -1))
         plane = context.fit(own) if own.n_matched >= 2 else None
-        chosen.append(own if plane is None else replace(own, plane=plane))
+        owns.append(own)
+        refitted.append(own if plane is None else replace(own, plane=plane))
+    result = _solve_faces(srde, views, mask, context, gathered, split.rule, refitted,
+                          list(theirs), pool, box, inside)
+    moved_px = [context.plane_gap_px(a.plane, b.plane) for a, b in zip(owns, refitted,
+                                                                         strict=True)]
+    if result.ok or not SET_PLANES_RETRY or max(moved_px) <= SAME_PLANE_PX:
+        return result
+    again = _solve_faces(srde, views, mask, context, gathered, split.rule, owns,
+                         list(theirs), pool, box, inside)
+    f = int(np.argmax(moved_px))
+    if not again.ok:
+        return replace(result, reason=f"{result.reason} (and from the set's own planes, "
+                       f"before each was refitted to its face's highlights: {again.reason})")
+    return replace(again, notes=(*again.notes, f"faces: solved from the set's own planes; "
+                                 f"refitted to its own highlights, face {f + 1}'s plane moved "
+                                 f"{moved_px[f]:.2f} px and the set failed ({result.reason})"))
+
+
+def _solve_faces(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext, gathered,
+                 rule: str, chosen: list[PlaneScore], theirs: list[PlaneScore],
+                 pool: list[PlaneScore], box, inside: np.ndarray) -> SRDEResult:
+    """Solve each face of a set from the planes of ``chosen`` (:func:`_solve_split`).
+
+    ``theirs``: each face's highlights off the other faces' parts (a list this call may
+    extend).
+    """
+    rig, lights = srde.rig, srde.lights_m
+    edge_px = gathered.blob_radius_px
     labels = split_faces([s.plane for s in chosen], rig, box, inside, rule)
     faces: list[FaceResult] = []
     results = []
