@@ -1130,9 +1130,10 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
     if not again.ok:
         return replace(result, reason=f"{result.reason} (and from the set's own planes, "
                        f"before each was refitted to its face's highlights: {again.reason})")
-    return replace(again, notes=(*again.notes, f"faces: solved from the set's own planes; "
-                                 f"refitted to its own highlights, face {f + 1}'s plane moved "
-                                 f"{moved_px[f]:.2f} px and the set failed ({result.reason})"))
+    return replace(again, notes=(*again.notes, f"faces: solved from the set's own planes "
+                                 f"(refitted to its own highlights, face {f + 1}'s plane moved "
+                                 f"{moved_px[f]:.2f} px, and from the refitted planes the set "
+                                 f"failed: {result.reason})"))
 
 
 def _solve_faces(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext, gathered,
