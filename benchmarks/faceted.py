@@ -44,7 +44,9 @@ shaped a rule), ``--seed0 101000 --name faceted_101000`` (run only after them) a
 recentred and matched near the outline).
 ``--lamp-radii`` gives the rig every lamp's radius, as a ``rig.json`` with the lamps
 measured would (by default the rig knows positions only, and each face's second reading
-fits the radius).
+fits the radius). ``--refused-only`` runs again only the scenes whose stored record is a
+failure and keeps the others' records: for a change that only runs where every try of the
+faces has failed (the md says how many were run again).
 """
 
 from __future__ import annotations
@@ -264,20 +266,33 @@ def main(argv: list[str] | None = None) -> int:
                         help="the rig knows every lamp's radius (rig.json's radius_m)")
     parser.add_argument("--tables-only", action="store_true",
                         help="rewrite the tables from the results folder's JSON records")
+    parser.add_argument("--refused-only", action="store_true",
+                        help="run again only the scenes whose stored record is not ok, "
+                             "keeping the others' (for a change that solved objects cannot "
+                             "reach)")
     args = parser.parse_args(argv)
     rig = default_rig()
     records = []
-    if args.tables_only:
+    stored = {}
+    if args.tables_only or args.refused_only:
         records = json.loads((args.out / f"{args.name}.json").read_text())["records"]
+        stored = {record["seed"]: record for record in records}
     for kind, (_, n_faces, convex) in enumerate(KINDS if not args.tables_only else ()):
         for i in range(args.scenes):
-            record = run_scene(rig, args.seed0 + 1000 * kind + i, n_faces, convex,
-                               args.lamp_radii)
+            seed = args.seed0 + 1000 * kind + i
+            if args.refused_only:
+                if stored[seed]["status"] == "ok":
+                    continue
+                records.remove(stored[seed])
+            record = run_scene(rig, seed, n_faces, convex, args.lamp_radii)
+            if args.refused_only:
+                record["run_again"] = "refused only"
             records.append(record)
             print(f"{n_faces} faces {'ridge' if convex else 'valley'} seed {record['seed']}: "
                   f"{record['status']} epe {np.round(record['epe'], 4).tolist()} found "
                   f"{record['found']} split {record['wrong_split_pct']:.2f} % one plane "
                   f"{np.round(record['single_epe'], 3).tolist()}", flush=True)
+    records.sort(key=lambda record: record["seed"])
     table, numbers = summary_rows(records)
     statuses = "; ".join(f"{k}: " + ", ".join(f"{s} {n}" for s, n in row["statuses"].items())
                          for k, row in numbers.items() if "statuses" in row)
@@ -285,7 +300,10 @@ def main(argv: list[str] | None = None) -> int:
           __doc__.split("\n\n", 1)[1].split("\n\nRun:")[0].replace("\n", " "), "",
           f"{len(records)} scenes (seeds {args.seed0} + 1000 kind + i). Machine: "
           f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}."
-          + (" The rig knows every lamp's radius (`--lamp-radii`)." if args.lamp_radii else ""),
+          + (" The rig knows every lamp's radius (`--lamp-radii`)." if args.lamp_radii else "")
+          + (f" Run again: the {again} scenes stored as refused (`--refused-only`); the "
+             f"others' records are an earlier run's." if (again := sum(
+                 "run_again" in record for record in records)) else ""),
           "", "Per-face EPE and wrong split over the objects solved with faces; the target is "
           f"per-face EPE <= {TARGET_PX} px.", "", *table, "", f"Statuses: {statuses}.", ""]
     write_results(args.out, args.name, md, {"numbers": numbers, "records": records},

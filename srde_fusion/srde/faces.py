@@ -284,13 +284,16 @@ EDGE_SIGMAS = 2.0
 #: over the whole mask (more than this count, which takes each pair's own pixels).
 MAX_OPEN_EDGE_FRACTION = 0.05
 
-#: A set whose faces fail from their planes refitted to their own highlights, where a
-#: refit moved some face's plane by more than ``SAME_PLANE_PX``, is solved once more from
-#: the set's own planes. An end face of a three-face ridge keeps two of its highlights
-#: away from the edge in few views; refitted to those alone its plane can land pixels
-#: off the one all its highlights proposed (on 73011: 0.05 -> 4.86 px), and the mask
-#: split by it gives the middle face a strip of its neighbours, where its lobe fit fails.
-#: The faces' checks and refinement decide as for every set.
+#: When every try fails, each is made once more with each set solved from the set's own
+#: planes instead of its faces' planes refitted to their own highlights, the sets where
+#: a refit moved a plane by more than ``SAME_PLANE_PX`` only. An end face of a three-face
+#: ridge may keep two of its highlights away from the edge, in few views; refitted to
+#: those alone its plane can land pixels off the one its highlights proposed (0.05 ->
+#: 4.86 px on one), and the mask split by it gives the middle face a strip of its
+#: neighbours, where that face's lobe fit fails. The faces' checks and refinement decide
+#: as in every try. (Solved in place of a set's failure, a set's own planes preempted
+#: later sets and tries that the refits solve: two objects already solved came out
+#: worse, one face 0.03 -> 0.13 px.)
 SET_PLANES_RETRY = True
 
 #: Largest standard error of a refined face's disparity over the object, px: three times
@@ -838,7 +841,11 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     if gathered is None:
         return None
     if every_view:
-        return _later_tries(srde, views, mask, gathered, cut_only=cut_only)
+        later = _later_tries(srde, views, mask, gathered, cut_only=cut_only)
+        if later is None and SET_PLANES_RETRY:
+            later = _later_tries(srde, views, mask, gathered, cut_only=cut_only,
+                                 set_planes=True)
+        return later
     result = _estimate_faces(srde, views, mask, gathered, anchors=None)
     if result is None or result.ok:
         return result
@@ -855,40 +862,55 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     # tried here, a flat object with max_faces=3 took three times as long. Last come the
     # tries from blobs cut by a face's edge centred on their arcs on (_later_tries).
     later = _later_tries(srde, views, mask, gathered)
-    return result if later is None else later
+    if later is not None:
+        return later
+    if SET_PLANES_RETRY:
+        # Every try failed: each is made again with the sets' own planes, where refitting
+        # them to their faces' highlights moved one (SET_PLANES_RETRY).
+        again = _estimate_faces(srde, views, mask, gathered, anchors=None, set_planes=True)
+        if again is not None and again.ok:
+            return again
+        if again is None or again.status != "ambiguous":
+            later = _later_tries(srde, views, mask, gathered, set_planes=True)
+            if later is not None:
+                return later
+    return result
 
 
 def _later_tries(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, *,
-                 cut_only: bool = False) -> SRDEResult | None:
+                 cut_only: bool = False, set_planes: bool = False) -> SRDEResult | None:
     """Return the faces from every view's candidates, else from the last tries (ok or None).
 
     In order: recentred candidates, turned planes, predictions near the outline matched,
     and those matched among recentred candidates. ``cut_only``: the last tries alone,
-    without every view's candidates (:func:`_recentred_try` first).
+    without every view's candidates (:func:`_recentred_try` first). ``set_planes``: each
+    try solves its sets from their own planes only (:data:`SET_PLANES_RETRY`).
     """
     if not cut_only:
         again = _estimate_faces(srde, views, mask, gathered,
-                                anchors=tuple(range(srde.rig.n_cameras)))
+                                anchors=tuple(range(srde.rig.n_cameras)),
+                                set_planes=set_planes)
         if again is not None and again.ok:
             return again
     # (The cut blobs are read again once, for both tries that use them.)
     recentred = gathered.recentred(views, srde.config.encoding) if RECENTRED_TRY else None
-    solved = _recentred_try(srde, views, mask, recentred)
+    solved = _recentred_try(srde, views, mask, recentred, set_planes=set_planes)
     if solved is not None:
         return solved
-    hinged = _hinge_try(srde, views, mask, gathered)
+    hinged = _hinge_try(srde, views, mask, gathered, set_planes=set_planes)
     if hinged is not None:
         return hinged
-    near_outline = _near_outline_try(srde, views, mask, gathered)
+    near_outline = _near_outline_try(srde, views, mask, gathered, set_planes=set_planes)
     if near_outline is not None:
         return near_outline
     if RECENTRED_NEAR_OUTLINE_TRY and NEAR_OUTLINE_TRY:
-        return _recentred_try(srde, views, mask, recentred, near_outline=True)
+        return _recentred_try(srde, views, mask, recentred, near_outline=True,
+                              set_planes=set_planes)
     return None
 
 
-def _near_outline_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
-                      ) -> SRDEResult | None:
+def _near_outline_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, *,
+                      set_planes: bool = False) -> SRDEResult | None:
     """Return the faces with predictions near the outline matched, if ok.
 
     (:data:`NEAR_OUTLINE_TRY`.) Every view's candidates propose planes, as in the second
@@ -899,7 +921,8 @@ def _near_outline_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandida
     if not NEAR_OUTLINE_TRY:
         return None
     again = _estimate_faces(srde, views, mask, gathered,
-                            anchors=tuple(range(srde.rig.n_cameras)), near_outline=True)
+                            anchors=tuple(range(srde.rig.n_cameras)), near_outline=True,
+                            set_planes=set_planes)
     if again is None or not again.ok:
         return None
     context = gathered.context(srde, mask, all_lights_in_front=False)
@@ -921,8 +944,8 @@ def _own_light_views(context: AssignmentContext, face: FaceResult) -> int:
     return int(np.count_nonzero(matched[face.light] >= 0))
 
 
-def _hinge_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
-               ) -> SRDEResult | None:
+def _hinge_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates, *,
+               set_planes: bool = False) -> SRDEResult | None:
     """Return the faces with planes turned about the edges of the planes found, if ok.
 
     (:data:`HINGE_TRY`.) Each well-seen plane of the pool, turned about every chord
@@ -933,12 +956,14 @@ def _hinge_try(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
     if not HINGE_TRY:
         return None
     again = _estimate_faces(srde, views, mask, gathered,
-                            anchors=tuple(range(srde.rig.n_cameras)), hinges=True)
+                            anchors=tuple(range(srde.rig.n_cameras)), hinges=True,
+                            set_planes=set_planes)
     return again if again is not None and again.ok else None
 
 
 def _recentred_try(srde: SRDE, views, mask: np.ndarray, recentred: ViewCandidates | None,
-                   *, near_outline: bool = False) -> SRDEResult | None:
+                   *, near_outline: bool = False, set_planes: bool = False
+                   ) -> SRDEResult | None:
     """Return the faces from candidates whose cut blobs are centred on their arcs, if ok.
 
     (:data:`RECENTRED_TRY`.) ``recentred``: the candidates so centred
@@ -951,7 +976,8 @@ def _recentred_try(srde: SRDE, views, mask: np.ndarray, recentred: ViewCandidate
     if recentred is None:
         return None
     again = _estimate_faces(srde, views, mask, recentred,
-                            anchors=tuple(range(srde.rig.n_cameras)), near_outline=near_outline)
+                            anchors=tuple(range(srde.rig.n_cameras)), near_outline=near_outline,
+                            set_planes=set_planes)
     if again is None or not again.ok:
         return None
     # (Without the refinement nothing pins a face down beyond its recentred centres.)
@@ -965,13 +991,16 @@ def _recentred_try(srde: SRDE, views, mask: np.ndarray, recentred: ViewCandidate
 
 def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
                     anchors: tuple[int, ...] | None, *, hinges: bool = False,
-                    near_outline: bool = False) -> SRDEResult | None:
+                    near_outline: bool = False, set_planes: bool = False
+                    ) -> SRDEResult | None:
     """:func:`estimate_faces` with the planes proposed from ``anchors``' candidates.
 
     ``hinges``: the pool's well-seen planes and the planes turned about the outline's
     chords from them (:func:`_hinge_scores`) instead; only sets holding a turned plane
     are tried (the others were the earlier tries'). ``near_outline``: highlights
     predicted near the outline take candidates in every score (:data:`NEAR_OUTLINE_TRY`).
+    ``set_planes``: each set is solved from its own planes, and only if refitting them
+    to their faces' highlights moved one (:data:`SET_PLANES_RETRY`).
     """
     context = gathered.context(srde, mask, all_lights_in_front=False,
                                near_outline=near_outline)
@@ -1017,7 +1046,9 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
             if solved is not None and split.value < solved[0].value:
                 break
             result = _solve_split(srde, views, mask, context, gathered, split, pool, box,
-                                  inside)
+                                  inside, set_planes=set_planes)
+            if result is None:
+                continue  # the set's own planes are its refitted ones: tried already
             if not result.ok:
                 failures.append(result)
             elif solved is None:
@@ -1032,6 +1063,8 @@ def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
                                     "confirms both")
         if solved is not None:
             return solved[1]
+    if not failures:
+        return None
     first = failures[0]
     if len(failures) == 1:
         return first
@@ -1090,13 +1123,14 @@ def _same_planes(context: AssignmentContext, planes_a: list[Plane], planes_b: li
 
 
 def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext, gathered,
-                 split: _Split, pool: list[PlaneScore], box, inside: np.ndarray) -> SRDEResult:
+                 split: _Split, pool: list[PlaneScore], box, inside: np.ndarray, *,
+                 set_planes: bool = False) -> SRDEResult | None:
     """Solve each face of one set of face planes and piece the faces together.
 
     An ``ok`` result whose ``faces`` holds every face, or the first check that failed.
-    Each face starts from its plane refitted to its own highlights; when that fails and
-    a refit moved some face's plane, the set's own planes are tried too
-    (:data:`SET_PLANES_RETRY`).
+    Each face starts from its plane refitted to its own highlights; with ``set_planes``
+    from the set's own plane instead (:data:`SET_PLANES_RETRY`), and None when no refit
+    moved a plane by more than ``SAME_PLANE_PX`` (the same planes: solved already).
     """
     rig, lights = srde.rig, srde.lights_m
     edge_px = gathered.blob_radius_px
@@ -1118,22 +1152,22 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
         plane = context.fit(own) if own.n_matched >= 2 else None
         owns.append(own)
         refitted.append(own if plane is None else replace(own, plane=plane))
-    result = _solve_faces(srde, views, mask, context, gathered, split.rule, refitted,
-                          list(theirs), pool, box, inside)
-    moved_px = [context.plane_gap_px(a.plane, b.plane) for a, b in zip(owns, refitted,
-                                                                         strict=True)]
-    if result.ok or not SET_PLANES_RETRY or max(moved_px) <= SAME_PLANE_PX:
-        return result
-    again = _solve_faces(srde, views, mask, context, gathered, split.rule, owns,
-                         list(theirs), pool, box, inside)
+    if not set_planes:
+        return _solve_faces(srde, views, mask, context, gathered, split.rule, refitted,
+                            theirs, pool, box, inside)
+    moved_px = [context.plane_gap_px(a.plane, b.plane)
+                for a, b in zip(owns, refitted, strict=True)]
     f = int(np.argmax(moved_px))
-    if not again.ok:
-        return replace(result, reason=f"{result.reason} (and from the set's own planes, "
-                       f"before each was refitted to its face's highlights: {again.reason})")
-    return replace(again, notes=(*again.notes, f"faces: solved from the set's own planes "
-                                 f"(refitted to its own highlights, face {f + 1}'s plane moved "
-                                 f"{moved_px[f]:.2f} px, and from the refitted planes the set "
-                                 f"failed: {result.reason})"))
+    if moved_px[f] <= SAME_PLANE_PX:
+        return None
+    result = _solve_faces(srde, views, mask, context, gathered, split.rule, owns, theirs,
+                          pool, box, inside)
+    if not result.ok:
+        return result
+    return replace(result, notes=(*result.notes, f"faces: solved from the set's own planes "
+                                  f"after every try from planes refitted to each face's own "
+                                  f"highlights failed (face {f + 1}'s refit moved its plane "
+                                  f"{moved_px[f]:.2f} px)"))
 
 
 def _solve_faces(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext, gathered,
