@@ -296,6 +296,15 @@ MAX_OPEN_EDGE_FRACTION = 0.05
 #: worse, one face 0.03 -> 0.13 px.)
 SET_PLANES_RETRY = True
 
+#: A set solved from its own planes stands only when every face's lobe fit pins its
+#: plane down to this standard error, px (the recentred try's limit, for the same
+#: reason: the fits move their starts little, so a face carries its start's error, which
+#: its standard error does not see). Without it, three objects of the twelve faceted
+#: runs were solved with an end face seen in two views 0.85, 0.12 and 0.06 px off
+#: (standard errors 0.102, 0.066 and 0.078 px); the right faces solved so had at most
+#: 0.035 px, and one right face (0.019 px off) had 0.041 px and is refused.
+SET_PLANES_MAX_SIGMA_PX = RECENTRED_MAX_SIGMA_PX
+
 #: Largest standard error of a refined face's disparity over the object, px: three times
 #: it stays within SAME_PLANE_PX, so another plane is told apart. (A face whose lobe fit
 #: moved it off its highlight centres' plane may stand, so the fit's own certainty must
@@ -1164,6 +1173,15 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
                           pool, box, inside)
     if not result.ok:
         return result
+    # (Without the refinement nothing pins a face down beyond its start plane.)
+    sigmas = [math.inf if face.refinement is None else face.refinement.disparity_sigma_px
+              for face in result.faces.faces]
+    loose = int(np.argmax(sigmas))
+    if sigmas[loose] > SET_PLANES_MAX_SIGMA_PX:
+        return srde._failed("inconsistent", f"faces: from the set's own planes, face "
+                            f"{loose + 1}'s refined plane has a standard error of "
+                            f"{sigmas[loose]:.3f} px (limit {SET_PLANES_MAX_SIGMA_PX:g} px)",
+                            plane=result.faces.faces[loose].plane)
     return replace(result, notes=(*result.notes, f"faces: solved from the set's own planes "
                                   f"after every try from planes refitted to each face's own "
                                   f"highlights failed (face {f + 1}'s refit moved its plane "
