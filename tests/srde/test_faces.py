@@ -777,6 +777,8 @@ def test_cut_highlights_centred_on_their_arcs_solve_three_faces(rig, monkeypatch
     # Geometric only, nothing pins the faces down beyond the recentred centres.
     assert not SRDE(lit, max_faces=3, refine=False).estimate(rendering.views, mask).ok
     monkeypatch.setattr(faces_module, "RECENTRED_TRY", False)
+    # (The tries from the sets' own planes, made when every other try fails, are off too.)
+    monkeypatch.setattr(faces_module, "SET_PLANES_RETRY", False)
     refused = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert not refused.ok
 
@@ -797,6 +799,8 @@ def test_a_face_turned_about_its_neighbour_s_edge_solves_three_faces(rig, monkey
     assert result.ok and len(result.faces.faces) == 3, result.reason
     assert max(_face_epes(result.disparity, rendering, 3)) <= FACE_EPE_PX
     monkeypatch.setattr(faces_module, "HINGE_TRY", False)
+    # (The tries from the sets' own planes, made when every other try fails, are off too.)
+    monkeypatch.setattr(faces_module, "SET_PLANES_RETRY", False)
     assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
 
 
@@ -832,6 +836,8 @@ def test_the_near_outline_try_answers_only_for_a_face_that_needs_it(rig, monkeyp
     # Without it, the near-outline try runs and does not answer: every face of its set is
     # seen away from the outline, so none needs it.
     monkeypatch.setattr(faces_module, "RECENTRED_TRY", False)
+    # (The tries from the sets' own planes, made when every other try fails, are off too.)
+    monkeypatch.setattr(faces_module, "SET_PLANES_RETRY", False)
     tries.clear()
     refused = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
     assert tries == [None] and not refused.ok
@@ -1034,6 +1040,8 @@ def test_a_face_the_lobe_fit_does_not_confirm_is_read_again_away_from_the_edge(r
     monkeypatch.setattr(faces_module, "RANKS_TRIED", 1)
     # (So is the last try's, cut blobs centred on their arcs: 0.022 / 0.010 px.)
     monkeypatch.setattr(faces_module, "RECENTRED_TRY", False)
+    # (The tries from the sets' own planes, made when every other try fails, are off too.)
+    monkeypatch.setattr(faces_module, "SET_PLANES_RETRY", False)
     read.clear()
     tries = _record_tries(monkeypatch)
     result = SRDE(lit, max_faces=3).estimate(rendering.views, mask)
