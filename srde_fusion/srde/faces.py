@@ -879,6 +879,7 @@ def estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered: ViewCandidates
         again = _estimate_faces(srde, views, mask, gathered, anchors=None, set_planes=True)
         if again is not None and again.ok:
             return again
+        # (Two sets that both pass from their own planes: the first try's failure stands.)
         if again is None or again.status != "ambiguous":
             later = _later_tries(srde, views, mask, gathered, set_planes=True)
             if later is not None:
