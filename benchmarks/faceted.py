@@ -275,12 +275,18 @@ def main(argv: list[str] | None = None) -> int:
     records = []
     stored = {}
     if args.tables_only or args.refused_only:
-        records = json.loads((args.out / f"{args.name}.json").read_text())["records"]
+        path = args.out / f"{args.name}.json"
+        if not path.is_file():
+            raise SystemExit(f"expected stored records at {path}, got no such file")
+        records = json.loads(path.read_text())["records"]
         stored = {record["seed"]: record for record in records}
     for kind, (_, n_faces, convex) in enumerate(KINDS if not args.tables_only else ()):
         for i in range(args.scenes):
             seed = args.seed0 + 1000 * kind + i
             if args.refused_only:
+                if seed not in stored:
+                    raise SystemExit(f"--refused-only: expected a stored record of seed {seed} "
+                                     f"in {args.name}.json, got none (run the set in full)")
                 if stored[seed]["status"] == "ok":
                     continue
                 records.remove(stored[seed])
