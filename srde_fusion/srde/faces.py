@@ -990,13 +990,21 @@ def _recentred_try(srde: SRDE, views, mask: np.ndarray, recentred: ViewCandidate
                             set_planes=set_planes)
     if again is None or not again.ok:
         return None
-    # (Without the refinement nothing pins a face down beyond its recentred centres.)
-    sigmas = [math.inf if face.refinement is None else face.refinement.disparity_sigma_px
-              for face in again.faces.faces]
+    sigmas = _face_sigmas_px(again)
     if not all(sigma <= RECENTRED_MAX_SIGMA_PX for sigma in sigmas):
         _log.debug("faces: the recentred try's faces are pinned down to %s px only", sigmas)
         return None
     return again
+
+
+def _face_sigmas_px(result: SRDEResult) -> list[float]:
+    """Each face's refined standard error over the object, px, of an ``ok`` faces result.
+
+    Infinite for a face without refinement: nothing then pins it down beyond its start
+    plane (a try whose faces start from centres alone asks for this bound).
+    """
+    return [math.inf if face.refinement is None else face.refinement.disparity_sigma_px
+            for face in result.faces.faces]
 
 
 def _estimate_faces(srde: SRDE, views, mask: np.ndarray, gathered,
@@ -1174,9 +1182,7 @@ def _solve_split(srde: SRDE, views, mask: np.ndarray, context: AssignmentContext
                           pool, box, inside)
     if not result.ok:
         return result
-    # (Without the refinement nothing pins a face down beyond its start plane.)
-    sigmas = [math.inf if face.refinement is None else face.refinement.disparity_sigma_px
-              for face in result.faces.faces]
+    sigmas = _face_sigmas_px(result)
     loose = int(np.argmax(sigmas))
     if sigmas[loose] > SET_PLANES_MAX_SIGMA_PX:
         return srde._failed("inconsistent", f"faces: from the set's own planes, face "
