@@ -317,9 +317,9 @@ MAX_FACE_SIGMA_PX = SAME_PLANE_PX / 3
 #: edge with another face) has its centre pulled into the part: such a highlight, whose
 #: mirror point lies within a blob radius of the border and nearer to it than the
 #: centre's own, may be missed by up to a blob radius. (An end face of a 3-face ridge
-#: seen in three views, all three blobs 11-13 px from the outline, blob radius 14 px:
-#: its lobe fit came 0.06 px off the face, and the centres it missed by 3.8-4.3 px lay
-#: 4 px further inside, each of its sets refused for that.)
+#: seen in three views, the mirror points 8-10 px inside the outline, blob radius 12 px:
+#: its lobe fit came 0.03 px off the face and missed the centres, pulled into the face,
+#: by 1.7-3.7 px; every set holding it was refused for that, and the object with it.)
 CUT_MISS_ALLOWED = True
 
 
