@@ -940,6 +940,9 @@ def test_cut_blobs_recentred_and_matched_near_the_outline_solve_the_faces(rig, m
                for near in (False, True)}
         assert own[True, True] > max(own[False, True], own[True, False]), own
     monkeypatch.setattr(faces_module, "RECENTRED_NEAR_OUTLINE_TRY", False)
+    # (Without that try, the tries from the sets' own planes solve it as well, 0.015 /
+    # 0.003 px, now that its cut blobs may be missed toward the outline.)
+    monkeypatch.setattr(faces_module, "SET_PLANES_RETRY", False)
     assert not SRDE(lit, max_faces=3).estimate(rendering.views, mask).ok
 
 
