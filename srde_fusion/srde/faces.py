@@ -701,9 +701,14 @@ class _KeptPerPlane:
 
 def _label_at(labels: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
     """Labels ``(M,)`` at reference pixels ``uv`` ``(M, 2)``; 0 outside the box."""
+    return _value_at(labels, box, uv, np.intp)
+
+
+def _value_at(values: np.ndarray, box, uv: np.ndarray, dtype) -> np.ndarray:
+    """``values`` (over ``box``) at reference pixels ``uv`` ``(M, 2)`` rounded; 0 outside."""
     u, v, ok = _box_pixels(box, uv)
-    out = np.zeros(len(uv), dtype=np.intp)
-    out[ok] = labels[v[ok], u[ok]]
+    out = np.zeros(len(uv), dtype=dtype)
+    out[ok] = values[v[ok], u[ok]]
     return out
 
 
@@ -1543,22 +1548,14 @@ def _worst_miss_px(rig, light_m: np.ndarray, face: FaceResult, part: np.ndarray,
                                        cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
         origins = rig.centers_m[views]
         lit, _ = reflection_points(face.plane, virtual, origins)
-        # Where each centre's ray meets the plane (all cameras share one orientation).
-        rays = rig.rays(centers)
-        n = face.plane.n
-        seen = origins + ((face.plane.offset_m - origins @ n) / (rays @ n))[:, None] * rays
-        depth_lit, depth_seen = (_depth_at(inside, box, rig.project(p)) for p in (lit, seen))
+        # Where each centre's ray meets the plane: the segment from the camera through a
+        # point on the ray (all cameras share one orientation).
+        seen, _ = reflection_points(face.plane, origins + rig.rays(centers), origins)
+        depth_lit, depth_seen = (_value_at(inside, box, np.nan_to_num(rig.project(p), nan=-1e9),
+                                           np.float64) for p in (lit, seen))
         excused = (depth_lit < reach_px) & (depth_seen > depth_lit) & (miss <= reach_px)
         miss = miss[~excused]
     return float(np.max(miss)) if miss.size else 0.0
-
-
-def _depth_at(depth: np.ndarray, box, uv: np.ndarray) -> np.ndarray:
-    """``depth`` (over ``box``) at reference pixels ``uv`` ``(M, 2)`` rounded; 0 outside."""
-    u, v, inside = _box_pixels(box, np.nan_to_num(uv, nan=-1e9))
-    out = np.zeros(len(uv))
-    out[inside] = depth[v[inside], u[inside]]
-    return out
 
 
 def _off_edge_gap_px(face_set: _FaceSet, face_mask: np.ndarray, f: int, face: FaceResult,
