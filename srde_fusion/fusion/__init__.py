@@ -20,6 +20,9 @@ from .estimate import (
 from .fuse import (
     fuse,
 )
+from .lamps import (
+    LampTally,
+)
 from .pipeline import (
     HybridStereo,
     postprocess,
@@ -52,4 +55,5 @@ __all__ = [
     "FusionStream",
     "StreamStats",
     "FrameTiming",
+    "LampTally",
 ]

@@ -21,6 +21,7 @@ from ..masks import resolve_masker
 from ..srde import SRDE
 from .checks import DEFAULT_BORDER_CHECK, BorderCheck
 from .fuse import as_mask_list, fuse
+from .lamps import LampTally
 from .report import FusionResult
 from .stream import FrameTiming, FusionStream
 
@@ -179,7 +180,10 @@ class HybridStereo:
         FusionStream
             An iterator of :class:`FusionResult`, one per frame; its ``stats``
             (:class:`~srde_fusion.fusion.stream.StreamStats`) give the frames per second
-            and the time per stage, its ``last_timing`` the last frame's stages.
+            and the time per stage, its ``last_timing`` the last frame's stages, its
+            ``lamps`` (:class:`~srde_fusion.fusion.lamps.LampTally`) which of the rig's
+            lamps the solved objects see (``stream.lamps.warning()`` names one that seems
+            switched off).
 
         Raises
         ------
@@ -200,7 +204,8 @@ class HybridStereo:
         ([5.0, 5.0, 5.0], 3)
         """
         _ = self.srde  # built now, so the first frame costs what every other one does
-        return FusionStream(self._run, frames)
+        return FusionStream(self._run, frames,
+                            LampTally.for_rig(self.rig, self.srde.min_views))
 
     def _run(self, views: Sequence[np.ndarray]) -> tuple[FusionResult, FrameTiming]:
         """Fuse one frame; return the result and the time of each stage."""

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..srde import SRDEResult
+from .lamps import LampTally
 from .report import FusionResult
 
 __all__ = ["FrameTiming", "StreamStats", "FusionStream"]
@@ -114,6 +116,8 @@ class FusionStream(Iterator[FusionResult]):
         ``run(views) -> (FusionResult, FrameTiming)`` for one frame.
     frames : iterable of sequences of numpy.ndarray
         Each item is one frame: one image per rig camera.
+    lamps : LampTally, optional
+        The rig's lamps, empty: the stream counts which ones its solved objects see.
 
     Attributes
     ----------
@@ -121,14 +125,20 @@ class FusionStream(Iterator[FusionResult]):
         Frames fused so far and their rate.
     last_timing : FrameTiming or None
         The stages of the last frame fused.
+    lamps : LampTally or None
+        Per lamp of the rig, the solved objects so far that saw it and those that needed
+        it dark (``lamps.warning()`` names a lamp that seems switched off); None when not
+        given.
     """
 
-    def __init__(self, run: Run, frames: Iterable[Sequence[np.ndarray]]) -> None:
+    def __init__(self, run: Run, frames: Iterable[Sequence[np.ndarray]],
+                 lamps: LampTally | None = None) -> None:
         self._run = run
         self._frames = iter(frames)
         self._start: float | None = None
         self.stats = StreamStats()
         self.last_timing: FrameTiming | None = None
+        self.lamps = lamps
 
     def __iter__(self) -> FusionStream:
         return self
@@ -140,4 +150,7 @@ class FusionStream(Iterator[FusionResult]):
         result, timing = self._run(views)
         self.last_timing = timing
         self.stats = self.stats.added(timing, time.perf_counter() - self._start)
+        if self.lamps is not None:
+            self.lamps = self.lamps.added(o.estimate.result for o in result.objects
+                                          if isinstance(o.estimate.result, SRDEResult))
         return result

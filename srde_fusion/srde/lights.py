@@ -42,6 +42,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "check_lights",
+    "dark_lamps",
     "estimate_with_lights",
     "lobes_prefer",
     "near_lights",
@@ -350,7 +351,7 @@ def _no_highlights_left_out(srde: SRDE, mask: np.ndarray, gathered: ViewCandidat
     return dataclasses.replace(failed, status="inconsistent", reason=reason)
 
 
-def _dark_lamps(on_object: np.ndarray, missing: np.ndarray, min_views: int) -> list[int]:
+def dark_lamps(on_object: np.ndarray, missing: np.ndarray, min_views: int) -> list[int]:
     """Lamps a reading needs dark: every highlight it puts on the object missing.
 
     ``on_object`` and ``missing`` ``(K, N)`` bool: where each lamp's highlight is predicted
@@ -414,7 +415,7 @@ def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
 
     A plane that gives every blob to one lamp and puts another lamp's highlights on the
     object where the view is dark, in ``min_views`` or more views and in every view
-    where it puts them there (:func:`_dark_lamps`), reads the images as that lamp
+    where it puts them there (:func:`dark_lamps`), reads the images as that lamp
     switched off. The same blobs are also the image of one virtual light for
     every other lamp, on the plane that mirrors that lamp onto it
     (:meth:`~.assignment.AssignmentContext.other_lights_planes`). If such a plane
@@ -428,7 +429,7 @@ def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
     explained = solution.explained_lights
     if len(explained) != 1:
         return ""
-    dark = _dark_lamps(np.stack([a.on_object for a in solution.assignments]),
+    dark = dark_lamps(np.stack([a.on_object for a in solution.assignments]),
                        np.stack([a.missing for a in solution.assignments]), srde.min_views)
     if not dark:
         return ""
@@ -439,7 +440,7 @@ def _dark_lamp_doubt(srde: SRDE, mask: np.ndarray, gathered: ViewCandidates,
         score = context.score(plane, at_least=0)
         if score.explained_lights.tolist() != [k] or score.support < support:
             continue
-        other_dark = _dark_lamps(score.on_object, score.missing, srde.min_views)
+        other_dark = dark_lamps(score.on_object, score.missing, srde.min_views)
         if len(other_dark) > len(dark):
             continue
         gap_px = context.plane_gap_px(plane, solution.plane)

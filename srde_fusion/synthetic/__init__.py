@@ -34,6 +34,7 @@ from .scene import (
     PlanarObject,
     Rendering,
     Scene,
+    relit,
     rig_lights,
 )
 from .shading import (
@@ -61,6 +62,7 @@ __all__ = [
     "random_scene",
     "render",
     "highlights_on_objects",
+    "relit",
     "rig_lights",
     "Physics",
     "Material",

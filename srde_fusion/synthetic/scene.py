@@ -8,7 +8,7 @@ got Y" messages; the renderer and the sampler take these types as they are.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -546,6 +546,15 @@ class Rendering:
     def object_masks(self) -> list[np.ndarray]:
         """One ``(H, W)`` bool mask per object, in scene order."""
         return [self.instance_mask == k for k in range(1, len(self.planes) + 1)]
+
+
+def relit(scene: Scene, by: Scene) -> Scene:
+    """Return ``scene``'s objects under ``by``'s lamps and camera exposure.
+
+    A sorting line keeps its lamps and exposure while objects pass: frames of one line
+    are objects of many scenes, each relit by the same one.
+    """
+    return replace(scene, light=None, lights=by.lights, exposure=by.exposure)
 
 
 def rig_lights(scene: Scene, *, radii: bool = False) -> tuple[RigLight, ...]:

@@ -14,6 +14,7 @@ from srde_fusion.synthetic import (
     RandomSceneConfig,
     Scene,
     random_scene,
+    relit,
     render,
     scene_from_dict,
     scene_to_dict,
@@ -709,3 +710,13 @@ def test_a_replacing_render_that_fails_leaves_the_old_dataset_whole(tmp_path, mo
     after = {p.relative_to(tmp_path): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     assert after == before  # no new scene swapped in, no staging folder left
     assert all(".render-" in str(folder) for folder in calls)  # rendered aside, not in place
+
+
+def test_relit_puts_one_scenes_objects_under_anothers_lamps(rig):
+    # A line's lamps and exposure stay while objects pass.
+    line = random_scene(12300, rig, config=RandomSceneConfig(n_lights=3))
+    item = random_scene(20004, rig)
+    scene = relit(item, line)
+    assert scene.objects == item.objects and scene.background == item.background
+    assert scene.lights == line.lights and scene.light == line.lights[0]
+    assert scene.exposure == line.exposure != item.exposure
