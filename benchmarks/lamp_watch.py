@@ -81,7 +81,11 @@ def metered(scene, rig):
 
 
 def frames_of_line(rig, line, n_frames: int):
-    """Yield ``(seed, scene)``: objects relit by ``line`` that a lamp lit puts a highlight on."""
+    """Yield ``(seed, scene, on_object)``: objects relit by ``line`` that a lamp lit reaches.
+
+    ``on_object`` ``(k, views)`` bool: where each lamp puts its highlight on the object
+    (the exposure the meter sets does not move it).
+    """
     seed = OBJECT_SEED0
     found = 0
     while found < n_frames:
@@ -89,7 +93,7 @@ def frames_of_line(rig, line, n_frames: int):
         on_object = highlights_on_objects(scene, rig)[:, 0]  # (k, views)
         if on_object[:-1].sum(axis=1).max() >= MIN_VIEWS:
             found += 1
-            yield seed, metered(scene, rig)
+            yield seed, metered(scene, rig), on_object
         seed += 1
 
 
@@ -99,9 +103,8 @@ def run_line(rig, k: int, n_frames: int, physics: Physics) -> tuple[list[dict], 
     srde = SRDE(listed)
     tallies = {"all_lit": LampTally.for_rig(listed), "last_off": LampTally.for_rig(listed)}
     records = []
-    for seed, scene in frames_of_line(rig, line, n_frames):
-        record = {"k": k, "seed": seed,
-                  "dark_on_object_views": int(highlights_on_objects(scene, rig)[-1, 0].sum())}
+    for seed, scene, on_object in frames_of_line(rig, line, n_frames):
+        record = {"k": k, "seed": seed, "dark_on_object_views": int(on_object[-1].sum())}
         for stream, lamps in (("all_lit", scene.lights), ("last_off", scene.lights[:-1])):
             rendering = render(replace(scene, light=None, lights=lamps), rig, physics=physics,
                                supersample=2)
