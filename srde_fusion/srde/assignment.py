@@ -265,7 +265,8 @@ class _Score:
 def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
                   candidates_uv, *, tolerance_px: float = 2.0, min_views: int = 2,
                   object_depth_m: tuple[float, float] = (0.2, 10.0),
-                  lit=None, blob_radius_px: float = 0.0, blob_boxes=None) -> LightsSolution:
+                  lit=None, blob_radius_px: float = 0.0, blob_boxes=None,
+                  near_outline: bool = False) -> LightsSolution:
     """Match highlight candidates to known lights and fit the plane they share.
 
     Parameters
@@ -305,6 +306,10 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
         holds another light's unexplained on-object prediction (inside its box and
         ``lit`` there) is a blend of both: its centre belongs to neither, so it explains
         no light (and the other light's highlight is not missing).
+    near_outline : bool
+        Predictions within a blob radius of the outline take candidates too (else a cut
+        blob's pulled centre could count for a wrong plane): for an object whose
+        reference view holds no candidate, whose highlights reach it only there.
 
     Returns
     -------
@@ -316,15 +321,24 @@ def assign_lights(rig: CameraRig, lights_m, mask: np.ndarray,
     boxes = None if blob_boxes is None else [
         np.asarray(b, dtype=np.float64).reshape(-1, 4) for b in blob_boxes]
     context = _Context(rig, lights, mask, cands, lit, tolerance_px, object_depth_m, min_views,
-                       blob_radius_px, boxes)
+                       blob_radius_px, boxes, near_outline=near_outline)
+    # The reference view's candidates anchor the proposals; when it holds none (the
+    # object turns every light's highlight away from it), every view that holds some
+    # does: a highlight seen in min_views views fixes the plane from any of them.
+    anchors = None
     if len(cands[ref]) == 0:
-        return _no_plane("no_highlight", "reference view: no highlight candidate on the "
-                         "object", cands)
-    scores = [s for s in (context.score(p) for p in context.proposals()) if s is not None]
+        anchors = tuple(j for j, c in enumerate(cands) if len(c))
+        if len(anchors) < min_views:
+            return _no_plane("no_highlight", "reference view: no highlight candidate on "
+                             f"the object, and {len(anchors)} other view(s) hold one "
+                             f"(min_views {min_views})", cands)
+    scores = [s for s in (context.score(p) for p in context.proposals(anchors=anchors))
+              if s is not None]
     if not scores and blob_boxes is not None:
         # No depth that two views agree on: merged or cut blobs, whose centres wander.
         # Planes from single pairings may still explain them as merged blobs.
-        scores = [s for s in (context.score(p) for p in context.proposals(loose=True))
+        scores = [s for s in (context.score(p) for p in context.proposals(loose=True,
+                                                                        anchors=anchors))
                   if s is not None]
     if not scores:
         counted = f"{sum(len(c) for c in cands)} candidates in {len(cands)} views"

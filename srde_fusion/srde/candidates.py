@@ -73,8 +73,8 @@ SEPARATING_DIP = 0.2
 
 def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfig, *,
                     max_candidates: int = MAX_CANDIDATES, object_region: bool = False,
-                    region_bbox: tuple[int, int, int, int] | None = None
-                    ) -> list[HighlightDetection]:
+                    region_bbox: tuple[int, int, int, int] | None = None,
+                    min_background: float = 0.0) -> list[HighlightDetection]:
     """Every highlight in a view's search region, brightest first.
 
     Two highlights of different lights can lie close enough to merge above one
@@ -103,6 +103,9 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
     region_bbox : (int, int, int, int), optional
         ``region``'s bounding box ``(u0, v0, u1, v1)``, inclusive-exclusive, if known;
         found from ``region`` otherwise (as :func:`~.highlight.detect_in_view`).
+    min_background : float
+        The background level is at least this, linear luminance: a band that is mostly
+        dark background would otherwise make the object's own body a highlight.
 
     Returns
     -------
@@ -125,6 +128,7 @@ def find_candidates(image: np.ndarray, region: np.ndarray, config: DetectorConfi
         background = region_background(lum[inside], float(lum[inside].max()), config.min_contrast)
     else:
         background = median(lum[inside], overwrite=True)
+    background = max(float(background), min_background)
     # Peaks are looked for where something is bright: no peak (smoothed luminance above
     # background + min_contrast) lies farther than the blur's reach from a pixel above
     # that level, so twice the reach plus the peak radius around those pixels gives the
@@ -369,12 +373,17 @@ class ViewCandidates:
         each point's own.
     blob_radius_px : float
         Median half-maximum radius of the candidates, pixels.
+    anchor_free : bool
+        The reference view holds no candidate (``gather_candidates(anchor_free=True)``):
+        the object's highlights are seen only where they reach it from other views,
+        near its outline, and every score lets predictions there take candidates.
     """
 
     found: list
     centers_uv: list
     lit: Any
     blob_radius_px: float
+    anchor_free: bool = False
 
     @property
     def boxes(self) -> list[np.ndarray]:
@@ -390,6 +399,8 @@ class ViewCandidates:
 
         With ``srde``'s lights and tolerances; ``options`` go to the context.
         """
+        if self.anchor_free:
+            options["near_outline"] = True
         return AssignmentContext(srde.rig, srde.lights_m, mask, self.centers_uv, self.lit,
                         2.0 * srde.max_residual_px, srde.object_depth_m, srde.min_views,
                         self.blob_radius_px, self.boxes, **options)
@@ -421,23 +432,40 @@ class ViewCandidates:
         return ViewCandidates(found, _centers(found), self.lit, self.blob_radius_px)
 
 
-def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates | None:
+def gather_candidates(srde: SRDE, views, search: np.ndarray, *, anchor_free: bool = False
+                      ) -> ViewCandidates | None:
     """Candidates in the reference search region and in every other view's band.
 
     The band is where a highlight of the object can appear for any light (the search
     region's box swept along the baseline over the virtual-light depths of every
-    reference candidate and light). None when the reference region holds no candidate.
+    reference candidate and light). None when the reference region holds no candidate,
+    unless ``anchor_free``: then the band spans the depths of a virtual light seen
+    anywhere in the region's box, and None only when fewer than ``srde.min_views`` views
+    hold a candidate.
     """
     rig, config = srde.rig, srde.config
     ref = rig.reference
     ref_found = find_candidates(views[ref], search, config, object_region=True)
-    if not ref_found:
-        return None
-    # Inverse depths of a virtual light seen at any reference candidate, for any light.
-    w_range = [BaselineSearch(rig, light, srde.object_depth_m).inverse_depth_range(d.center_uv)
-               for light in srde.lights_m for d in ref_found]
-    w_lo, w_hi = min(w[0] for w in w_range), max(w[1] for w in w_range)
     box = search_box(search, 0)
+    if ref_found:
+        # Inverse depths of a virtual light seen at any reference candidate, any light.
+        w_range = [BaselineSearch(rig, light, srde.object_depth_m).inverse_depth_range(
+            d.center_uv) for light in srde.lights_m for d in ref_found]
+        w_lo, w_hi = min(w[0] for w in w_range), max(w[1] for w in w_range)
+    elif anchor_free and box is not None:
+        # No reference highlight to sweep from: a highlight lies on the object in every
+        # view that sees one, so the band is the region's box over the object's depths.
+        # That band holds the object's whole body and much dark background, so the
+        # body's level in the reference view is the least background a highlight stands
+        # out from.
+        near_m, far_m = srde.object_depth_m
+        w_lo, w_hi = 1.0 / far_m, 1.0 / near_m
+        u0, v0, u1, v1 = box
+        body = luminance(views[ref][v0:v1, u0:u1], config.encoding)[
+            np.asarray(search[v0:v1, u0:u1], dtype=bool)]
+        min_background = float(np.median(body))
+    else:
+        return None
     found: list[list[HighlightDetection]] = []
     for j in range(rig.n_cameras):
         if j == ref:
@@ -445,7 +473,10 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
         else:
             band, band_bbox = candidate_band(rig, j, box, (w_lo, w_hi))
             found.append([] if band_bbox is None else
-                         find_candidates(views[j], band, config, region_bbox=band_bbox))
+                         find_candidates(views[j], band, config, region_bbox=band_bbox,
+                                         min_background=0.0 if ref_found else min_background))
+    if not ref_found and sum(bool(dets) for dets in found) < srde.min_views:
+        return None
     cands = _centers(found)
     # The half-maximum level of each view's dimmest candidate.
     level_of_view = np.array([min((d.level for d in dets), default=math.inf) for dets in found])
@@ -473,4 +504,4 @@ def gather_candidates(srde: SRDE, views, search: np.ndarray) -> ViewCandidates |
 
     blob_radius_px = float(np.median([math.sqrt(d.area_px / math.pi) for dets in found
                                       for d in dets]))
-    return ViewCandidates(found, cands, lit, blob_radius_px)
+    return ViewCandidates(found, cands, lit, blob_radius_px, anchor_free=not ref_found)

@@ -382,6 +382,14 @@ class SRDE:
             ref_det = self.backend.detect(views, [DetectionRequest(ref, search, None,
                                                                    search_bbox)])[0]
         if not ref_det:
+            if self.method == "default" and isinstance(self.backend, NumpyBackend):
+                # An object may turn the highlight away from the reference camera alone:
+                # the views that see it give the plane, anchored in them as several
+                # lights' highlights are (one light is a list of one). Only a plane
+                # replaces this refusal.
+                anchored = estimate_with_lights(self, views, mask, search)
+                if anchored.ok:
+                    return anchored
             return self._failed("no_highlight", f"{self._view(ref)}: {ref_det.reason}",
                                 detections=(ref_det,))
         detections = self._detect_others(views, ref_det, search, search_bbox)

@@ -131,8 +131,10 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
                           gathered: ViewCandidates | None) -> SRDEResult:
     rig = srde.rig
     ref = rig.reference
-    if gathered is None:  # (none found by the caller finds none here either, cheaply)
-        gathered = gather_candidates(srde, views, search)
+    if gathered is None:
+        # None found by the caller means the reference view holds no candidate: the
+        # other views' may still give the plane.
+        gathered = gather_candidates(srde, views, search, anchor_free=True)
     if gathered is None:
         reason = detect_in_view(views[ref], search, srde.config).reason
         return srde._failed("no_highlight", f"{srde._view(ref)}: {reason}")
@@ -142,7 +144,7 @@ def _estimate_with_lights(srde: SRDE, views, mask: np.ndarray, search: np.ndarra
     solution = assign_lights(rig, srde.lights_m, mask, cands, tolerance_px=tolerance_px,
                              min_views=srde.min_views, object_depth_m=srde.object_depth_m,
                              lit=lit, blob_boxes=[[d.bbox for d in dets] for dets in found],
-                             blob_radius_px=blob_radius_px)
+                             blob_radius_px=blob_radius_px, near_outline=gathered.anchor_free)
     if not solution.ok:
         failed = dataclasses.replace(srde._failed(solution.status, solution.reason),
                                      lights=solution)

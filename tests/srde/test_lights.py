@@ -180,11 +180,24 @@ def test_only_merged_blobs_are_no_measurement(grid):
     assert "merged" in solution.reason
 
 
-def test_no_reference_candidate(grid):
-    cands = projected(grid, PLANE, LIGHTS)
+def test_without_a_reference_candidate_the_other_views_anchor_the_planes(grid):
+    # An object that turns every highlight away from the reference camera: the views
+    # that see them give the plane.
+    cands = projected(grid, PLANE, LIGHTS, noise_px=0.05)
     cands[grid.reference] = np.zeros((0, 2))
     solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands)
+    assert solution.ok, solution.reason
+    assert all(np.isnan(a.centers_uv[grid.reference]).all() for a in solution.assignments)
+    gap = plane_disparity(solution.plane, grid) - plane_disparity(PLANE, grid)
+    assert np.nanmax(np.abs(gap)) < 0.05
+
+
+def test_no_reference_candidate_and_one_other_view_is_no_highlight(grid):
+    cands = [np.zeros((0, 2))] * grid.n_cameras
+    cands[0] = projected(grid, PLANE, LIGHTS)[0]
+    solution = assign_lights(grid, LIGHTS, np.ones((H, W), bool), cands)
     assert solution.status == "no_highlight" and solution.plane is None
+    assert "1 other view(s) hold one (min_views 2)" in solution.reason
 
 
 def blobs_image(centers, sigma_px, peak, size=(120, 160)):
