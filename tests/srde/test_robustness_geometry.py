@@ -119,6 +119,17 @@ def test_highlight_only_in_views_the_reference_does_not_see(rig, centers):
     others[4] = np.nan
     views = highlight_views(others)
     result = SRDE(rig).estimate(views, MASK)
+    # The eight other views fix the virtual light; the reference adds nothing.
+    assert_accurate(result, rig)
+    assert not result.used_views[4] and result.used_views.sum() >= 2
+    assert_fused_as(result, views, rig)
+
+
+def test_highlight_in_one_view_besides_a_dark_reference(rig, centers):
+    one = np.full_like(centers, np.nan)
+    one[0] = centers[0]
+    views = highlight_views(one)
+    result = SRDE(rig).estimate(views, MASK)
     assert result.status == "no_highlight"
     assert result.reason.startswith("view 4 (cam4, reference): no bright blob")
     assert_fused_as(result, views, rig)
